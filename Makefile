@@ -1,0 +1,38 @@
+# Two commands do all set-up on a fresh machine: `make demo` and `make test`.
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+DURATION ?= 60
+ARGS ?=
+
+.PHONY: install sysdeps demo test bench experiment clean
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e '.[dev]'
+	touch $(STAMP)
+
+install: $(STAMP)
+
+# nftables, iproute2 and ethtool build the lossy-link namespaces; only root can install or use them.
+sysdeps:
+	@if [ "$$(id -u)" = 0 ] && ! (command -v nft && command -v ip && command -v ethtool) >/dev/null 2>&1; then \
+		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq nftables iproute2 ethtool >/dev/null; \
+	fi
+
+demo: install
+	$(BIN)/zenoh-robot demo --duration $(DURATION) $(ARGS)
+
+test: install sysdeps
+	$(BIN)/python -m pytest $(ARGS)
+
+bench: install
+	$(BIN)/zenoh-robot bench $(ARGS)
+
+experiment: install sysdeps
+	$(BIN)/zenoh-robot experiment $(ARGS)
+
+clean:
+	rm -rf $(VENV) build *.egg-info .pytest_cache

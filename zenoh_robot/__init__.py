@@ -1,0 +1,22 @@
+"""zenoh-robot: ROS 2-style nodes, typed messages and QoS over Zenoh."""
+from __future__ import annotations
+
+from . import msgs, qos
+from .executor import Executor, MultiThreadedExecutor, Timer
+from .message import Message, array, message, ros_field
+from .msg_loader import load_msg
+from .names import InvalidNameError
+from .node import Node
+from .publisher import Publisher
+from .qos import (Durability, DurabilityPolicy, History, HistoryPolicy, Liveliness, LivelinessPolicy,
+                  Priority, QoSError, QoSProfile, Reliability, ReliabilityPolicy)
+from .session_config import SessionConfig, SessionConfigError
+from .subscription import MessageInfo, Subscription
+
+__version__ = "0.1.0"
+__all__ = [
+    "Node", "Publisher", "Subscription", "MessageInfo", "Timer", "Executor", "MultiThreadedExecutor",
+    "Message", "message", "array", "ros_field", "load_msg", "qos", "QoSProfile", "QoSError",
+    "Reliability", "ReliabilityPolicy", "Durability", "DurabilityPolicy", "History", "HistoryPolicy",
+    "Liveliness", "LivelinessPolicy", "Priority", "SessionConfig", "SessionConfigError", "InvalidNameError",
+]

@@ -1,0 +1,1 @@
+"""The ``zenoh-robot`` command line."""

@@ -1,0 +1,54 @@
+"""``zenoh-robot`` entry point: each subcommand lives in its own module with ``register(sub)``.
+
+A module registers a parser and sets ``func(args) -> int``. Modules are imported
+lazily by name so one broken or optional subcommand never breaks the others.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+
+SUBCOMMANDS = ["topic", "stats", "param", "service", "launch", "sim", "companion", "gcs",
+               "bench", "experiment", "demo"]
+
+
+class CliError(Exception):
+    """An error to print as one line, exiting non-zero."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="zenoh-robot", description=__doc__.splitlines()[0])
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in SUBCOMMANDS:
+        try:
+            module = importlib.import_module(f"zenoh_robot.cli.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name == f"zenoh_robot.cli.{name}":
+                continue
+            raise
+        module.register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except CliError as exc:
+        print(f"zenoh-robot {args.command}: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

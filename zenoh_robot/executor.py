@@ -1,0 +1,183 @@
+"""Executors: run callbacks on the node's own thread(s), never on Zenoh's.
+
+Zenoh callbacks only enqueue (a subscription schedules itself at most once until it
+has been drained), so the ready queue is bounded by the number of entities plus a
+bounded number of events; the work itself is queued in each entity's bounded queue.
+"""
+from __future__ import annotations
+
+import heapq
+import itertools
+import logging
+import queue
+import threading
+import time
+from typing import Callable
+
+log = logging.getLogger("zenoh_robot.executor")
+
+Work = Callable[[], None]
+
+
+class Timer:
+    """A periodic callback run by the executor (``Node.create_timer``)."""
+
+    def __init__(self, period_s: float, callback: Callable[[], None], executor: "Executor") -> None:
+        if not period_s > 0:
+            raise ValueError(f"timer period must be > 0 seconds, got {period_s!r}")
+        self.period = float(period_s)
+        self.callback = callback
+        self._executor = executor
+        self._canceled = False
+        self.next_call = time.monotonic() + self.period
+
+    def cancel(self) -> None:
+        self._canceled = True
+
+    def reset(self) -> None:
+        self._canceled = False
+        self.next_call = time.monotonic() + self.period
+        self._executor.add_timer(self)
+
+    @property
+    def is_canceled(self) -> bool:
+        return self._canceled
+
+    def time_until_next_call(self) -> float:
+        return max(0.0, self.next_call - time.monotonic())
+
+
+class Executor:
+    """Single-threaded: callbacks never run concurrently (rclpy's SingleThreadedExecutor)."""
+
+    MAX_PENDING_CALLS = 10_000
+
+    def __init__(self) -> None:
+        self._ready: queue.SimpleQueue[Work | None] = queue.SimpleQueue()
+        self._timers: list[tuple[float, int, Timer]] = []
+        self._timer_lock = threading.Lock()
+        self._counter = itertools.count()
+        self._shutdown = threading.Event()
+        self._pending_calls = 0
+        self._pending_lock = threading.Lock()
+        self.dropped_calls = 0
+        self.errors = 0
+
+    # -- scheduling (any thread) -------------------------------------------------
+    def submit(self, work: Work) -> None:
+        """Queue an entity's drain function; callers guarantee at most one per entity."""
+        self._ready.put(work)
+
+    def call_soon(self, fn: Work) -> bool:
+        """Queue a one-off call (events, replies); bounded: returns False and counts when full."""
+        with self._pending_lock:
+            if self._pending_calls >= self.MAX_PENDING_CALLS:
+                self.dropped_calls += 1
+                return False
+            self._pending_calls += 1
+
+        def run() -> None:
+            with self._pending_lock:
+                self._pending_calls -= 1
+            fn()
+        self._ready.put(run)
+        return True
+
+    def add_timer(self, timer: Timer) -> None:
+        with self._timer_lock:
+            heapq.heappush(self._timers, (timer.next_call, next(self._counter), timer))
+        self._ready.put(None)  # wake a waiting spin so it recomputes its timeout
+
+    def shutdown(self) -> None:
+        self._shutdown.set()
+        self._ready.put(None)
+
+    @property
+    def is_shutdown(self) -> bool:
+        return self._shutdown.is_set()
+
+    # -- running -----------------------------------------------------------------
+    def _due_timer(self) -> tuple[Timer | None, float]:
+        """Pop a due timer, or return (None, seconds until the next one)."""
+        with self._timer_lock:
+            while self._timers:
+                when, _, timer = self._timers[0]
+                if timer.is_canceled or when != timer.next_call:
+                    heapq.heappop(self._timers)
+                    continue
+                now = time.monotonic()
+                if when > now:
+                    return None, when - now
+                heapq.heappop(self._timers)
+                # Keep the phase; if we fell far behind, skip missed ticks rather than burst.
+                timer.next_call = max(when + timer.period, now)
+                heapq.heappush(self._timers, (timer.next_call, next(self._counter), timer))
+                return timer, 0.0
+        return None, float("inf")
+
+    def _run(self, fn: Callable[[], None], what: str) -> None:
+        try:
+            fn()
+        except Exception:
+            self.errors += 1
+            log.exception("%s raised; the node keeps running", what)
+
+    def spin_once(self, timeout: float | None = None) -> bool:
+        """Run one piece of ready work (a timer or an entity's queue); False if none came."""
+        timer, wait = self._due_timer()
+        if timer is not None:
+            self._run(timer.callback, f"timer callback {timer.callback!r}")
+            return True
+        if timeout is not None:
+            wait = min(wait, timeout)
+        try:
+            work = self._ready.get(timeout=None if wait == float("inf") else max(wait, 0.0))
+        except queue.Empty:
+            return self._fire_due_timer()
+        if work is None:
+            return self._fire_due_timer()
+        self._run(work, "callback")
+        return True
+
+    def _fire_due_timer(self) -> bool:
+        timer, _ = self._due_timer()
+        if timer is None:
+            return False
+        self._run(timer.callback, f"timer callback {timer.callback!r}")
+        return True
+
+    def spin(self, until: Callable[[], bool] | None = None, timeout: float | None = None) -> None:
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while not self._shutdown.is_set():
+            if until is not None and until():
+                return
+            remaining = None
+            if deadline is not None:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    return
+            # Wake at least every 100 ms so shutdown and `until` are seen promptly.
+            self.spin_once(min(remaining, 0.1) if remaining is not None else 0.1)
+
+
+class MultiThreadedExecutor(Executor):
+    """Runs ready work on ``num_threads`` threads; one entity's samples stay in order."""
+
+    def __init__(self, num_threads: int = 4) -> None:
+        super().__init__()
+        if num_threads < 1:
+            raise ValueError("num_threads must be >= 1")
+        self.num_threads = num_threads
+
+    def spin(self, until: Callable[[], bool] | None = None, timeout: float | None = None) -> None:
+        workers = [threading.Thread(target=super().spin, args=(until, timeout), daemon=True,
+                                    name=f"zr-executor-{i}") for i in range(self.num_threads - 1)]
+        for w in workers:
+            w.start()
+        try:
+            super().spin(until, timeout)
+        finally:
+            if until is None and timeout is None:
+                self.shutdown()
+            for w in workers:
+                w.join(timeout=1.0)

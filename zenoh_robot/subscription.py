@@ -1,0 +1,188 @@
+"""Subscription: Zenoh samples -> bounded queue -> executor -> typed callback.
+
+Zenoh's callback thread does as little as possible (copy the bytes, stamp the
+arrival, append to a bounded deque). Decoding, checks and the user callback run
+on the node's executor. KEEP_LAST(n) holds at most n unprocessed samples: the
+oldest is dropped and counted when a new one arrives.
+"""
+from __future__ import annotations
+
+import inspect
+import logging
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Callable, Generic, TypeVar
+
+from . import envelope
+from .message import Message
+from .qos import QoSProfile
+
+if TYPE_CHECKING:
+    from .node import Node
+
+M = TypeVar("M", bound=Message)
+DRAIN_BATCH = 64  # samples per executor turn, so one busy topic cannot starve the others
+
+
+@dataclass(slots=True)
+class MessageInfo:
+    """Per-sample metadata from the envelope (passed to 2-argument callbacks)."""
+    publisher_id: int
+    seq: int
+    source_stamp_ns: int
+    received_stamp_ns: int
+    type_name: str
+
+    @property
+    def age_ms(self) -> float:
+        return (self.received_stamp_ns - self.source_stamp_ns) / 1e6
+
+
+@dataclass
+class SubscriptionCounters:
+    received: int = 0          # samples that reached this process
+    delivered: int = 0         # callbacks run
+    dropped: int = 0           # queue overflow (KEEP_LAST / KEEP_ALL bound)
+    malformed: int = 0         # bytes that are no envelope, or a body that does not decode
+    type_mismatch: int = 0     # envelope of another type
+    lost: int = 0              # gaps in a publisher's sequence numbers
+    expired: int = 0           # older than the lifespan when delivered
+    callback_errors: int = 0
+    per_publisher_seq: dict[int, int] = field(default_factory=dict)
+
+
+class Subscription(Generic[M]):
+    def __init__(self, node: "Node", msg_type: type[M], topic: str, key: str,
+                 callback: Callable[..., Any], qos: QoSProfile, event_callbacks: Any = None,
+                 raw: bool = False) -> None:
+        if not (isinstance(msg_type, type) and issubclass(msg_type, Message)):
+            raise TypeError(f"create_subscription: {msg_type!r} is not a message type")
+        if not callable(callback):
+            raise TypeError("create_subscription: callback is not callable")
+        self.node = node
+        self.msg_type = msg_type
+        self.topic = topic
+        self.key = key
+        self.qos = qos
+        self.callback = callback
+        self.event_callbacks = event_callbacks
+        self.counters = SubscriptionCounters()
+        self.log = node.get_logger().getChild(topic.replace("/", "."))
+        self._with_info = _takes_two_args(callback)
+        self._queue: deque[tuple[bytes, int]] = deque()
+        self._limit = qos.queue_limit
+        self._lock = threading.Lock()
+        self._scheduled = False
+        self._mismatch_reported: set[int] = set()
+        self._malformed_logged_at = 0.0
+        self._hash = msg_type._type_hash
+        self._from_wire = msg_type._from_wire
+        self._executor = node.executor
+        self._lifespan_ns = int(qos.lifespan * 1e9) if qos.lifespan else None
+        self.sample_hooks: list[Callable[[M, MessageInfo], None]] = []
+        self._zsub = node.session.declare_subscriber(key, self._on_sample)
+
+    # -- Zenoh thread --------------------------------------------------------------
+    def _on_sample(self, sample: Any) -> None:
+        data = sample.payload.to_bytes()
+        now = time.time_ns()
+        with self._lock:
+            self.counters.received += 1
+            if len(self._queue) >= self._limit:
+                self._queue.popleft()
+                self.counters.dropped += 1
+            self._queue.append((data, now))
+            if self._scheduled:
+                return
+            self._scheduled = True
+        self._executor.submit(self._drain)
+
+    # -- executor ------------------------------------------------------------------
+    def _drain(self) -> None:
+        for _ in range(DRAIN_BATCH):
+            with self._lock:
+                if not self._queue:
+                    self._scheduled = False
+                    return
+                data, received = self._queue.popleft()
+            self._handle(data, received)
+        self._executor.submit(self._drain)  # still scheduled: give other entities a turn
+
+    def _handle(self, data: bytes, received_ns: int) -> None:
+        try:
+            env = envelope.unpack(data)
+        except envelope.MalformedSample as exc:
+            self._malformed(f"{exc} ({len(data)} bytes)")
+            return
+        if env.type_hash != self._hash:
+            self.counters.type_mismatch += 1
+            if env.publisher_id not in self._mismatch_reported:
+                self._mismatch_reported.add(env.publisher_id)
+                self.log.error("type mismatch on %r: publisher %x sends %s (hash %s), this subscription expects "
+                               "%s (hash %s); its samples are dropped", self.topic, env.publisher_id,
+                               env.type_name, env.type_hash, self.msg_type._type_name, self._hash)
+            return
+        try:
+            msg = self._from_wire(env.body)
+        except (TypeError, ValueError) as exc:
+            self._malformed(f"body does not decode as {self.msg_type._type_name}: {exc}")
+            return
+        self._track_sequence(env.publisher_id, env.seq)
+        if self._lifespan_ns is not None and received_ns - env.stamp_ns > self._lifespan_ns:
+            self.counters.expired += 1
+            return
+        info = MessageInfo(env.publisher_id, env.seq, env.stamp_ns, received_ns, env.type_name)
+        for hook in self.sample_hooks:
+            hook(msg, info)
+        self.deliver(msg, info)
+
+    def deliver(self, msg: M, info: MessageInfo) -> None:
+        try:
+            if self._with_info:
+                self.callback(msg, info)
+            else:
+                self.callback(msg)
+            self.counters.delivered += 1
+        except Exception:
+            self.counters.callback_errors += 1
+            self.log.exception("callback for topic %r raised (error %d); the node keeps running",
+                               self.topic, self.counters.callback_errors)
+
+    def _track_sequence(self, pub_id: int, seq: int) -> int:
+        last = self.counters.per_publisher_seq.get(pub_id)
+        self.counters.per_publisher_seq[pub_id] = seq if last is None else max(last, seq)
+        if last is not None and seq > last + 1:
+            gap = seq - last - 1
+            self.counters.lost += gap
+            return gap
+        return 0
+
+    def _malformed(self, why: str) -> None:
+        self.counters.malformed += 1
+        now = time.monotonic()
+        if now - self._malformed_logged_at > 1.0:  # a flood of garbage must not flood the log
+            self._malformed_logged_at = now
+            self.log.warning("malformed sample on %r dropped: %s (%d so far)", self.topic, why,
+                             self.counters.malformed)
+
+    @property
+    def pending(self) -> int:
+        with self._lock:
+            return len(self._queue)
+
+    def destroy(self) -> None:
+        try:
+            self._zsub.undeclare()
+        except Exception:
+            pass
+
+
+def _takes_two_args(fn: Callable[..., Any]) -> bool:
+    try:
+        params = [p for p in inspect.signature(fn).parameters.values()
+                  if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD) and p.default is p.empty]
+    except (TypeError, ValueError):
+        return False
+    return len(params) >= 2
