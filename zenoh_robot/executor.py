@@ -170,12 +170,13 @@ class MultiThreadedExecutor(Executor):
         self.num_threads = num_threads
 
     def spin(self, until: Callable[[], bool] | None = None, timeout: float | None = None) -> None:
-        workers = [threading.Thread(target=super().spin, args=(until, timeout), daemon=True,
+        base_spin = super().spin   # super() needs the method's frame: resolve it here, not in a comprehension
+        workers = [threading.Thread(target=base_spin, args=(until, timeout), daemon=True,
                                     name=f"zr-executor-{i}") for i in range(self.num_threads - 1)]
         for w in workers:
             w.start()
         try:
-            super().spin(until, timeout)
+            base_spin(until, timeout)
         finally:
             if until is None and timeout is None:
                 self.shutdown()

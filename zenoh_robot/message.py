@@ -221,7 +221,7 @@ def _build_codec(cls: type) -> tuple[Callable[[Any], Any], Callable[[Any], Any]]
     n_fields = len(specs)
 
     def from_wire(values: Any) -> Any:
-        if type(values) is not list or len(values) != n_fields:
+        if type(values) not in (list, tuple) or len(values) != n_fields:
             raise ValueError(f"{type_name}: expected {n_fields} field values")
         if nested:
             values = list(values)

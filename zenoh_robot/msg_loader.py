@@ -87,7 +87,10 @@ def load_msg(source: str | Path, name: str | None = None, package: str = "msg") 
         if m["eq"]:
             if arr is not None or not isinstance(base, str):
                 raise MsgParseError(f"{where}: constants must be primitive scalars")
-            constants[fname] = PRIMITIVES[base](_literal(m["const"], where))
+            try:
+                constants[fname] = PRIMITIVES[base](_literal(m["const"], where))
+            except (TypeError, ValueError):
+                raise MsgParseError(f"{where}: constant {m['const']!r} is not a valid {base}") from None
             continue
         if fname in namespace["__annotations__"]:
             raise MsgParseError(f"{where}: duplicate field {fname!r}")
@@ -109,7 +112,10 @@ def _field(base: str | type, arr: int | None, ros: str, default_text: str | None
         if isinstance(base, type):
             return field(default_factory=base, metadata=meta)
         py = PRIMITIVES[base]
-        value = py(default) if default is not None else {bool: False, int: 0, float: 0.0, str: ""}[py]
+        try:
+            value = py(default) if default is not None else {bool: False, int: 0, float: 0.0, str: ""}[py]
+        except (TypeError, ValueError):
+            raise MsgParseError(f"{where}: default {default_text!r} is not a valid {base}") from None
         return field(default=value, metadata=meta)
     if isinstance(base, str) and base in ("uint8", "byte", "char"):
         init = bytes(default) if default is not None else bytes(max(arr, 0))

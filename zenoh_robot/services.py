@@ -1,7 +1,461 @@
-"""Services over Zenoh queryables (filled in by the services/parameters work)."""
+"""Services over Zenoh queryables: typed request/response, with clear errors.
+
+Key format: a service ``arm`` in namespace ``uav1`` is served on the Zenoh key
+``@srv/uav1/arm`` (the name resolves like a topic, ``~/x`` and ``/x`` included,
+then takes the ``@srv`` prefix). ``@srv`` is a Zenoh *verbatim* chunk: ``*`` and
+``**`` never match it, so a topic subscriber on ``uav1/**`` or ``**`` never sees
+service traffic and a service can share its name with a topic. ``@srv/**`` does
+match every service (``zenoh-robot service list`` uses it).
+
+Wire: the request is an envelope (envelope.py) of the request type whose
+``extra`` names the response type the client expects (``rt``/``rh``); the reply
+is an envelope of the response type. Failures are ``reply_err`` with the msgpack
+array ``["zr-err", kind, text]`` (kind: ``handler``, ``type``, ``bad_request``,
+``busy``), so the client tells them apart from Zenoh's own ``Timeout`` error.
+A query with the selector parameter ``zr_describe`` gets the service's name and
+types instead of a call. A request whose ``extra`` holds ``form: dict`` carries
+the body as a mapping and gets the response as a mapping (the CLI uses it to call
+services whose Python types it does not have).
+
+Threads: the queryable callback runs on Zenoh's thread and only hands the query
+to the node's executor; the handler runs and replies there, then the query is
+dropped so the querier sees it finalised at once.
+"""
 from __future__ import annotations
+
+import itertools
+import logging
+import secrets
+import threading
+import time
+from concurrent.futures import Future
+from concurrent.futures import TimeoutError as FutureTimeout
+from typing import TYPE_CHECKING, Any, Callable, Generic, TypeVar
+
+import msgpack
+import zenoh
+
+from . import envelope, names
+from .message import Message
+
+if TYPE_CHECKING:
+    from .node import Node
+
+Req = TypeVar("Req", bound=Message)
+Resp = TypeVar("Resp", bound=Message)
+
+SERVICE_PREFIX = "@srv"
+DESCRIBE_PARAM = "zr_describe"
+_ERR_MAGIC = "zr-err"
+# A fresh session needs a moment to learn the network's queryables; a call made
+# this soon after the node started waits that long for a server before giving up.
+DISCOVERY_GRACE_S = 1.5
+# After the grace, a call without a known server still waits this long for one.
+MATCH_WAIT_S = 0.2
+
+log = logging.getLogger("zenoh_robot.services")
+
+
+class ServiceCallError(Exception):
+    """Base of every failed service call."""
+
+
+class ServiceTimeout(ServiceCallError):
+    """No reply within the timeout (the server may be slow, busy or not spinning)."""
+
+
+class ServiceUnavailable(ServiceCallError):
+    """No server for the service."""
+
+
+class ServiceError(ServiceCallError):
+    """The server replied with an error; ``kind`` says which (handler, type, bad_request, busy)."""
+
+    def __init__(self, message: str, kind: str = "handler") -> None:
+        super().__init__(message)
+        self.kind = kind
+
+
+def service_key(name: str, namespace: str = "", node_name: str = "") -> str:
+    """The Zenoh key of a service name as seen from a node (see the module doc)."""
+    return f"{SERVICE_PREFIX}/{names.resolve_topic(name, namespace, node_name)}"
+
+
+def service_name_of_key(key: str) -> str:
+    """``@srv/uav1/arm`` -> ``/uav1/arm``."""
+    prefix = SERVICE_PREFIX + "/"
+    return "/" + (key[len(prefix):] if key.startswith(prefix) else key)
+
+
+def _error_payload(kind: str, text: str) -> bytes:
+    return msgpack.packb([_ERR_MAGIC, kind, text], use_bin_type=True)
+
+
+def decode_error(payload: bytes) -> tuple[str, str] | None:
+    """(kind, text) of one of our error replies, or None for another error (Zenoh's Timeout)."""
+    try:
+        obj = msgpack.unpackb(payload, raw=False)
+    except Exception:
+        return None
+    if isinstance(obj, list) and len(obj) == 3 and obj[0] == _ERR_MAGIC:
+        return str(obj[1]), str(obj[2])
+    return None
+
+
+class Service(Generic[Req, Resp]):
+    """A server: ``handler(request) -> response`` run on the node's executor."""
+
+    def __init__(self, node: "Node", name: str, key: str, request_type: type[Req],
+                 response_type: type[Resp], handler: Callable[[Req], Resp]) -> None:
+        for what, t in (("request", request_type), ("response", response_type)):
+            if not (isinstance(t, type) and issubclass(t, Message)):
+                raise TypeError(f"create_service {name!r}: {what} type {t!r} is not a message type")
+        if not callable(handler):
+            raise TypeError(f"create_service {name!r}: handler must be callable")
+        self.node = node
+        self.name = name
+        self.key = key
+        self.request_type = request_type
+        self.response_type = response_type
+        self.handler = handler
+        self.server_id = secrets.randbits(63)
+        self.served = 0
+        self.errors = 0
+        self._lock = threading.Lock()
+        self._destroyed = False
+        self._queryable = node.session.declare_queryable(key, self._on_query, complete=True)
+
+    # Zenoh's thread: only hand over.
+    def _on_query(self, query: zenoh.Query) -> None:
+        if self._destroyed:
+            query.drop()
+            return
+        if DESCRIBE_PARAM in str(query.parameters):
+            # No user code involved: answer at once, so listing works even if the node does not spin.
+            self._serve(query)
+            return
+        if not self.node.executor.call_soon(lambda: self._serve(query)):
+            self._reply_err(query, "busy", f"service {self.name}: server queue full, request dropped")
+            query.drop()
+
+    def describe(self) -> dict[str, Any]:
+        return {"service": service_name_of_key(self.key), "node": self.node.fully_qualified_name,
+                "request": self.request_type._type_name, "request_hash": self.request_type._type_hash,
+                "response": self.response_type._type_name, "response_hash": self.response_type._type_hash}
+
+    def _serve(self, query: zenoh.Query) -> None:
+        try:
+            if DESCRIBE_PARAM in str(query.parameters):
+                query.reply(self.key, msgpack.packb(self.describe(), use_bin_type=True))
+                return
+            self._call(query)
+        except Exception as exc:  # a reply can fail once the querier gave up; never kill the executor
+            log.debug("service %s: reply failed: %s", self.name, exc)
+        finally:
+            try:
+                query.drop()
+            except Exception:
+                pass
+
+    def _call(self, query: zenoh.Query) -> None:
+        payload = query.payload
+        try:
+            env = envelope.unpack(payload.to_bytes() if payload is not None else b"")
+        except envelope.MalformedSample as exc:
+            self._reply_err(query, "bad_request", f"service {self.name}: malformed request ({exc})")
+            return
+        rt = self.request_type
+        dict_form = env.extra.get("form") == "dict"
+        if env.type_hash != rt._type_hash or env.type_name != rt._type_name:
+            self._reply_err(query, "type",
+                            f"service {self.name} takes {rt._type_name} ({rt._type_hash}), "
+                            f"got {env.type_name} ({env.type_hash})")
+            return
+        want_name, want_hash = env.extra.get("rt"), env.extra.get("rh")
+        if want_hash is not None and (want_hash != self.response_type._type_hash
+                                      or want_name != self.response_type._type_name):
+            self._reply_err(query, "type",
+                            f"service {self.name} returns {self.response_type._type_name} "
+                            f"({self.response_type._type_hash}), client expects {want_name} ({want_hash})")
+            return
+        try:
+            request = rt.from_dict(env.body) if dict_form else rt._from_wire(env.body)
+        except Exception as exc:
+            self._reply_err(query, "bad_request", f"service {self.name}: cannot decode {rt._type_name}: {exc}")
+            return
+        try:
+            response = self.handler(request)
+            if not isinstance(response, self.response_type):
+                raise TypeError(f"handler returned {type(response).__name__}, "
+                                f"not {self.response_type._type_name}")
+            body = response.to_dict() if dict_form else self.response_type._to_wire(response)
+        except Exception as exc:
+            with self._lock:
+                self.errors += 1
+            self.node.get_logger().warning("service %s: handler raised %s: %s", self.name,
+                                           type(exc).__name__, exc)
+            self._reply_err(query, "handler", f"{type(exc).__name__}: {exc}")
+            return
+        query.reply(self.key, envelope.pack(self.response_type._type_name, self.response_type._type_hash,
+                                            self.server_id, env.seq, time.time_ns(), body,
+                                            {"form": "dict"} if dict_form else None))
+        with self._lock:
+            self.served += 1
+
+    @staticmethod
+    def _reply_err(query: zenoh.Query, kind: str, text: str) -> None:
+        try:
+            query.reply_err(_error_payload(kind, text))
+        except Exception as exc:
+            log.debug("error reply failed: %s", exc)
+
+    def destroy(self) -> None:
+        self._destroyed = True
+        try:
+            self._queryable.undeclare()
+        except Exception:
+            pass  # already closed with the session
+
+
+class _Call:
+    """One outstanding query: collects replies on Zenoh's thread, completes the future at the end."""
+
+    def __init__(self, client: "Client[Any, Any]", future: Future, timeout: float, dict_form: bool) -> None:
+        self.client = client
+        self.future = future
+        self.timeout = timeout
+        self.dict_form = dict_form
+        self.started = time.monotonic()
+        self.errors: list[tuple[str, str] | None] = []
+
+    def on_reply(self, reply: zenoh.Reply) -> None:
+        if self.future.done():
+            return
+        if reply.ok is not None:
+            try:
+                result = self.client._decode_response(reply.ok.payload.to_bytes(), self.dict_form)
+            except ServiceCallError as exc:
+                self._finish(exc=exc)
+                return
+            self._finish(result=result)
+        else:
+            self.errors.append(decode_error(reply.err.payload.to_bytes()))
+
+    def on_done(self) -> None:
+        if self.future.done():
+            return
+        name = self.client.service_name
+        ours = [e for e in self.errors if e is not None]
+        if ours:
+            kind, text = ours[0]
+            self._finish(exc=ServiceError(text, kind))
+        elif self.errors or time.monotonic() - self.started >= self.timeout * 0.9:
+            self._finish(exc=ServiceTimeout(f"service {name}: no reply within {self.timeout:g} s"))
+        else:
+            self._finish(exc=ServiceUnavailable(f"service {name}: no server"))
+
+    def _finish(self, result: Any = None, exc: BaseException | None = None) -> None:
+        try:
+            if exc is not None:
+                self.future.set_exception(exc)
+            else:
+                self.future.set_result(result)
+        except Exception:
+            pass  # cancelled or already completed by the other path
+
+
+class Client(Generic[Req, Resp]):
+    """``client.call(request, timeout)`` -> response, or a ServiceCallError subclass."""
+
+    def __init__(self, node: "Node", name: str, key: str, request_type: type[Req],
+                 response_type: type[Resp] | None) -> None:
+        if not (isinstance(request_type, type) and issubclass(request_type, Message)):
+            raise TypeError(f"create_client {name!r}: request type {request_type!r} is not a message type")
+        if response_type is not None and not (isinstance(response_type, type)
+                                              and issubclass(response_type, Message)):
+            raise TypeError(f"create_client {name!r}: response type {response_type!r} is not a message type")
+        self.node = node
+        self.name = name
+        self.key = key
+        self.service_name = service_name_of_key(key)
+        self.request_type = request_type
+        self.response_type = response_type
+        self.client_id = secrets.randbits(63)
+        self._seq = itertools.count(1)
+        self._querier = node.session.declare_querier(key)
+
+    # -- discovery -------------------------------------------------------------------
+    def service_is_ready(self) -> bool:
+        try:
+            return bool(self._querier.matching_status.matching)
+        except Exception:
+            return False
+
+    def wait_for_service(self, timeout: float | None = None) -> bool:
+        """Block until a server is known (True) or ``timeout`` seconds pass (False); None waits forever."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while not self.service_is_ready():
+            if self.node.closed:
+                return False
+            if deadline is not None and time.monotonic() >= deadline:
+                return False
+            time.sleep(0.02)
+        return True
+
+    # -- calls -----------------------------------------------------------------------
+    def call(self, request: Req, timeout: float = 2.0) -> Resp:
+        """Send ``request`` and wait for the response.
+
+        Blocks only this thread: replies arrive on Zenoh's threads, so calling this from a
+        callback of a single-threaded executor does not deadlock (unless the server is a
+        service of the same executor, which then cannot run: ServiceTimeout).
+        """
+        if not self.service_is_ready():
+            started = getattr(self.node, "_services_started", 0.0)
+            grace = max(MATCH_WAIT_S, DISCOVERY_GRACE_S - (time.monotonic() - started))
+            if not self.wait_for_service(min(timeout, grace)):
+                raise ServiceUnavailable(f"service {self.service_name}: no server")
+        future = self.call_async(request, timeout)
+        try:
+            return future.result(timeout + 2.0)  # Zenoh finalises at `timeout`; the margin is a backstop
+        except FutureTimeout:
+            raise ServiceTimeout(f"service {self.service_name}: no reply within {timeout:g} s") from None
+
+    def call_async(self, request: Req, timeout: float = 2.0) -> "Future[Resp]":
+        """Send ``request``; the Future completes on a Zenoh thread (keep done-callbacks short)."""
+        if not isinstance(request, self.request_type):
+            raise TypeError(f"service {self.service_name} client takes {self.request_type._type_name}, "
+                            f"got {type(request).__name__}")
+        return self._send(self.request_type._to_wire(request), timeout, dict_form=False)
+
+    def _send(self, body: Any, timeout: float, dict_form: bool) -> Future:
+        if not timeout > 0:
+            raise ValueError(f"timeout must be > 0 seconds, got {timeout!r}")
+        self.node._check_open()
+        future: Future = Future()
+        call = _Call(self, future, timeout, dict_form)
+        extra: dict[str, Any] = {}
+        if self.response_type is not None:
+            extra = {"rt": self.response_type._type_name, "rh": self.response_type._type_hash}
+        if dict_form:
+            extra["form"] = "dict"
+        payload = envelope.pack(self.request_type._type_name, self.request_type._type_hash, self.client_id,
+                                next(self._seq), time.time_ns(), body, extra)
+        self.node.session.get(self.key, zenoh.handlers.Callback(call.on_reply, call.on_done),
+                              payload=payload, timeout=timeout, priority=zenoh.Priority.INTERACTIVE_HIGH)
+        return future
+
+    def _decode_response(self, data: bytes, dict_form: bool) -> Any:
+        try:
+            env = envelope.unpack(data)
+        except envelope.MalformedSample as exc:
+            raise ServiceError(f"service {self.service_name}: malformed response ({exc})", "bad_response")
+        rt = self.response_type
+        if rt is not None and (env.type_hash != rt._type_hash or env.type_name != rt._type_name):
+            raise ServiceError(f"service {self.service_name} returned {env.type_name} ({env.type_hash}), "
+                               f"expected {rt._type_name} ({rt._type_hash})", "type")
+        if dict_form:
+            return env.body
+        try:
+            return rt._from_wire(env.body)
+        except Exception as exc:
+            raise ServiceError(f"service {self.service_name}: cannot decode {env.type_name}: {exc}",
+                               "bad_response") from None
+
+    def destroy(self) -> None:
+        try:
+            self._querier.undeclare()
+        except Exception:
+            pass
+
+
+class _DictRequestType:
+    """Stands in for a request type known only by name and hash (from a describe reply)."""
+
+    def __init__(self, name: str, hash_: str) -> None:
+        self._type_name = name
+        self._type_hash = hash_
+
+
+def describe_services(session: zenoh.Session, pattern: str = f"{SERVICE_PREFIX}/**",
+                      timeout: float = 1.0) -> list[dict[str, Any]]:
+    """Ask every server matching ``pattern`` for its name and types (served by spinning nodes)."""
+    found: list[dict[str, Any]] = []
+    for reply in session.get(f"{pattern}?{DESCRIBE_PARAM}", target=zenoh.QueryTarget.ALL, timeout=timeout,
+                             consolidation=zenoh.ConsolidationMode.NONE):
+        if reply.ok is None:
+            continue
+        try:
+            info = msgpack.unpackb(reply.ok.payload.to_bytes(), raw=False)
+        except Exception:
+            continue
+        if isinstance(info, dict) and "service" in info:
+            found.append(info)
+    return sorted(found, key=lambda d: d["service"])
+
+
+def call_dict(node: "Node", service: str, request: dict[str, Any], timeout: float = 2.0) -> dict[str, Any]:
+    """Call a service by its absolute name with a mapping, without its Python types (for the CLI)."""
+    key = service_key(service if service.startswith("/") else "/" + service)
+    infos = describe_services(node.session, key, timeout=min(timeout, 2.0))
+    if not infos:
+        raise ServiceUnavailable(f"service {service_name_of_key(key)}: no server")
+    info = infos[0]
+    client: Client[Any, Any] = Client(node, service, key, Message, None)  # type: ignore[arg-type]
+    client.request_type = _DictRequestType(info["request"], info["request_hash"])  # type: ignore[assignment]
+    try:
+        future = client._send(request, timeout, dict_form=True)
+        try:
+            return future.result(timeout + 2.0)
+        except FutureTimeout:
+            raise ServiceTimeout(f"service {client.service_name}: no reply within {timeout:g} s") from None
+    finally:
+        client.destroy()
 
 
 class ServicesMixin:
-    def _init_services(self) -> None:
-        pass
+    """Node methods: ``create_service``, ``create_client``."""
+
+    def _init_services(self: Any) -> None:
+        self._services_started = time.monotonic()
+        self.services: list[Service[Any, Any]] = []
+        self.clients: list[Client[Any, Any]] = []
+        self.add_on_close(self._close_services)
+
+    def resolve_service_name(self: Any, name: str) -> str:
+        """The Zenoh key of service ``name``: ``arm`` in ``uav1`` -> ``@srv/uav1/arm``."""
+        return service_key(name, self.namespace, self.name)
+
+    def create_service(self: Any, name: str, request_type: type[Req], response_type: type[Resp],
+                       handler: Callable[[Req], Resp]) -> Service[Req, Resp]:
+        self._check_open()
+        srv = Service(self, name, self.resolve_service_name(name), request_type, response_type, handler)
+        with self._lock:
+            self.services.append(srv)
+        return srv
+
+    def create_client(self: Any, name: str, request_type: type[Req],
+                      response_type: type[Resp]) -> Client[Req, Resp]:
+        self._check_open()
+        if not (isinstance(response_type, type) and issubclass(response_type, Message)):
+            raise TypeError(f"create_client {name!r}: response type {response_type!r} is not a message type")
+        client = Client(self, name, self.resolve_service_name(name), request_type, response_type)
+        with self._lock:
+            self.clients.append(client)
+        return client
+
+    def destroy_service(self: Any, srv: Service[Any, Any]) -> None:
+        with self._lock:
+            if srv in self.services:
+                self.services.remove(srv)
+        srv.destroy()
+
+    def destroy_client(self: Any, client: Client[Any, Any]) -> None:
+        with self._lock:
+            if client in self.clients:
+                self.clients.remove(client)
+        client.destroy()
+
+    def _close_services(self: Any) -> None:
+        for entity in [*self.services, *self.clients]:
+            entity.destroy()

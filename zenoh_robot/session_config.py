@@ -67,6 +67,9 @@ class SessionConfig:
     batch_size: int | None = None          # bytes per batch; under the path MTU avoids IP fragments
     lease_s: float | None = None           # transport lease; longer survives heavy loss
     keep_alive: int | None = None          # keep-alives per lease
+    # Zenoh's default 10 s accept timeout makes close() hang 10 s whenever a UDP handshake
+    # with a peer that has just gone is half done; the opener retries anyway.
+    accept_timeout_s: float = 2.0
     extra: dict[str, Any] = field(default_factory=dict)   # raw zenoh keys -> JSON values
     source: str | None = None              # JSON5 file this was loaded from, if any
 
@@ -110,6 +113,7 @@ class SessionConfig:
             "scouting/multicast/enabled": self.multicast_scouting,
             "transport/unicast/max_links": self.max_links,
             "transport/shared_memory/enabled": self.shared_memory_enabled,
+            "transport/unicast/accept_timeout": int(self.accept_timeout_s * 1000),
         }
         if self.batch_size is not None:
             values["transport/link/tx/batch_size"] = self.batch_size
@@ -143,23 +147,24 @@ class SessionConfig:
                 return default
             return default if value is None else value
 
-        shm = get("transport/shared_memory/enabled", None)
+        mode = get("mode", "peer")
+
+        def endpoints(key: str) -> list[str]:
+            value = get(key, [])
+            # Zenoh allows per-mode endpoint lists: {peer: [...], router: [...]}.
+            return list(value.get(mode, []) if isinstance(value, dict) else value)
+
+        text = path.read_text()
         return cls(
-            mode=get("mode", "peer"),
-            listen=list(get("listen/endpoints", []) or []) if not isinstance(get("listen/endpoints", []), dict)
-            else list(get("listen/endpoints", {}).get(get("mode", "peer"), [])),
-            connect=list(get("connect/endpoints", []) or []) if not isinstance(get("connect/endpoints", []), dict)
-            else list(get("connect/endpoints", {}).get(get("mode", "peer"), [])),
+            mode=mode,
+            listen=endpoints("listen/endpoints"),
+            connect=endpoints("connect/endpoints"),
             multicast_scouting=bool(get("scouting/multicast/enabled", True)),
-            shared_memory=shm if _explicit(path, "shared_memory") else None,
-            max_links=int(get("transport/unicast/max_links", 2)) if _explicit(path, "max_links") else 2,
+            # Zenoh fills every key with its default, so "was it in the file" needs the text.
+            shared_memory=get("transport/shared_memory/enabled", None) if "shared_memory" in text else None,
+            max_links=int(get("transport/unicast/max_links", 2)) if "max_links" in text else 2,
             source=str(path),
         )
-
-
-def _explicit(path: Path, word: str) -> bool:
-    # Zenoh fills every key with its default, so "was it in the file" needs the text itself.
-    return word in path.read_text()
 
 
 def open_session(config: SessionConfig | str | Path | None = None) -> zenoh.Session:

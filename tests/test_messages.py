@@ -1,0 +1,106 @@
+"""Typed messages: wire round trip, type hashes, arrays, images without lists."""
+from __future__ import annotations
+
+import msgpack
+import numpy as np
+import pytest
+
+from zenoh_robot import Message, array, message
+from zenoh_robot.message import lookup
+from zenoh_robot.msgs import (Float32, Header, Image, JointState, Quaternion, SensorCombined, Setpoint, String,
+                              Twist, Vector3)
+
+ALL = [
+    Setpoint(Header(5, "map", 2), 1.0, 2.0, -3.0, 0.5, True),
+    SensorCombined(Header(1), 99, [0.1, 0.2, 0.3], 4000, 0, [0.0, 0.0, -9.8], 4000, [0.2, 0.0, 0.4], 12.5, 21.0),
+    Image.from_array(np.arange(240 * 320 * 3, dtype=np.uint8).reshape(240, 320, 3) % 251),
+    String("hello"), Float32(1.5), Vector3(1, 2, 3), Quaternion(0, 0, 0, 1),
+    Twist(Vector3(1, 0, 0), Vector3(0, 0, 0.3)),
+    JointState(Header(), ["a", "b"], [0.1, 0.2], [0.0, 0.0], [1.0, 2.0]),
+]
+
+
+@pytest.mark.parametrize("msg", ALL, ids=lambda m: type(m).__name__)
+def test_round_trip_through_msgpack(msg: Message) -> None:
+    wire = msgpack.unpackb(msgpack.packb(type(msg)._to_wire(msg), use_bin_type=True))
+    assert type(msg)._from_wire(wire) == msg
+
+
+def test_type_hash_depends_on_fields_and_names() -> None:
+    @message(name="test/A")
+    class A(Message):
+        x: float = 0.0
+
+    @message(name="test/A2")
+    class A2(Message):
+        x: float = 0.0
+
+    @message(name="test/A")
+    class A3(Message):
+        y: float = 0.0
+
+    assert A._type_hash != A3._type_hash           # same name, other field
+    assert A._type_hash != A2._type_hash           # same fields, other name
+    assert len({Setpoint._type_hash, SensorCombined._type_hash, Image._type_hash}) == 3
+
+
+def test_fixed_array_length_is_checked_on_the_wire() -> None:
+    bad = SensorCombined(gyro_rad=[0.0, 1.0])
+    with pytest.raises(ValueError, match=r"gyro_rad.*needs 3 elements, got 2"):
+        SensorCombined._to_wire(bad)
+
+
+def test_numpy_values_are_accepted_in_fields() -> None:
+    from zenoh_robot import envelope
+    msg = SensorCombined(gyro_rad=np.array([1.0, 2.0, 3.0], dtype=np.float32))
+    data = envelope.pack(msg._type_name, msg._type_hash, 1, 1, 0, SensorCombined._to_wire(msg))
+    back = SensorCombined._from_wire(envelope.unpack(data).body)
+    assert back.gyro_rad == [1.0, 2.0, 3.0]
+
+
+def test_image_bytes_stay_bytes_and_views_do_not_copy() -> None:
+    arr = np.random.default_rng(1).integers(0, 255, (240, 320, 3), dtype=np.uint8)
+    img = Image.from_array(arr)
+    assert (img.width, img.height, img.step, img.encoding) == (320, 240, 960, "rgb8")
+    wire = Image._to_wire(img)
+    assert wire[-1] is img.data  # the body references the bytes; msgpack writes them as one bin
+    packed = msgpack.packb(wire, use_bin_type=True)
+    assert len(packed) < len(img.data) + 100
+    back = Image._from_wire(msgpack.unpackb(packed))
+    view = back.to_array()
+    assert view.base is not None and not view.flags.writeable   # a view over the bytes
+    np.testing.assert_array_equal(view, arr)
+    mono = Image.from_array(arr[:, :, 0])
+    assert mono.encoding == "mono8" and mono.to_array().shape == (240, 320)
+
+
+def test_image_from_array_rejects_wrong_dtype_and_to_array_checks_size() -> None:
+    with pytest.raises(ValueError, match="uint8"):
+        Image.from_array(np.zeros((2, 2), dtype=np.float32))
+    with pytest.raises(ValueError, match="expected"):
+        Image(height=2, width=2, step=6, encoding="rgb8", data=b"123").to_array()
+
+
+def test_dict_round_trip_and_unknown_field() -> None:
+    sp = Setpoint(Header(1, "f", 3), 1, 2, 3)
+    assert Setpoint.from_dict(sp.to_dict()) == sp
+    with pytest.raises(ValueError, match="no field"):
+        Setpoint.from_dict({"q": 1})
+
+
+def test_lookup_by_full_and_short_name() -> None:
+    assert lookup("zenoh_robot/Setpoint") is Setpoint
+    assert lookup("Setpoint") is Setpoint
+    with pytest.raises(KeyError, match="unknown message type"):
+        lookup("NoSuchType")
+
+
+def test_user_message_with_explicit_types() -> None:
+    @message(name="test/Pose3")
+    class Pose3(Message):
+        position: list[float] = array("float64", 3)
+        frame: str = "map"
+
+    p = Pose3()
+    assert p.position == [0.0, 0.0, 0.0]
+    assert Pose3._from_wire(list(Pose3._to_wire(p))) == p

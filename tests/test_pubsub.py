@@ -1,0 +1,202 @@
+"""Publish/subscribe over real Zenoh sessions: every type, both reliabilities, processes, bad input."""
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+import pytest
+import zenoh
+
+from zenoh_robot import InvalidNameError, MultiThreadedExecutor, Node, QoSProfile, qos
+from zenoh_robot.msgs import Setpoint, String
+
+from conftest import python_proc, wait_for
+from test_messages import ALL
+
+
+@pytest.fixture
+def pair(ns: str):
+    with Node("talker", namespace=ns) as a, Node("listener", namespace=ns) as b:
+        yield a, b
+
+
+def _spin_in_background(node: Node) -> threading.Thread:
+    t = threading.Thread(target=node.spin, daemon=True)
+    t.start()
+    return t
+
+
+@pytest.mark.parametrize("reliability", ["reliable", "best_effort"])
+def test_every_message_type_arrives(pair, reliability: str) -> None:
+    a, b = pair
+    profile = QoSProfile(reliability=reliability, depth=10)
+    received: dict[str, list] = {}
+    pubs = []
+    for i, msg in enumerate(ALL):
+        topic = f"t{i}"
+        b.create_subscription(type(msg), topic, lambda m, t=topic: received.setdefault(t, []).append(m), profile)
+        pubs.append((a.create_publisher(type(msg), topic, profile), msg))
+    time.sleep(0.3)
+    for pub, msg in pubs:
+        pub.publish(msg)
+    assert b.spin_until(lambda: len(received) == len(ALL), timeout=5.0), sorted(received)
+    for i, msg in enumerate(ALL):
+        assert received[f"t{i}"][0] == msg
+
+
+def test_namespaced_key_and_message_info(pair, ns: str) -> None:
+    a, b = pair
+    infos = []
+    raw = []
+    b.session.declare_subscriber(f"{ns}/setpoint", lambda s: raw.append(str(s.key_expr)))
+    b.create_subscription(Setpoint, "setpoint", lambda m, info: infos.append(info), qos.SETPOINT.replace(depth=10))
+    pub = a.create_publisher(Setpoint, "setpoint", qos.SETPOINT)
+    time.sleep(0.3)
+    for _ in range(3):
+        pub.publish(Setpoint(x=1.0))
+        time.sleep(0.02)
+    assert b.spin_until(lambda: len(infos) >= 3, 3.0)
+    assert raw[0] == f"{ns}/setpoint"
+    assert [i.seq for i in infos[-3:]] == [1, 2, 3]
+    assert all(i.publisher_id == pub.publisher_id and 0 <= i.age_ms < 1000 for i in infos)
+
+
+def test_publisher_in_another_process(ns: str) -> None:
+    got: list[Setpoint] = []
+    with Node("listener", namespace=ns) as node:
+        node.create_subscription(Setpoint, "setpoint", got.append, QoSProfile(depth=100))
+        proc = python_proc("tests/procs/talker.py", "--ns", ns, "--count", "40", "--rate", "100")
+        try:
+            assert node.spin_until(lambda: len(got) >= 40, timeout=20.0), f"got {len(got)} of 40"
+        finally:
+            out, _ = proc.communicate(timeout=20)
+        assert proc.returncode == 0, out
+    assert [m.header.seq for m in got] == list(range(40))
+    assert got[-1].x == 39.0 and got[-1].z == -2.0
+
+
+def test_keep_last_drops_oldest_under_a_slow_callback(pair) -> None:
+    a, b = pair
+    seen: list[int] = []
+
+    def slow(msg: Setpoint) -> None:
+        seen.append(msg.header.seq)
+        time.sleep(0.05)
+
+    sub = b.create_subscription(Setpoint, "fast", slow, QoSProfile(depth=3))
+    pub = a.create_publisher(Setpoint, "fast", QoSProfile(depth=3))
+    time.sleep(0.3)
+    max_pending = 0
+    for i in range(60):
+        s = Setpoint()
+        s.header.seq = i
+        pub.publish(s)
+        max_pending = max(max_pending, sub.pending)
+        time.sleep(0.002)
+    wait_for(lambda: sub.counters.received == 60, 5.0)
+    b.spin_until(lambda: sub.pending == 0, 5.0)
+    assert max_pending <= 3
+    assert sub.counters.dropped > 0
+    assert sub.counters.dropped + len(seen) == sub.counters.received == 60
+    assert seen == sorted(seen) and seen[-1] == 59      # newest kept, order preserved
+
+
+def test_wrong_type_is_reported_once_per_publisher_and_dropped(pair, caplog) -> None:
+    a, b = pair
+    got: list[Setpoint] = []
+    sub = b.create_subscription(Setpoint, "mixed", got.append, QoSProfile(depth=50))
+    wrong = a.create_publisher(String, "mixed", QoSProfile(depth=50))
+    right = a.create_publisher(Setpoint, "mixed", QoSProfile(depth=50))
+    time.sleep(0.3)
+    with caplog.at_level(logging.ERROR, logger="zenoh_robot"):
+        for _ in range(5):
+            wrong.publish(String("not a setpoint"))
+        right.publish(Setpoint(x=7.0))
+        assert b.spin_until(lambda: got and sub.counters.type_mismatch == 5, 3.0)
+    assert got[0].x == 7.0
+    mismatch_logs = [r for r in caplog.records if "type mismatch" in r.getMessage()]
+    assert len(mismatch_logs) == 1
+    assert "std_msgs/String" in mismatch_logs[0].getMessage()
+    assert "zenoh_robot/Setpoint" in mismatch_logs[0].getMessage()
+
+
+def test_malformed_bytes_are_counted_and_the_subscriber_keeps_working(pair, ns: str) -> None:
+    a, b = pair
+    got: list[Setpoint] = []
+    sub = b.create_subscription(Setpoint, "raw", got.append, QoSProfile(depth=50))
+    pub = a.create_publisher(Setpoint, "raw", QoSProfile(depth=50))
+    zpub = a.session.declare_publisher(f"{ns}/raw")
+    time.sleep(0.3)
+    import msgpack
+    for junk in (b"\xff\x00garbage", b"", msgpack.packb([1, 2, 3]),
+                 msgpack.packb(["zr1", "zenoh_robot/Setpoint", Setpoint._type_hash, 1, 1, 0, ["bad"], {}])):
+        zpub.put(junk)
+    pub.publish(Setpoint(y=3.0))
+    assert b.spin_until(lambda: got and sub.counters.malformed == 4, 3.0), sub.counters
+    assert got[0].y == 3.0
+
+
+def test_callback_exception_is_logged_counted_and_survived(pair, caplog) -> None:
+    a, b = pair
+    calls = []
+
+    def boom(msg: Setpoint) -> None:
+        calls.append(msg)
+        if len(calls) == 1:
+            raise RuntimeError("bad day")
+
+    sub = b.create_subscription(Setpoint, "boom", boom, QoSProfile(depth=10))
+    pub = a.create_publisher(Setpoint, "boom", QoSProfile(depth=10))
+    time.sleep(0.3)
+    with caplog.at_level(logging.ERROR, logger="zenoh_robot"):
+        pub.publish(Setpoint())
+        pub.publish(Setpoint())
+        assert b.spin_until(lambda: len(calls) == 2, 3.0)
+    assert sub.counters.callback_errors == 1 and sub.counters.delivered == 1
+    assert any("boom" in r.getMessage() and r.exc_info for r in caplog.records)
+
+
+def test_publish_rejects_wrong_type_and_bad_array(pair) -> None:
+    a, _ = pair
+    pub = a.create_publisher(Setpoint, "x", qos.SETPOINT)
+    with pytest.raises(TypeError, match="takes zenoh_robot/Setpoint, got String"):
+        pub.publish(String("x"))
+    from zenoh_robot.msgs import SensorCombined
+    spub = a.create_publisher(SensorCombined, "s", qos.SENSOR)
+    with pytest.raises(ValueError, match="needs 3 elements"):
+        spub.publish(SensorCombined(gyro_rad=[1.0]))
+    assert spub.sequence == 0   # nothing was sent
+
+
+@pytest.mark.parametrize("topic", ["", "a//b", "1abc", "a/b/", "bad-name", "a b", "~x"])
+def test_invalid_topic_names(pair, topic: str) -> None:
+    a, _ = pair
+    with pytest.raises(InvalidNameError):
+        a.create_publisher(Setpoint, topic, qos.SETPOINT)
+
+
+def test_name_resolution(pair, ns: str) -> None:
+    a, _ = pair
+    assert a.resolve_topic_name("setpoint") == f"{ns}/setpoint"
+    assert a.resolve_topic_name("/global/x") == "global/x"
+    assert a.resolve_topic_name("~/private") == f"{ns}/talker/private"
+    with pytest.raises(InvalidNameError):
+        Node("bad name")
+
+
+def test_timer_and_multithreaded_executor(ns: str) -> None:
+    ex = MultiThreadedExecutor(num_threads=2)
+    with Node("mt", namespace=ns, executor=ex) as node:
+        ticks = []
+        node.create_timer(0.02, lambda: ticks.append(time.monotonic()))
+        got = []
+        node.create_subscription(Setpoint, "sp", got.append, QoSProfile(depth=10))
+        pub = node.create_publisher(Setpoint, "sp", QoSProfile(depth=10))
+        t = _spin_in_background(node)
+        time.sleep(0.2)
+        pub.publish(Setpoint())
+        assert wait_for(lambda: len(ticks) >= 5 and got, 3.0)
+        node.shutdown()
+        t.join(2.0)
+        assert not t.is_alive()

@@ -1,0 +1,56 @@
+"""Session configuration: validation at start (never a hang), JSON5 files, shared-memory policy."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from zenoh_robot import Node, SessionConfig, SessionConfigError
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.parametrize("endpoint,match", [
+    ("tcp127.0.0.1:7447", "expected PROTOCOL/HOST:PORT"),
+    ("tcpx/127.0.0.1:7447", "unknown protocol"),
+    ("tcp/127.0.0.1", "missing ':PORT'"),
+    ("udp/127.0.0.1:99999", "port '99999'"),
+])
+def test_bad_endpoints_are_rejected(endpoint: str, match: str) -> None:
+    with pytest.raises(SessionConfigError, match=match):
+        SessionConfig(listen=[endpoint])
+
+
+def test_unbindable_endpoint_fails_at_open_not_hangs() -> None:
+    with pytest.raises(SessionConfigError, match="cannot open Zenoh session"):
+        Node("n", config=SessionConfig(listen=["tcp/203.0.113.7:7447"]))
+
+
+def test_mode_is_checked() -> None:
+    with pytest.raises(SessionConfigError, match="mode 'server'"):
+        SessionConfig(mode="server")
+
+
+def test_shared_memory_only_on_loopback_unless_asked() -> None:
+    assert SessionConfig.localhost().shared_memory_enabled
+    assert not SessionConfig().shared_memory_enabled                       # 0.0.0.0: may cross hosts
+    assert not SessionConfig(connect=["tcp/10.0.0.2:7447"], listen=[]).shared_memory_enabled
+    assert SessionConfig(shared_memory=True).shared_memory_enabled
+
+
+def test_shipped_json5_configs_load() -> None:
+    peer = SessionConfig.from_file(ROOT / "configs" / "zenoh" / "peer.json5")
+    assert peer.mode == "peer" and "udp/0.0.0.0:0" in peer.listen and peer.max_links == 2
+    client = SessionConfig.from_file(ROOT / "configs" / "zenoh" / "client.json5")
+    assert client.mode == "client" and client.connect and not client.multicast_scouting
+    router = SessionConfig.from_file(ROOT / "configs" / "zenoh" / "router.json5")
+    assert router.mode == "router"
+
+
+def test_missing_or_broken_file(tmp_path: Path) -> None:
+    with pytest.raises(SessionConfigError, match="does not exist"):
+        SessionConfig.from_file(tmp_path / "none.json5")
+    bad = tmp_path / "bad.json5"
+    bad.write_text("{ mode: ")
+    with pytest.raises(SessionConfigError, match="bad.json5"):
+        SessionConfig.from_file(bad)
