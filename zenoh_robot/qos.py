@@ -108,6 +108,10 @@ class QoSProfile:
     liveliness_lease_duration: float | None = None
     priority: Priority = Priority.DATA
     express: bool = False
+    # Beyond ROS 2, for lossy links: each sample carries the last `redundancy` samples of its
+    # publisher, and goes out `1 + repeat` times. Small messages only: the cost is bytes.
+    redundancy: int = 0
+    repeat: int = 0
 
     def __post_init__(self) -> None:
         enums = {"reliability": ReliabilityPolicy, "durability": DurabilityPolicy,
@@ -124,6 +128,10 @@ class QoSProfile:
             raise QoSError(f"depth: {depth!r} must be a non-negative integer")
         if self.history is HistoryPolicy.KEEP_LAST and depth == 0:
             raise QoSError("depth: KEEP_LAST needs depth >= 1")
+        for name in ("redundancy", "repeat"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= 64:
+                raise QoSError(f"{name}: {v!r} must be an integer 0..64")
         if not isinstance(self.express, bool):
             raise QoSError(f"express: {self.express!r} must be true or false")
 
@@ -138,7 +146,8 @@ class QoSProfile:
         parts = [f"reliability={self.reliability!r}", f"durability={self.durability!r}",
                  f"history={self.history!r}", f"depth={self.depth}"]
         default = QoSProfile()
-        for f in ("deadline", "lifespan", "liveliness", "liveliness_lease_duration", "priority", "express"):
+        for f in ("deadline", "lifespan", "liveliness", "liveliness_lease_duration", "priority", "express",
+                  "redundancy", "repeat"):
             v = getattr(self, f)
             if v != getattr(default, f):
                 parts.append(f"{f}={v!r}")
@@ -178,11 +187,15 @@ FEEDBACK = QoSProfile(ReliabilityPolicy.RELIABLE, depth=10)
 SETPOINT = QoSProfile(ReliabilityPolicy.BEST_EFFORT, depth=1, priority=Priority.REAL_TIME, express=True)
 SENSOR = QoSProfile(ReliabilityPolicy.BEST_EFFORT, depth=5, priority=Priority.DATA_HIGH)
 IMAGE = QoSProfile(ReliabilityPolicy.BEST_EFFORT, depth=1, priority=Priority.DATA_LOW)
+# Fresh like best effort, complete like reliable: no retransmission queue to age behind,
+# yet a lost sample rides along in the next 8 packets, and each packet goes out 4 times.
+RESILIENT = QoSProfile(ReliabilityPolicy.BEST_EFFORT, depth=1, priority=Priority.REAL_TIME, express=True,
+                       redundancy=8, repeat=3)
 
 PRESETS: dict[str, QoSProfile] = {
     "system_default": SYSTEM_DEFAULT, "sensor_data": SENSOR_DATA, "services_default": SERVICES_DEFAULT,
     "parameters": PARAMETERS, "control": CONTROL, "configuration": CONFIGURATION, "feedback": FEEDBACK,
-    "setpoint": SETPOINT, "sensor": SENSOR, "image": IMAGE,
+    "setpoint": SETPOINT, "sensor": SENSOR, "image": IMAGE, "resilient": RESILIENT,
 }
 
 

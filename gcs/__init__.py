@@ -1,0 +1,1 @@
+"""The ground-side process: setpoint/mission streaming, telemetry and images, live statistics."""

@@ -1,0 +1,1 @@
+"""The lossy-link experiment: network namespaces, packet loss, sweeps and figures."""
