@@ -10,6 +10,7 @@ from . import envelope
 from .message import Message
 from .qos import QoSProfile
 from .qos_mapping import publisher_options
+from .redundancy import RedundantHistory
 
 if TYPE_CHECKING:
     from .node import Node
@@ -38,6 +39,8 @@ class Publisher(Generic[M]):
         self._zpub = node.session.declare_publisher(key, **publisher_options(qos))
         self.published = 0
         self.last_publish_mono: float | None = None
+        self._history = RedundantHistory(qos.redundancy) if qos.redundancy else None
+        self._copies = 1 + qos.repeat
 
     @property
     def sequence(self) -> int:
@@ -54,9 +57,14 @@ class Publisher(Generic[M]):
         with self._lock:
             self._seq += 1
             seq = self._seq
-            payload = envelope.pack(self._type_name, self._type_hash, self.publisher_id, seq,
-                                    time.time_ns(), body, extra)
-            self._zpub.put(payload)
+            stamp = time.time_ns()
+            if self._history is not None:
+                carried = self._history.extra()
+                extra = {**(extra or {}), **carried} if carried else extra
+                self._history.record(seq, stamp, body)
+            payload = envelope.pack(self._type_name, self._type_hash, self.publisher_id, seq, stamp, body, extra)
+            for _ in range(self._copies):    # loss is per packet: each copy is another chance
+                self._zpub.put(payload)
             self.published += 1
             self.last_publish_mono = time.monotonic()
         return seq

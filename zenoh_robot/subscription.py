@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any, Callable, Generic, TypeVar
 from . import envelope
 from .message import Message
 from .qos import QoSProfile
+from .redundancy import Deduplicator
 
 if TYPE_CHECKING:
     from .node import Node
@@ -82,6 +83,8 @@ class Subscription(Generic[M]):
         self._executor = node.executor
         self._lifespan_ns = int(qos.lifespan * 1e9) if qos.lifespan else None
         self.sample_hooks: list[Callable[[M, MessageInfo], None]] = []
+        # Redundant or repeated publishers send samples more than once: deliver each once, in order.
+        self.dedup = Deduplicator() if (qos.redundancy or qos.repeat) else None
         self._zsub = node.session.declare_subscriber(key, self._on_sample)
 
     # -- Zenoh thread --------------------------------------------------------------
@@ -124,16 +127,24 @@ class Subscription(Generic[M]):
                                "%s (hash %s); its samples are dropped", self.topic, env.publisher_id,
                                env.type_name, env.type_hash, self.msg_type._type_name, self._hash)
             return
+        if self.dedup is None:
+            self._decode_and_deliver(env, env.seq, env.stamp_ns, env.body, received_ns)
+        else:
+            for seq, stamp, body in self.dedup.fresh(env.publisher_id, env.seq, env.stamp_ns, env.body, env.extra):
+                self._decode_and_deliver(env, seq, stamp, body, received_ns)
+
+    def _decode_and_deliver(self, env: envelope.Envelope, seq: int, stamp_ns: int, body: Any,
+                            received_ns: int) -> None:
         try:
-            msg = self._from_wire(env.body)
+            msg = self._from_wire(body)
         except (TypeError, ValueError) as exc:
             self._malformed(f"body does not decode as {self.msg_type._type_name}: {exc}")
             return
-        self._track_sequence(env.publisher_id, env.seq)
-        if self._lifespan_ns is not None and received_ns - env.stamp_ns > self._lifespan_ns:
+        self._track_sequence(env.publisher_id, seq)
+        if self._lifespan_ns is not None and received_ns - stamp_ns > self._lifespan_ns:
             self.counters.expired += 1
             return
-        info = MessageInfo(env.publisher_id, env.seq, env.stamp_ns, received_ns, env.type_name)
+        info = MessageInfo(env.publisher_id, seq, stamp_ns, received_ns, env.type_name)
         for hook in self.sample_hooks:
             hook(msg, info)
         self.deliver(msg, info)
