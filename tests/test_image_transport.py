@@ -52,9 +52,10 @@ def test_a_lost_slice_costs_a_strip_and_old_frames_are_dropped(ns: str) -> None:
         old = sent[0]
         pub.frames = 2
         pub.publish(_frame(2))         # a newer frame closes frame 1, partial
-        raw.publish(old)               # a late slice of frame 1: stale, dropped
         assert b.spin_until(lambda: len(frames) == 3, 5.0)
+        raw.publish(old)               # a late slice of frame 1: stale, dropped
         assert b.spin_until(lambda: sub.stale_slices == 1, 2.0)
+        assert len(frames) == 3
     (_, i0), (partial, i1), (_, i2) = frames
     assert i0.complete and not i1.complete and i1.slices_received == i1.slice_count - 1 and i2.complete
     rows = 240 // i1.slice_count
