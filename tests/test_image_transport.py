@@ -7,6 +7,7 @@ import numpy as np
 
 from zenoh_robot import Node, QoSProfile
 from zenoh_robot.image_transport import ImagePublisher, ImageSlice, ImageSubscription
+from zenoh_robot.qos import IMAGE
 
 
 def _frame(i: int) -> np.ndarray:
@@ -39,7 +40,7 @@ def test_a_lost_slice_costs_a_strip_and_old_frames_are_dropped(ns: str) -> None:
     with Node("cam", namespace=ns) as a, Node("viewer", namespace=ns) as b:
         sub = ImageSubscription(b, "image", lambda img, info: frames.append((img.to_array().copy(), info)))
         pub = ImagePublisher(a, "image", quality=70)
-        raw = a.create_publisher(ImageSlice, "image", QoSProfile(depth=100))
+        raw = a.create_publisher(ImageSlice, "image", IMAGE)   # same link as pub: no reordering
         time.sleep(0.3)
         pub.publish(_frame(0))
         assert b.spin_until(lambda: len(frames) == 1, 5.0)

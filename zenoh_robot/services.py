@@ -49,7 +49,7 @@ DESCRIBE_PARAM = "zr_describe"
 _ERR_MAGIC = "zr-err"
 # A fresh session needs a moment to learn the network's queryables; a call made
 # this soon after the node started waits that long for a server before giving up.
-DISCOVERY_GRACE_S = 1.5
+DISCOVERY_GRACE_S = 1.0
 # After the grace, a call without a known server still waits this long for one.
 MATCH_WAIT_S = 0.2
 
@@ -397,13 +397,15 @@ def describe_services(session: zenoh.Session, pattern: str = f"{SERVICE_PREFIX}/
 def call_dict(node: "Node", service: str, request: dict[str, Any], timeout: float = 2.0) -> dict[str, Any]:
     """Call a service by its absolute name with a mapping, without its Python types (for the CLI)."""
     key = service_key(service if service.startswith("/") else "/" + service)
-    infos = describe_services(node.session, key, timeout=min(timeout, 2.0))
-    if not infos:
-        raise ServiceUnavailable(f"service {service_name_of_key(key)}: no server")
-    info = infos[0]
     client: Client[Any, Any] = Client(node, service, key, Message, None)  # type: ignore[arg-type]
-    client.request_type = _DictRequestType(info["request"], info["request_hash"])  # type: ignore[assignment]
     try:
+        if not client.wait_for_service(min(timeout, DISCOVERY_GRACE_S)):
+            raise ServiceUnavailable(f"service {client.service_name}: no server")
+        infos = describe_services(node.session, key, timeout=min(timeout, 2.0))
+        if not infos:
+            raise ServiceUnavailable(f"service {client.service_name}: no server")
+        client.request_type = _DictRequestType(infos[0]["request"],  # type: ignore[assignment]
+                                               infos[0]["request_hash"])
         future = client._send(request, timeout, dict_form=True)
         try:
             return future.result(timeout + 2.0)
