@@ -191,5 +191,6 @@ class TopicStatistics(Message):
             self.message_period_ms = StatisticsEntry()
 
 
-def _describe(obj: Any) -> str:  # pragma: no cover - debugging aid
-    return repr(obj)
+from .drone import Command, CommandResult, FailsafeEvent, VehicleState  # noqa: E402
+
+__all__ += ["VehicleState", "Command", "CommandResult", "FailsafeEvent"]
