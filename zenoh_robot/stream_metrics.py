@@ -65,6 +65,14 @@ class StreamRecorder:
                 self._ages.append((now_ns - source_stamp_ns) / 1e6 if source_stamp_ns else math.nan)
                 self._arrivals.append(time.monotonic())
 
+    def lost_pct(self) -> float:
+        """Share of the sequence range seen so far that never arrived (NaN before 2 samples)."""
+        with self._lock:
+            if len(self._seqs) < 2:
+                return math.nan
+            span = max(self._seqs) - min(self._seqs) + 1
+            return 100.0 * (1 - len(self._seqs) / span)
+
     def summary(self, sent: int | None = None, end: float | None = None) -> StreamSummary:
         with self._lock:
             ages = np.array(self._ages, dtype=float)

@@ -1,0 +1,81 @@
+"""Whole configurations for a GCS-drone link: the QoS of each stream, the image path, the transport.
+
+The thesis compared two launch variants (every stream RELIABLE, or every stream
+BEST_EFFORT, raw images); ``resilient`` is ours. A profile is more than QoS: how
+images travel and how the Zenoh session is tuned are part of what survives loss,
+so they are chosen together and written into every result.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+from .qos import (RESILIENT, HistoryPolicy, Priority, QoSError, QoSProfile, ReliabilityPolicy)
+
+STREAMS = ("setpoint", "sensor", "state", "image", "events")
+
+
+@dataclass(frozen=True)
+class StreamProfile:
+    name: str
+    description: str
+    qos: dict[str, QoSProfile]
+    image_mode: str = "raw"                 # raw (rgb8 Image), jpeg (one JPEG Image), sliced (ImagePublisher)
+    jpeg_quality: int = 70
+    # SessionConfig keyword overrides: what the transport needs to live through loss.
+    transport: dict[str, Any] = field(default_factory=dict)
+
+    def with_overrides(self, params: dict[str, Any]) -> "StreamProfile":
+        """Apply the thesis's node parameters (reliability, history, depth) to every stream."""
+        keys = {k: params[k] for k in ("reliability", "history", "depth") if k in params}
+        if not keys:
+            return self
+        try:
+            new = {name: q.replace(**keys) for name, q in self.qos.items()}
+        except QoSError as exc:
+            raise QoSError(f"parameters {sorted(keys)}: {exc}") from None
+        return replace(self, qos=new, name=f"{self.name}+params")
+
+    def summary(self) -> dict[str, Any]:
+        return {"name": self.name, "description": self.description, "image_mode": self.image_mode,
+                "jpeg_quality": self.jpeg_quality, "transport": self.transport,
+                "qos": {k: v.to_dict() for k, v in self.qos.items()}}
+
+
+def _all(q: QoSProfile) -> dict[str, QoSProfile]:
+    return {s: q for s in STREAMS}
+
+
+_KEEP_LAST_10 = dict(history=HistoryPolicy.KEEP_LAST, depth=10)
+
+PROFILES: dict[str, StreamProfile] = {
+    "reliable": StreamProfile(
+        "reliable", "the thesis's RELIABLE variant: every stream reliable, keep last 10, raw images",
+        _all(QoSProfile(ReliabilityPolicy.RELIABLE, **_KEEP_LAST_10)), image_mode="raw"),
+    "best_effort": StreamProfile(
+        "best_effort", "the thesis's BEST_EFFORT variant: every stream best effort, keep last 10, raw images",
+        _all(QoSProfile(ReliabilityPolicy.BEST_EFFORT, **_KEEP_LAST_10)), image_mode="raw"),
+    "resilient": StreamProfile(
+        "resilient",
+        "setpoints and events with redundancy + repeats, sensors best effort high priority, images as "
+        "one-datagram JPEG slices with latest-frame semantics, keep-alives every 100 ms, datagrams under the MTU",
+        {
+            "setpoint": RESILIENT,
+            "sensor": QoSProfile(ReliabilityPolicy.BEST_EFFORT, depth=5, priority=Priority.DATA_HIGH),
+            "state": QoSProfile(ReliabilityPolicy.BEST_EFFORT, depth=1, priority=Priority.INTERACTIVE_HIGH,
+                                redundancy=2, repeat=1),
+            "image": QoSProfile(ReliabilityPolicy.BEST_EFFORT, depth=1, priority=Priority.DATA_LOW),
+            "events": RESILIENT.replace(depth=10, priority=Priority.INTERACTIVE_HIGH),
+        },
+        image_mode="sliced", jpeg_quality=60,
+        transport={"batch_size": 1300, "lease_s": 10.0, "keep_alive": 100},
+    ),
+}
+
+
+def stream_profile(name: str, params: dict[str, Any] | None = None) -> StreamProfile:
+    try:
+        profile = PROFILES[name]
+    except KeyError:
+        raise QoSError(f"unknown stream profile {name!r}; choose one of {', '.join(PROFILES)}") from None
+    return profile.with_overrides(params or {})
