@@ -1,7 +1,9 @@
-"""``zenoh-robot`` entry point: each subcommand lives in its own module with ``register(sub)``.
+"""zenoh-robot: ROS 2-style nodes, QoS and tools over Zenoh, and the drone GCS/companion.
 
-A module registers a parser and sets ``func(args) -> int``. Modules are imported
-lazily by name so one broken or optional subcommand never breaks the others.
+Each subcommand lives in its own module with ``register(sub)``, which adds a parser
+and sets ``func(args) -> int``. Built-in ones are modules of this package; the
+applications (gcs, companion, the PX4 simulator) plug in through the
+``zenoh_robot.cli`` entry-point group, so this package never imports them (nor MAVLink).
 """
 from __future__ import annotations
 
@@ -10,8 +12,9 @@ import importlib
 import logging
 import sys
 
-SUBCOMMANDS = ["topic", "stats", "param", "service", "launch", "sim", "companion", "gcs",
-               "bench", "experiment", "demo"]
+from importlib.metadata import entry_points
+
+SUBCOMMANDS = ["topic", "stats", "param", "service", "launch", "bench", "experiment", "demo"]
 
 
 class CliError(Exception):
@@ -19,7 +22,7 @@ class CliError(Exception):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="zenoh-robot", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="zenoh-robot", description=(__doc__ or "").splitlines()[0])
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in SUBCOMMANDS:
@@ -30,6 +33,11 @@ def build_parser() -> argparse.ArgumentParser:
                 continue
             raise
         module.register(sub)
+    for ep in sorted(entry_points(group="zenoh_robot.cli"), key=lambda e: e.name):
+        try:
+            ep.load()(sub)
+        except (ImportError, AttributeError) as exc:   # one broken plugin must not take the CLI down
+            print(f"zenoh-robot: subcommand {ep.name!r} unavailable: {exc}", file=sys.stderr)
     return parser
 
 

@@ -1,0 +1,197 @@
+"""``zenoh-robot gcs``: stream setpoints, show the dashboard, fly a mission, send commands."""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from rich.console import Console
+from rich.live import Live
+
+from zenoh_robot import Node, SessionConfig
+from zenoh_robot.parameters import add_param_argument, params_from_args
+from zenoh_robot.stream_profiles import PROFILES, stream_profile
+
+from .app import Gcs, GcsConfig
+from .dashboard import RateMeter, render
+from .mission import run_mission
+from .patterns import PATTERNS
+
+COMMANDS = ("arm", "disarm", "takeoff", "land", "hold", "rtl", "offboard", "offboard_start", "offboard_stop",
+            "set_param")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("gcs", help="ground control station: setpoints, telemetry, images, commands")
+    add_common(p)
+    actions = p.add_subparsers(dest="gcs_action", metavar="ACTION")
+    c = actions.add_parser("cmd", help="send one command to a drone: arm, takeoff 5, land, hold, offboard, ...")
+    c.add_argument("drone")
+    c.add_argument("command", choices=COMMANDS)
+    c.add_argument("value", nargs="?", help="takeoff altitude, or NAME=VALUE for set_param")
+    c.add_argument("--force", action="store_true", help="force (disarm in flight)")
+    c.add_argument("--timeout", type=float, default=8.0)
+    c.add_argument("--config", help="Zenoh session config (JSON5)")
+    p.set_defaults(func=run)
+
+
+def add_common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--drones", help="comma-separated drone ids (default: discover)")
+    p.add_argument("--pattern", choices=PATTERNS, default="thesis")
+    p.add_argument("--rate", type=float, default=10.0, help="setpoint rate, Hz (default 10, as the thesis)")
+    p.add_argument("--altitude", type=float, default=5.0)
+    p.add_argument("--size", type=float, default=10.0, help="pattern size, m")
+    p.add_argument("--speed", type=float, default=2.0, help="pattern speed, m/s")
+    p.add_argument("--profile", choices=sorted(PROFILES), default="resilient", help="stream QoS/transport profile")
+    p.add_argument("--config", help="Zenoh session config (JSON5)")
+    p.add_argument("--duration", type=float, help="stop after this many seconds")
+    p.add_argument("--mission", action="store_true",
+                   help="fly: offboard, arm, pattern for --duration, land (needs one drone)")
+    p.add_argument("--no-dashboard", action="store_true", help="log lines instead of the live table")
+    p.add_argument("--record", type=Path, help="write per-drone, per-stream figures here (JSON) at the end")
+    p.add_argument("--save-image", type=Path, help="save the latest frame here (PNG/JPEG) every --save-every s")
+    p.add_argument("--save-every", type=float, default=5.0)
+    add_param_argument(p)
+
+
+def session_config(args: argparse.Namespace, profile_transport: dict[str, Any]) -> SessionConfig:
+    if args.config:
+        return SessionConfig.from_file(args.config)
+    return SessionConfig(**profile_transport)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.gcs_action == "cmd":
+        return run_command(args)
+    params = params_from_args(args)
+    profile = stream_profile(args.profile, params)
+    drones = [d for d in (args.drones or "").split(",") if d]
+    config = GcsConfig(drones=drones, pattern=args.pattern, rate_hz=args.rate, altitude=args.altitude,
+                       size=args.size, speed=args.speed, profile=profile, save_image=args.save_image,
+                       save_every=args.save_every)
+    console = Console(stderr=False)
+    with Node("gcs", config=session_config(args, profile.transport), parameter_overrides=params) as node:
+        gcs = Gcs(node, config)
+        spinner = threading.Thread(target=node.spin, name="gcs-spin", daemon=True)
+        spinner.start()
+        result: dict[str, Any] = {}
+        mission_thread = None
+        if args.mission:
+            if len(drones) != 1:
+                console.print("gcs: --mission needs exactly one drone (--drones uav1)")
+                node.shutdown()
+                return 2
+            mission_thread = threading.Thread(
+                target=lambda: result.update(run_mission(gcs, drones[0], args.duration or 60.0, console.log)),
+                name="mission", daemon=True)
+            mission_thread.start()
+        deadline = None if args.duration is None or args.mission else time.monotonic() + args.duration
+        try:
+            _watch(gcs, console, args, deadline, mission_thread)
+        except KeyboardInterrupt:
+            console.print("gcs: interrupted")
+        finally:
+            node.shutdown()
+            spinner.join(timeout=2.0)
+        summary = summarize(gcs, profile.name)
+        summary["mission"] = result
+        _print_summary(console, summary)
+        if args.record:
+            args.record.parent.mkdir(parents=True, exist_ok=True)
+            args.record.write_text(json.dumps(summary, indent=2, default=str))
+            console.print(f"gcs: figures written to {args.record}")
+    if args.mission and not result.get("ok"):
+        return 1
+    return 0
+
+
+def _watch(gcs: Gcs, console: Console, args: argparse.Namespace, deadline: float | None,
+           mission: threading.Thread | None) -> None:
+    def done() -> bool:
+        if mission is not None:
+            return not mission.is_alive()
+        return deadline is not None and time.monotonic() >= deadline
+
+    rates = RateMeter()
+    if args.no_dashboard or not console.is_terminal:
+        last = 0.0
+        while not done():
+            time.sleep(0.2)
+            if time.monotonic() - last >= 5.0:
+                last = time.monotonic()
+                for d in gcs.drones.values():
+                    s = d.state
+                    sensor = d.streams["sensor"].summary()
+                    console.log(f"{d.id}: mode={s.mode if s else '?'} armed={s.armed if s else '?'} "
+                                f"pos={[round(v, 1) for v in s.position] if s else '?'} "
+                                f"sensor {sensor.rate_hz:.0f} Hz age {sensor.age_avg_ms:.1f} ms, "
+                                f"frames {d.image.frames}, setpoints sent {d.setpoints_sent}")
+        return
+    with Live(render(gcs, rates), console=console, refresh_per_second=4, transient=False) as live:
+        while not done():
+            time.sleep(0.25)
+            live.update(render(gcs, rates))
+
+
+def summarize(gcs: Gcs, profile: str) -> dict[str, Any]:
+    out: dict[str, Any] = {"profile": profile, "pattern": gcs.config.pattern, "drones": {}}
+    for d in gcs.drones.values():
+        streams = {name: rec.summary().as_dict() for name, rec in d.streams.items()}
+        for name, rec in d.streams.items():
+            streams[name]["lost_pct"] = rec.lost_pct()
+        out["drones"][d.id] = {
+            "setpoints_sent": d.setpoints_sent, "streams": streams,
+            "frames": d.image.frames, "frames_complete": d.image.complete,
+            "max_path_error_m": d.max_path_error,
+            "final_state": d.state.to_dict() if d.state else None,
+            "events": [e.to_dict() for e in d.events],
+        }
+    return out
+
+
+def _print_summary(console: Console, summary: dict[str, Any]) -> None:
+    from rich.table import Table
+    t = Table(title=f"summary ({summary['profile']})")
+    for col in ("drone", "stream", "received", "lost %", "age avg ms", "age p99 ms", "period avg ms"):
+        t.add_column(col)
+    for drone, d in summary["drones"].items():
+        for name, s in d["streams"].items():
+            t.add_row(drone, name, str(s["received"]), f"{s['lost_pct']:.1f}", f"{s['age_avg_ms']:.1f}",
+                      f"{s['age_p99_ms']:.1f}", f"{s['period_avg_ms']:.1f}")
+        console.print(f"{drone}: setpoints sent {d['setpoints_sent']}, frames {d['frames']} "
+                      f"({d['frames_complete']} whole), largest distance from the path "
+                      f"{d['max_path_error_m']:.2f} m")
+    console.print(t)
+
+
+def run_command(args: argparse.Namespace) -> int:
+    from zenoh_robot.msgs import Command, CommandResult
+    from zenoh_robot.services import ServiceCallError
+    name = "offboard_start" if args.command == "offboard" else args.command
+    value, text = 0.0, ""
+    if name == "takeoff":
+        value = float(args.value) if args.value else 5.0
+    elif name == "set_param":
+        if not args.value or "=" not in args.value:
+            print("gcs cmd: set_param needs NAME=VALUE", file=sys.stderr)
+            return 2
+        text, _, raw = args.value.partition("=")
+        try:
+            value = float(raw)
+        except ValueError:
+            print(f"gcs cmd: parameter value {raw!r} is not a number", file=sys.stderr)
+            return 2
+    config = SessionConfig.from_file(args.config) if args.config else SessionConfig()
+    with Node("gcs_cmd", config=config) as node:
+        client = node.create_client(f"/{args.drone}/command", Command, CommandResult)
+        try:
+            res = client.call(Command(name, value, text, args.force), timeout=args.timeout)
+        except ServiceCallError as exc:
+            print(f"gcs cmd: {args.drone} {name}: {exc}", file=sys.stderr)
+            return 1
+    print(f"{args.drone} {name}: {'ok' if res.success else 'FAILED'} {res.message} (mode {res.mode})")
+    return 0 if res.success else 1
