@@ -11,6 +11,7 @@ import argparse
 import importlib
 import logging
 import sys
+from typing import Callable
 
 from importlib.metadata import entry_points
 
@@ -41,10 +42,10 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+def main(argv: list[str] | None = None, parser: argparse.ArgumentParser | None = None) -> int:
+    parser = parser or build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
+    logging.basicConfig(level=logging.DEBUG if getattr(args, "verbose", False) else logging.INFO,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     if not getattr(args, "func", None):
         parser.print_help()
@@ -60,3 +61,12 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     sys.exit(main())
+
+
+def run_single(register: Callable[[argparse._SubParsersAction], None], command: str, prog: str,
+               argv: list[str] | None = None) -> int:
+    """Run one plugin subcommand as its own program (``python -m gcs`` == ``zenoh-robot gcs``)."""
+    parser = argparse.ArgumentParser(prog=prog)
+    sub = parser.add_subparsers(dest="command", required=True)
+    register(sub)
+    return main([command, *(sys.argv[1:] if argv is None else argv)], parser=parser)

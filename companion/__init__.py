@@ -1,0 +1,1 @@
+"""The drone-side process: setpoints in -> PX4; PX4 telemetry and camera frames out."""

@@ -1,0 +1,115 @@
+"""``zenoh-robot companion``: bridge one drone's PX4 to Zenoh."""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import logging
+import signal
+import threading
+from dataclasses import replace
+from pathlib import Path
+from typing import Any, Iterator
+
+from px4_link import Px4Link
+from zenoh_robot import Node, SessionConfig
+from zenoh_robot.names import validate_node_name
+from zenoh_robot.parameters import add_param_argument, params_from_args
+from zenoh_robot.qos import load_qos
+from zenoh_robot.stream_profiles import PROFILES, STREAMS, StreamProfile, stream_profile
+
+from .app import Companion, CompanionConfig
+
+log = logging.getLogger("companion")
+DEFAULT_PX4 = "udpin:0.0.0.0:14540"
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("companion", help="drone side: PX4 <-> Zenoh, camera, commands, link-loss failsafe")
+    p.add_argument("--id", default="uav1", help="drone id, the namespace of its topics (default uav1)")
+    p.add_argument("--px4", default=DEFAULT_PX4,
+                   help=f"PX4 MAVLink connection (default {DEFAULT_PX4}, where PX4 SITL sends); "
+                        "'sim' starts the built-in simulator")
+    p.add_argument("--sysid", type=int, default=1, help="system id of the built-in simulator (with --px4 sim)")
+    p.add_argument("--profile", choices=sorted(PROFILES), default="resilient")
+    p.add_argument("--config", type=Path, help="QoS YAML overriding streams (setpoint, sensor, state, image, events)")
+    p.add_argument("--zenoh", help="Zenoh session config (JSON5)")
+    p.add_argument("--deadline", type=float, default=1.0, help="setpoint deadline before HOLD, s (default 1)")
+    p.add_argument("--resume-on-setpoints", action="store_true",
+                   help="after a failsafe HOLD, resume OFFBOARD by itself when setpoints return")
+    p.add_argument("--camera", default="test", help="'test' pattern, a device, a video file, or 'none'")
+    p.add_argument("--camera-rate", type=float, default=30.0)
+    p.add_argument("--sensor-rate", type=float, default=200.0, help="HIGHRES_IMU rate asked of PX4, Hz")
+    p.add_argument("--duration", type=float, help="stop after this many seconds")
+    p.add_argument("--record", type=Path, help="write the setpoint stream's figures here (JSON) at exit")
+    add_param_argument(p)
+    p.set_defaults(func=run)
+
+
+def load_profile(args: argparse.Namespace, params: dict[str, Any]) -> StreamProfile:
+    profile = stream_profile(args.profile, params)
+    if args.config:
+        overrides = load_qos(args.config)
+        unknown = sorted(set(overrides) - set(STREAMS))
+        if unknown:
+            raise ValueError(f"{args.config}: unknown stream(s) {unknown}; streams: {', '.join(STREAMS)}")
+        profile = replace(profile, name=f"{profile.name}+{args.config.stem}", qos={**profile.qos, **overrides})
+    return profile
+
+
+@contextlib.contextmanager
+def px4_connection(spec: str, sysid: int) -> Iterator[str]:
+    """Yield a pymavlink connection string; with 'sim', run the built-in simulator meanwhile."""
+    if spec != "sim":
+        yield spec
+        return
+    from px4_link.sim import Simulator
+    from px4_link.transport import free_udp_port
+    port = free_udp_port()
+    with Simulator(sysid=sysid, target_port=port, local_port=0):
+        yield f"udpin:127.0.0.1:{port}"
+
+
+def run(args: argparse.Namespace) -> int:
+    from zenoh_robot.cli.main import CliError
+    try:
+        validate_node_name(args.id)
+    except ValueError as exc:
+        raise CliError(f"--id: {exc}") from None
+    params = params_from_args(args)
+    try:
+        profile = load_profile(args, params)
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    config = CompanionConfig(drone_id=args.id, profile=profile, setpoint_deadline=args.deadline,
+                             resume_on_setpoints=args.resume_on_setpoints, sensor_rate_hz=args.sensor_rate,
+                             camera=None if args.camera == "none" else args.camera, camera_rate_hz=args.camera_rate)
+    session = SessionConfig.from_file(args.zenoh) if args.zenoh else SessionConfig(**profile.transport)
+    from zenoh_robot import MultiThreadedExecutor
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    with px4_connection(args.px4, args.sysid) as connection, Px4Link(connection) as link, \
+            Node("companion", namespace=args.id, config=session, executor=MultiThreadedExecutor(3),
+                 parameter_overrides=params) as node:
+        log.info("companion %s: PX4 at %s, profile %s", args.id, connection, profile.name)
+        if not link.wait_connected(timeout=10.0):
+            log.warning("no PX4 heartbeat yet on %s; waiting in the background", connection)
+        link.request_message_interval("HIGHRES_IMU", args.sensor_rate)
+        companion = Companion(node, link, config)
+        spinner = threading.Thread(target=node.spin, name="companion-spin", daemon=True)
+        spinner.start()
+        try:
+            stop.wait(timeout=args.duration)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            node.shutdown()
+            spinner.join(timeout=2.0)
+        summary = companion.summary()
+        log.info("companion %s: setpoints received %d (lost %.1f %%), rejected %d, final mode %s", args.id,
+                 summary["setpoints"]["unique"], summary["setpoints"]["lost_pct"], summary["setpoints_rejected"],
+                 summary["final_mode"])
+        if args.record:
+            args.record.parent.mkdir(parents=True, exist_ok=True)
+            args.record.write_text(json.dumps(summary, indent=2, default=str))
+    return 0
