@@ -25,7 +25,7 @@ from typing import Any
 from px4_link import Px4Link
 from px4_link.commands import CommandError
 from px4_link.setpoints import PositionSetpoint, SetpointRejected, VelocitySetpoint
-from px4_link.telemetry import Imu
+from px4_link.telemetry import Attitude, Battery, Imu, LocalPosition
 from zenoh_robot import Node
 from zenoh_robot.events import SubscriptionEventCallbacks
 from zenoh_robot.image_transport import ImagePublisher
@@ -81,7 +81,7 @@ class Companion:
             event_callbacks=SubscriptionEventCallbacks(deadline=self._on_deadline_missed))
         node.create_service("command", Command, CommandResult, self._on_command)
         node.create_timer(1.0 / config.state_rate_hz, self._publish_state)
-        link.add_listener(Imu, self._on_imu)
+        link.add_listener(self._on_imu, Imu)
         self._stop = threading.Event()
         self._camera_thread: threading.Thread | None = None
         if config.camera:
@@ -119,8 +119,7 @@ class Companion:
 
     def _hold_for_failsafe(self) -> None:
         try:
-            self.link.stop_offboard()
-            self.link.hold()
+            self.link.stop_offboard(mode="AUTO.LOITER")   # HOLD first, then stop streaming
         except CommandError as exc:
             log.error("failsafe HOLD failed: %s", exc)
             self._event("failsafe_failed", str(exc), "")
@@ -136,11 +135,11 @@ class Companion:
             "arm": lambda: self.link.arm(),
             "disarm": lambda: self.link.disarm(force=cmd.force),
             "takeoff": lambda: self.link.takeoff(cmd.value or 5.0),
-            "land": lambda: self._leave_offboard(self.link.land),
-            "hold": lambda: self._leave_offboard(self.link.hold),
-            "rtl": lambda: self._leave_offboard(self.link.rtl),
+            "land": lambda: self._leave_offboard("AUTO.LAND"),
+            "hold": lambda: self._leave_offboard("AUTO.LOITER"),
+            "rtl": lambda: self._leave_offboard("AUTO.RTL"),
             "offboard_start": self._offboard_start,
-            "offboard_stop": lambda: self._leave_offboard(self.link.hold),
+            "offboard_stop": lambda: self._leave_offboard("AUTO.LOITER"),
             "set_param": lambda: self.link.set_param(cmd.text, cmd.value),
         }
         fn = handlers.get(cmd.name)
@@ -165,11 +164,14 @@ class Companion:
         self.offboard_wanted = True
         self.failsafe = ""
 
-    def _leave_offboard(self, action: Any) -> None:
+    def _leave_offboard(self, mode: str) -> None:
+        """Switch mode, then stop the setpoint stream (stop_offboard does both in that order)."""
         self.offboard_wanted = False
         self.failsafe = ""
-        self.link.stop_offboard()
-        action()
+        if self.link.streaming:
+            self.link.stop_offboard(mode=mode)
+        else:
+            self.link.set_mode(mode)
 
     def _try(self, fn: Any) -> None:
         try:
@@ -186,15 +188,15 @@ class Companion:
 
     def _publish_state(self) -> None:
         st = self.link.state
-        pos = self.link.latest_position
-        att = self.link.latest_attitude
-        batt = self.link.latest_battery
+        pos = self.link.latest(LocalPosition)
+        att = self.link.latest(Attitude)
+        batt = self.link.latest(Battery)
         self.state_pub.publish(VehicleState(
-            Header.now(), st.mode, st.armed, st.landed, self.link.connected, self.link.offboard_streaming,
+            Header.now(), st.mode, st.armed, bool(st.landed), self.link.connected, self.link.streaming,
             [pos.x, pos.y, pos.z] if pos else [math.nan] * 3,
             [pos.vx, pos.vy, pos.vz] if pos else [math.nan] * 3,
             [att.roll, att.pitch, att.yaw] if att else [math.nan] * 3,
-            batt.remaining if batt else math.nan, batt.voltage if batt else math.nan,
+            batt.remaining_pct / 100.0 if batt else math.nan, batt.voltage_v if batt else math.nan,
             self.failsafe, self.setpoints_rejected))
 
     def _camera_loop(self) -> None:

@@ -11,7 +11,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any, Iterator
 
-from px4_link import Px4Link
+from px4_link import CommandError, Px4Link
 from zenoh_robot import Node, SessionConfig
 from zenoh_robot.names import validate_node_name
 from zenoh_robot.parameters import add_param_argument, params_from_args
@@ -64,10 +64,16 @@ def px4_connection(spec: str, sysid: int) -> Iterator[str]:
         yield spec
         return
     from px4_link.sim import Simulator
-    from px4_link.transport import free_udp_port
-    port = free_udp_port()
-    with Simulator(sysid=sysid, target_port=port, local_port=0):
+    port = _free_udp_port()
+    with Simulator(sysid, port=0, target_port=port):
         yield f"udpin:127.0.0.1:{port}"
+
+
+def _free_udp_port() -> int:
+    import socket
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
 
 
 def run(args: argparse.Namespace) -> int:
@@ -94,7 +100,10 @@ def run(args: argparse.Namespace) -> int:
         log.info("companion %s: PX4 at %s, profile %s", args.id, connection, profile.name)
         if not link.wait_connected(timeout=10.0):
             log.warning("no PX4 heartbeat yet on %s; waiting in the background", connection)
-        link.request_message_interval("HIGHRES_IMU", args.sensor_rate)
+        try:
+            link.request_message_interval("HIGHRES_IMU", args.sensor_rate)
+        except CommandError as exc:   # PX4 not there yet: its default rate applies
+            log.warning("could not set the HIGHRES_IMU rate: %s", exc)
         companion = Companion(node, link, config)
         spinner = threading.Thread(target=node.spin, name="companion-spin", daemon=True)
         spinner.start()

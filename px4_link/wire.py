@@ -1,0 +1,124 @@
+"""MAVLink 2 framing: a thread-safe encoder and a counting, never-raising parser.
+
+We use pymavlink's generated ``common`` dialect directly instead of ``mavutil``'s global
+dialect switch, so this package never depends on (or changes) process-wide pymavlink
+state that other code in the same process might rely on.
+"""
+from __future__ import annotations
+
+import struct
+import threading
+from typing import Any, Callable
+
+from pymavlink.dialects.v20 import common as mavlink2
+
+MAVLink = mavlink2.MAVLink
+MAVLinkMessage = mavlink2.MAVLink_message
+
+
+class _Sink:
+    """pymavlink writes encoded frames to ``file.write``; route them to a callable."""
+
+    def __init__(self, write: Callable[[bytes], None]) -> None:
+        self.write = write
+
+
+class Encoder:
+    """Encodes and sends messages with our system/component id. Several threads send
+    (stream thread, command callers), and pymavlink's sequence counter is not thread-safe,
+    hence the lock."""
+
+    def __init__(self, write: Callable[[bytes], None], system_id: int, component_id: int) -> None:
+        self.mav = MAVLink(_Sink(write), srcSystem=system_id, srcComponent=component_id)
+        self._lock = threading.Lock()
+
+    def send(self, msg: MAVLinkMessage) -> None:
+        with self._lock:
+            self.mav.send(msg)
+
+    def __getattr__(self, name: str) -> Any:
+        # *_encode factories are pure; expose them directly (encoder.heartbeat_encode(...)).
+        if name.endswith("_encode"):
+            return getattr(self.mav, name)
+        raise AttributeError(name)
+
+
+class Parser:
+    """Turns received bytes into messages. Garbage and bad CRCs become counts, not errors.
+
+    For datagram transports every datagram is parsed on its own: leftover bytes of a
+    truncated frame are dropped and counted, so one bad datagram cannot swallow the
+    start of the next good one.
+    """
+
+    def __init__(self) -> None:
+        self._mav = MAVLink(None)
+        self._mav.robust_parsing = True
+        self.bytes_received = 0
+        self.messages = 0
+        self.bad_bytes = 0
+        self.bad_frames = 0
+        self.crc_errors = 0
+        self.unknown_messages = 0
+
+    def feed(self, data: bytes, datagram: bool = False) -> list[MAVLinkMessage]:
+        if not data:
+            return []
+        self.bytes_received += len(data)
+        out: list[MAVLinkMessage] = []
+        try:
+            msgs = self._mav.parse_buffer(data) or []
+        except Exception:  # robust parsing should not raise; never let it kill a thread
+            msgs = []
+            self._reset()
+            self.bad_frames += 1
+            self.bad_bytes += len(data)
+        for m in msgs:
+            mtype = m.get_type()
+            if mtype == "BAD_DATA":
+                self.bad_frames += 1
+                self.bad_bytes += len(m.data)
+                if "CRC" in str(getattr(m, "reason", "")).upper():
+                    self.crc_errors += 1
+                continue
+            if mtype.startswith("UNKNOWN"):
+                self.unknown_messages += 1
+                continue
+            self.messages += 1
+            out.append(m)
+        if datagram:
+            left = self._mav.buf_len()
+            if left:
+                self.bad_frames += 1
+                self.bad_bytes += left
+                self._reset()
+        return out
+
+    def _reset(self) -> None:
+        self._mav.buf = bytearray()
+        self._mav.buf_index = 0
+        self._mav.expected_length = mavlink2.HEADER_LEN_V1 + 2
+
+
+def message_id(name_or_id: str | int) -> int:
+    """MAVLink message id from a name like "HIGHRES_IMU" (or an id, returned as is)."""
+    if isinstance(name_or_id, int):
+        return name_or_id
+    try:
+        return int(getattr(mavlink2, f"MAVLINK_MSG_ID_{name_or_id.upper()}"))
+    except AttributeError:
+        raise ValueError(f"unknown MAVLink message {name_or_id!r}") from None
+
+
+def message_name(msg_id: int) -> str | None:
+    cls = mavlink2.mavlink_map.get(msg_id)
+    return cls.msgname if cls is not None else None
+
+
+def int_to_float_bits(v: int) -> float:
+    """PX4 sends INT32 params bytewise in PARAM_VALUE's float (PARAM_ENCODE_BYTEWISE)."""
+    return struct.unpack("<f", struct.pack("<i", v))[0]
+
+
+def float_bits_to_int(f: float) -> int:
+    return struct.unpack("<i", struct.pack("<f", f))[0]

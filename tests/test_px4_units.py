@@ -1,0 +1,161 @@
+"""px4_link units without sockets: mode encoding, setpoint checks, command ACK handling."""
+from __future__ import annotations
+
+import math
+import threading
+
+import pytest
+
+import px4_helpers  # noqa: F401  (puts the checkout's px4_link first on sys.path)
+from px4_link import commands as cmds
+from px4_link.modes import (UnknownModeError, decode_custom_mode, encode_custom_mode,
+                            mode_to_main_sub, normalize_mode_name)
+from px4_link.setpoints import (Geofence, PositionSetpoint, SetpointRejected, SetpointValidator,
+                                VelocitySetpoint, mavlink_fields)
+from px4_link.telemetry import Imu
+from px4_link.wire import Encoder, Parser, float_bits_to_int, int_to_float_bits
+
+
+@pytest.mark.parametrize("name,main,sub", [
+    ("MANUAL", 1, 0), ("ALTCTL", 2, 0), ("POSCTL", 3, 0), ("AUTO.TAKEOFF", 4, 2),
+    ("AUTO.LOITER", 4, 3), ("AUTO.MISSION", 4, 4), ("AUTO.RTL", 4, 5), ("AUTO.LAND", 4, 6),
+    ("ACRO", 5, 0), ("OFFBOARD", 6, 0), ("STABILIZED", 7, 0),
+])
+def test_mode_encoding_matches_px4(name: str, main: int, sub: int) -> None:
+    assert mode_to_main_sub(name) == (main, sub)
+    assert encode_custom_mode(name) == (main << 16) | (sub << 24)
+    assert decode_custom_mode((main << 16) | (sub << 24)) == name
+
+
+def test_offboard_custom_mode_is_6_shl_16() -> None:
+    assert encode_custom_mode("OFFBOARD") == 6 << 16 == 393216
+    assert decode_custom_mode(393216) == "OFFBOARD"
+
+
+def test_mode_aliases_and_unknowns() -> None:
+    assert normalize_mode_name("hold") == "AUTO.LOITER"
+    assert normalize_mode_name("Land") == "AUTO.LAND"
+    assert normalize_mode_name("RTL") == "AUTO.RTL"
+    assert normalize_mode_name("takeoff") == "AUTO.TAKEOFF"
+    with pytest.raises(UnknownModeError):
+        normalize_mode_name("WARP_DRIVE")
+    assert decode_custom_mode((4 << 16) | (99 << 24)).startswith("UNKNOWN")
+
+
+def test_setpoint_type_masks() -> None:
+    assert PositionSetpoint(1, 2, -3, yaw=0.5).type_mask == 0x9F8
+    assert VelocitySetpoint(1, 0, 0, yaw=0.0).type_mask == 0x9C7
+    assert PositionSetpoint(1, 2, -3).type_mask & 0x400  # no yaw -> yaw ignored
+    f = mavlink_fields(PositionSetpoint(1, 2, -3, yaw=0.5))
+    assert (f["coordinate_frame"], f["x"], f["y"], f["z"], f["yaw"]) == (1, 1, 2, -3, 0.5)
+
+
+@pytest.mark.parametrize("sp,reason", [
+    (PositionSetpoint(math.nan, 0, -2), "non_finite"),
+    (PositionSetpoint(0, math.inf, -2), "non_finite"),
+    (VelocitySetpoint(0, 0, math.nan), "non_finite"),
+    (PositionSetpoint(0, 0, -2, yaw=math.nan), "non_finite"),
+    (PositionSetpoint(200, 0, -2), "geofence"),
+    (PositionSetpoint(0, 0, -80), "geofence"),
+    (VelocitySetpoint(20, 0, 0), "too_fast"),
+])
+def test_validator_rejects(sp, reason: str) -> None:
+    v = SetpointValidator(Geofence(max_distance_m=100, max_altitude_m=50), max_speed=10)
+    with pytest.raises(SetpointRejected) as e:
+        v.check(sp, now=0.0)
+    assert e.value.reason == reason
+    assert isinstance(e.value, ValueError) and str(e.value)
+
+
+def test_validator_box_and_jump_rules() -> None:
+    v = SetpointValidator(Geofence(x_range=(-5, 5), y_range=(-5, 5)), max_speed=10)
+    with pytest.raises(SetpointRejected):
+        v.check(PositionSetpoint(6, 0, -2), now=0.0)
+    v.check(PositionSetpoint(0, 0, -2), now=0.0, vehicle_position=(0, 0, 0))
+    v.accept(PositionSetpoint(0, 0, -2), now=0.0)
+    # 0.1 s later: 1 m is fine at 10 m/s, 3 m is not.
+    v.check(PositionSetpoint(1, 0, -2), now=0.1)
+    with pytest.raises(SetpointRejected) as e:
+        v.check(PositionSetpoint(3, 0, -2), now=0.1)
+    assert e.value.reason == "too_fast"
+    # A stale reference: the vehicle's position is used with a 1 s window.
+    with pytest.raises(SetpointRejected):
+        v.check(PositionSetpoint(4, 4, -2), now=5.0, vehicle_position=(-5, -5, 0))
+    v.check(PositionSetpoint(4, 4, -2), now=5.0, vehicle_position=(0, 0, -2))
+
+
+def _sender(acks: list[int | None]):
+    """CommandSender whose 'vehicle' answers the n-th send with acks[n] (None = silence)."""
+    sent: list[tuple[int, int]] = []
+
+    def send(command, params, confirmation):
+        sent.append((command, confirmation))
+        result = acks[len(sent) - 1] if len(sent) <= len(acks) else None
+        if result is not None:
+            threading.Timer(0.01, sender.handle_ack, (command, result)).start()
+
+    sender = cmds.CommandSender(send, timeout=0.1, retries=2)
+    return sender, sent
+
+
+@pytest.mark.parametrize("result,exc", [
+    (cmds.MAV_RESULT_DENIED, cmds.CommandDenied),
+    (cmds.MAV_RESULT_TEMPORARILY_REJECTED, cmds.CommandTemporarilyRejected),
+    (cmds.MAV_RESULT_UNSUPPORTED, cmds.CommandUnsupported),
+    (cmds.MAV_RESULT_FAILED, cmds.CommandFailed),
+])
+def test_command_results_map_to_exceptions(result: int, exc: type) -> None:
+    sender, _ = _sender([result])
+    with pytest.raises(exc) as e:
+        sender.run(400, [1])
+    assert isinstance(e.value, cmds.CommandError) and e.value.result == result
+
+
+def test_command_retries_then_succeeds_and_times_out() -> None:
+    sender, sent = _sender([None, None, cmds.MAV_RESULT_ACCEPTED])
+    ack = sender.run(176, [1, 6])
+    assert ack.attempts == 3 and [c for _, c in sent] == [0, 1, 2]  # confirmation increments
+    sender, sent = _sender([])
+    with pytest.raises(cmds.CommandTimeout):
+        sender.run(400, [1])
+    assert len(sent) == 3
+
+
+def test_parser_counts_garbage_and_bad_crc() -> None:
+    frames: list[bytes] = []
+    enc = Encoder(frames.append, 1, 1)
+    enc.send(enc.heartbeat_encode(2, 12, 0, 0, 3))
+    good = frames[0]
+    bad_crc = bytearray(good)
+    bad_crc[-1] ^= 0xFF
+    p = Parser()
+    assert p.feed(b"\x00\x01garbage!!", datagram=True) == []
+    assert p.feed(bytes(bad_crc), datagram=True) == []
+    assert p.feed(good[:7], datagram=True) == []           # truncated frame
+    msgs = p.feed(good, datagram=True)
+    assert [m.get_type() for m in msgs] == ["HEARTBEAT"]
+    assert p.crc_errors == 1 and p.bad_frames >= 3 and p.bad_bytes > 10
+
+
+def test_param_bytewise_int_encoding_roundtrips() -> None:
+    for v in (0, 1, 5, 7, 255, -1, 21196):
+        assert float_bits_to_int(int_to_float_bits(v)) == v
+
+
+def test_imu_decodes_sensor_combined_fields() -> None:
+    frames: list[bytes] = []
+    enc = Encoder(frames.append, 3, 1)
+    enc.send(enc.highres_imu_encode(123456, 0.1, 0.2, -9.8, 0.01, 0.02, 0.03, 0.2, 0.0, 0.4,
+                                    955.0, 0.0, 488.5, 25.0, 0x1FFF, 0))
+    m = Parser().feed(frames[0])[0]
+    imu = Imu.from_mavlink(m)
+    assert imu.timestamp_us == 123456 and imu.system_id == 3
+    assert imu.accelerometer_m_s2 == pytest.approx((0.1, 0.2, -9.8))
+    assert imu.gyro_rad == pytest.approx((0.01, 0.02, 0.03))
+    assert imu.baro_alt_meter == pytest.approx(488.5) and imu.baro_temp_celcius == 25.0
+
+
+def test_rate_below_10hz_refused() -> None:
+    from px4_link import Px4Link
+    with pytest.raises(ValueError):
+        Px4Link("udpin:127.0.0.1:0", setpoint_rate_hz=5)
