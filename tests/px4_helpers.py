@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import time
 from contextlib import contextmanager
-from typing import Callable, Iterator
+from typing import Iterator
 
 from conftest import python_proc, wait_for  # noqa: F401  (wait_for is re-exported for the px4 tests)
 from px4_link import Px4Link
