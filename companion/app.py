@@ -31,6 +31,7 @@ from zenoh_robot.events import SubscriptionEventCallbacks
 from zenoh_robot.image_transport import ImagePublisher
 from zenoh_robot.msgs import (Command, CommandResult, FailsafeEvent, Header, Image, SensorCombined, Setpoint,
                               VehicleState)
+from zenoh_robot.publisher import PublisherClosed
 from zenoh_robot.stream_metrics import StreamRecorder
 from zenoh_robot.stream_profiles import StreamProfile, stream_profile
 
@@ -181,10 +182,14 @@ class Companion:
 
     # -- telemetry -------------------------------------------------------------------
     def _on_imu(self, imu: Imu) -> None:    # px4_link's thread: publish is thread safe
-        self.sensor_pub.publish(SensorCombined(
+        msg = SensorCombined(
             Header.now(frame_id="base_link"), imu.timestamp_us, list(imu.gyro_rad), 0, 0,
             list(imu.accelerometer_m_s2), 0, list(imu.magnetometer_ga), imu.baro_alt_meter,
-            imu.baro_temp_celcius))
+            imu.baro_temp_celcius)
+        try:
+            self.sensor_pub.publish(msg)
+        except PublisherClosed:   # shutting down: the link's thread outlived the node by a moment
+            pass
 
     def _publish_state(self) -> None:
         st = self.link.state
@@ -228,6 +233,8 @@ class Companion:
             source.close()
 
     def close(self) -> None:
+        # Runs before the node's publishers go: the link's thread must stop using them first.
+        self.link.remove_listener(self._on_imu)
         self._stop.set()
         if self._camera_thread is not None:
             self._camera_thread.join(timeout=2.0)

@@ -136,6 +136,7 @@ class Gcs:
         self._pattern = make_pattern(config.pattern, config.altitude, config.size, config.speed)
         self._t0 = time.monotonic()
         self.flying_pattern = False
+        self._frozen: tuple[float, float, float, float] | None = None
         self.streaming = True
         for d in config.drones:
             self.add_drone(d)
@@ -161,8 +162,16 @@ class Gcs:
     def restart_pattern(self, flying: bool = True) -> None:
         self._t0 = time.monotonic()
         self.flying_pattern = flying
+        self._frozen = None
+
+    def freeze(self) -> None:
+        """Keep sending the current target: a jump back to the start would be refused as too fast."""
+        self._frozen = self.target()
+        self.flying_pattern = False
 
     def target(self) -> tuple[float, float, float, float]:
+        if self._frozen is not None:
+            return self._frozen
         if not self.flying_pattern:
             return 0.0, 0.0, -abs(self.config.altitude), 0.0
         t = self._pattern(time.monotonic() - self._t0)

@@ -55,7 +55,7 @@ def run_mission(gcs: Gcs, drone_id: str, duration: float, log: Callable[..., Non
     end = time.monotonic() + duration
     while time.monotonic() < end:
         time.sleep(0.2)
-    gcs.flying_pattern = False
+    gcs.freeze()
     if not command("land"):
         return out
     landed = _until(lambda: bool(drone.state and drone.state.landed and not drone.state.armed), 30.0)

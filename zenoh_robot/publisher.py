@@ -18,6 +18,10 @@ if TYPE_CHECKING:
 M = TypeVar("M", bound=Message)
 
 
+class PublisherClosed(RuntimeError):
+    """publish() on a publisher whose node or session has closed."""
+
+
 class Publisher(Generic[M]):
     def __init__(self, node: "Node", msg_type: type[M], topic: str, key: str, qos: QoSProfile,
                  event_callbacks: Any = None) -> None:
@@ -39,6 +43,7 @@ class Publisher(Generic[M]):
         self._zpub = node.session.declare_publisher(key, **publisher_options(qos))
         self.published = 0
         self.last_publish_mono: float | None = None
+        self._closed = False
         self._history = RedundantHistory(qos.redundancy) if qos.redundancy else None
         self._copies = 1 + qos.repeat
 
@@ -55,6 +60,8 @@ class Publisher(Generic[M]):
     def publish_raw_body(self, body: Any, extra: dict[str, Any] | None = None) -> int:
         """Send an already wire-encoded body; returns its sequence number."""
         with self._lock:
+            if self._closed:
+                raise PublisherClosed(f"publisher on {self.topic!r} is closed")
             self._seq += 1
             seq = self._seq
             stamp = time.time_ns()
@@ -73,6 +80,8 @@ class Publisher(Generic[M]):
         return self.node.count_subscribers(self.topic)
 
     def destroy(self) -> None:
+        with self._lock:   # waits for a publish in flight on another thread
+            self._closed = True
         try:
             self._zpub.undeclare()
         except Exception:

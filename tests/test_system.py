@@ -1,0 +1,172 @@
+"""The whole system over localhost: simulator, companion and GCS as they run on a drone.
+
+The simulator runs in the test process (so the test can read its mode and the
+setpoints that reached it), but talks to the companion only through real MAVLink over
+UDP; the companion and the GCS are real child processes talking over Zenoh.
+"""
+from __future__ import annotations
+
+import json
+import math
+import signal
+import socket
+import subprocess
+import time
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator
+
+import pytest
+
+from px4_link.sim import Simulator
+from zenoh_robot import Node, qos
+from zenoh_robot.msgs import Command, CommandResult, FailsafeEvent, Header, Setpoint, VehicleState
+from zenoh_robot.stream_profiles import stream_profile
+
+from conftest import python_proc, wait_for
+
+FAST = {"MPC_TKO_SPEED": 3.0, "MPC_LAND_SPEED": 2.0}   # shorter climbs and landings; failsafe params untouched
+
+
+def _free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _stop(proc: subprocess.Popen, timeout: float = 10.0) -> str:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+    try:
+        out, _ = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, _ = proc.communicate()
+    return out or ""
+
+
+@contextmanager
+def drone(drone_id: str, sysid: int = 1, *extra: str) -> Iterator[tuple[Simulator, subprocess.Popen]]:
+    port = _free_port()
+    with Simulator(sysid, port=0, target_port=port, params=FAST) as sim:
+        proc = python_proc("-m", "companion", "--id", drone_id, "--px4", f"udpin:127.0.0.1:{port}",
+                           "--camera-rate", "15", *extra)
+        try:
+            yield sim, proc
+        finally:
+            out = _stop(proc)
+            assert "Traceback" not in out, out
+
+
+def gcs_proc(*args: str) -> subprocess.Popen:
+    return python_proc("-m", "gcs", "--no-dashboard", *args)
+
+
+class Observer:
+    """A test-side node: the drone's state and events, and its command service."""
+
+    def __init__(self, node: Node, drone_id: str) -> None:
+        profile = stream_profile("resilient")
+        self.state: VehicleState | None = None
+        self.events: list[FailsafeEvent] = []
+        node.create_subscription(VehicleState, f"/{drone_id}/state", self._on_state, profile.qos["state"])
+        node.create_subscription(FailsafeEvent, f"/{drone_id}/events", self.events.append, profile.qos["events"])
+        self.client = node.create_client(f"/{drone_id}/command", Command, CommandResult)
+
+    def _on_state(self, msg: VehicleState) -> None:
+        self.state = msg
+
+    def command(self, name: str, value: float = 0.0) -> CommandResult:
+        return self.client.call(Command(name, value), timeout=10.0)
+
+
+def _spin(node: Node) -> None:
+    import threading
+    threading.Thread(target=node.spin, daemon=True).start()
+
+
+def test_mission_end_to_end(ns: str, tmp_path: Path) -> None:
+    record = tmp_path / "gcs.json"
+    with drone(ns) as (sim, companion):
+        gcs = gcs_proc("--drones", ns, "--mission", "--duration", "6", "--pattern", "square", "--size", "4",
+                       "--altitude", "2.5", "--record", str(record))
+        out, _ = gcs.communicate(timeout=120)
+        assert gcs.returncode == 0, out
+        modes = [m.new for m in sim.mode_log]
+    summary = json.loads(record.read_text())
+    d = summary["drones"][ns]
+    assert summary["mission"]["ok"], summary["mission"]
+    assert "OFFBOARD" in modes and modes[-1] in ("AUTO.LAND", "AUTO.LOITER")
+    streams = d["streams"]
+    assert streams["sensor"]["received"] > 200 and streams["sensor"]["rate_hz"] > 20
+    assert streams["sensor"]["age_avg_ms"] < 100
+    assert streams["state"]["received"] > 20
+    assert d["frames"] > 30 and streams["image"]["age_avg_ms"] < 300
+    assert d["max_path_error_m"] < 3.0
+    assert d["final_state"]["landed"] and not d["final_state"]["armed"]
+
+
+def test_gcs_killed_companion_holds_then_resumes(ns: str) -> None:
+    with drone(ns) as (sim, companion), Node("observer") as node:
+        obs = Observer(node, ns)
+        _spin(node)
+        gcs = gcs_proc("--drones", ns, "--pattern", "hover", "--altitude", "2.5")
+        try:
+            assert wait_for(lambda: obs.state is not None and obs.state.connected, 20), "no state from the drone"
+            assert wait_for(lambda: obs.command("offboard_start").success, 15, interval=0.5)
+            assert obs.command("arm").success
+            assert wait_for(lambda: sim.mode == "OFFBOARD" and sim.altitude > 1.0, 20)
+            gcs.send_signal(signal.SIGKILL)
+            gcs.wait()
+            killed = time.monotonic()
+            assert wait_for(lambda: sim.mode == "AUTO.LOITER", 6), f"mode {sim.mode}"
+            held_after = time.monotonic() - killed
+            assert held_after < 1.0 + 2.5, f"HOLD only after {held_after:.1f} s"
+            # Our HOLD came first: PX4's own offboard-loss failsafe (POSCTL) never fired.
+            assert "POSCTL" not in [m.new for m in sim.mode_log]
+            assert wait_for(lambda: any(e.kind == "setpoint_deadline_missed" for e in obs.events), 5)
+            assert sim.armed and not sim.landed
+
+            gcs = gcs_proc("--drones", ns, "--pattern", "hover", "--altitude", "2.5")
+            time.sleep(1.0)
+            assert sim.mode == "AUTO.LOITER", "resumed without being asked"
+            assert wait_for(lambda: obs.command("offboard_start").success, 15, interval=0.5)
+            assert wait_for(lambda: sim.mode == "OFFBOARD", 5)
+        finally:
+            _stop(gcs)
+
+
+def test_nan_setpoint_from_a_rogue_publisher_never_reaches_px4(ns: str) -> None:
+    with drone(ns) as (sim, companion), Node("rogue") as node:
+        obs = Observer(node, ns)
+        _spin(node)
+        pub = node.create_publisher(Setpoint, f"/{ns}/setpoint", qos.RESILIENT)
+        assert wait_for(lambda: obs.state is not None and obs.state.connected, 20)
+        for i in range(5):
+            pub.publish(Setpoint(Header.now(seq=i), 1.0, 2.0, -3.0))
+            time.sleep(0.05)
+        assert wait_for(lambda: sim.last_setpoint is not None and sim.last_setpoint.position == (1.0, 2.0, -3.0), 5)
+        for i in range(5, 15):
+            pub.publish(Setpoint(Header.now(seq=i), math.nan, 2.0, -3.0))
+            time.sleep(0.05)
+            assert all(math.isfinite(v) for v in sim.last_setpoint.position)
+        assert wait_for(lambda: obs.state is not None and obs.state.setpoints_rejected >= 10, 5)
+        time.sleep(0.3)
+        assert sim.last_setpoint.position == (1.0, 2.0, -3.0)
+
+
+def test_two_drones_each_get_only_their_setpoints(ns: str) -> None:
+    a, b = f"{ns}a", f"{ns}b"
+    with drone(a, 1) as (sim_a, _), drone(b, 2) as (sim_b, _), Node("gcs2") as node:
+        pubs = {d: node.create_publisher(Setpoint, f"/{d}/setpoint", qos.RESILIENT) for d in (a, b)}
+        xs = {a: 1.5, b: -1.5}
+        seen: dict[str, set] = {a: set(), b: set()}
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline and not all(len(s) and xs[d] in s for d, s in seen.items()):
+            for d, pub in pubs.items():
+                pub.publish(Setpoint(Header.now(), xs[d], 0.0, -2.0))
+            for d, sim in ((a, sim_a), (b, sim_b)):
+                if sim.last_setpoint is not None:
+                    seen[d].add(sim.last_setpoint.position[0])
+            time.sleep(0.1)
+        assert seen[a] == {1.5} and seen[b] == {-1.5}, seen
