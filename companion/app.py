@@ -28,7 +28,7 @@ from px4_link.setpoints import PositionSetpoint, SetpointRejected, VelocitySetpo
 from px4_link.telemetry import Attitude, Battery, Imu, LocalPosition
 from zenoh_robot import Node
 from zenoh_robot.events import SubscriptionEventCallbacks
-from zenoh_robot.image_transport import ImagePublisher
+from zenoh_robot.image_transport import ImagePublisher, encode_strip
 from zenoh_robot.msgs import (Command, CommandResult, FailsafeEvent, Header, Image, SensorCombined, Setpoint,
                               VehicleState)
 from zenoh_robot.publisher import PublisherClosed
@@ -59,6 +59,7 @@ class Companion:
         self.node, self.link, self.config = node, link, config
         q = config.profile.qos
         self.setpoints = StreamRecorder()
+        self.sent = {name: StreamRecorder() for name in ("sensor", "state", "image")}
         self.setpoints_rejected = 0
         self.failsafe = ""                # why we hold, or ""
         self.offboard_wanted = False      # the operator asked for OFFBOARD and not since for anything else
@@ -92,7 +93,7 @@ class Companion:
 
     # -- setpoints -------------------------------------------------------------------
     def _on_setpoint(self, msg: Setpoint, info: Any) -> None:
-        self.setpoints.record(msg.header.seq, info.source_stamp_ns, info.received_stamp_ns)
+        self.setpoints.record(info.seq, info.source_stamp_ns, info.received_stamp_ns)
         self.last_setpoint_at = time.monotonic()
         yaw = msg.yaw if math.isfinite(msg.yaw) else None
         sp = (VelocitySetpoint(msg.x, msg.y, msg.z, yaw) if msg.is_velocity
@@ -189,7 +190,8 @@ class Companion:
         try:
             self.sensor_pub.publish(msg)
         except PublisherClosed:   # shutting down: the link's thread outlived the node by a moment
-            pass
+            return
+        self.sent["sensor"].record(self.sensor_pub.sequence, self.sensor_pub.last_stamp_ns)
 
     def _publish_state(self) -> None:
         st = self.link.state
@@ -203,6 +205,7 @@ class Companion:
             [att.roll, att.pitch, att.yaw] if att else [math.nan] * 3,
             batt.remaining_pct / 100.0 if batt else math.nan, batt.voltage_v if batt else math.nan,
             self.failsafe, self.setpoints_rejected))
+        self.sent["state"].record(self.state_pub.sequence, self.state_pub.last_stamp_ns)
 
     def _camera_loop(self) -> None:
         cfg = self.config
@@ -212,25 +215,30 @@ class Companion:
             log.error("camera: %s; no images", exc)
             return
         rate = RateKeeper(cfg.camera_rate_hz)
-        jpeg = cfg.profile.image_mode == "jpeg"
         try:
             while not self._stop.is_set():
                 frame = source.read()
                 if frame is None:
                     log.warning("camera: end of stream")
                     return
-                if isinstance(self.image_pub, ImagePublisher):
-                    self.image_pub.publish(frame, Header.now(frame_id="camera"))
-                elif jpeg:
-                    from zenoh_robot.image_transport import encode_strip
-                    data = encode_strip(frame, cfg.profile.jpeg_quality)
-                    h, w = frame.shape[:2]
-                    self.image_pub.publish(Image(Header.now(frame_id="camera"), h, w, "jpeg", 0, 0, data))
-                else:
-                    self.image_pub.publish(Image.from_array(frame, header=Header.now(frame_id="camera")))
+                self._publish_frame(frame)
                 rate.wait()
         finally:
             source.close()
+
+    def _publish_frame(self, frame: Any) -> None:
+        head = Header.now(frame_id="camera")
+        if isinstance(self.image_pub, ImagePublisher):
+            self.image_pub.publish(frame, head)
+            self.sent["image"].record(self.image_pub.frames - 1, head.stamp)   # slices carry the frame number
+            return
+        if self.config.profile.image_mode == "jpeg":
+            h, w = frame.shape[:2]
+            img = Image(head, h, w, "jpeg", 0, 0, encode_strip(frame, self.config.profile.jpeg_quality))
+        else:
+            img = Image.from_array(frame, header=head)
+        self.image_pub.publish(img)
+        self.sent["image"].record(self.image_pub.sequence, self.image_pub.last_stamp_ns)
 
     def close(self) -> None:
         # Runs before the node's publishers go: the link's thread must stop using them first.
@@ -244,4 +252,6 @@ class Companion:
         s = self.setpoints.summary().as_dict()
         s["lost_pct"] = self.setpoints.lost_pct()
         return {"setpoints": s, "setpoints_rejected": self.setpoints_rejected, "events": self.events_sent,
-                "final_mode": self.link.state.mode}
+                "final_mode": self.link.state.mode,
+                "logs": {"sent": {k: v.to_dict() for k, v in self.sent.items()},
+                         "received": {"setpoint": self.setpoints.to_dict()}}}

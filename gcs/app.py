@@ -64,6 +64,7 @@ class DroneLink:
         self.state_at = 0.0
         self.events: list[FailsafeEvent] = []
         self.streams = {name: StreamRecorder() for name in ("sensor", "state", "image")}
+        self.sent = {"setpoint": StreamRecorder()}
         self.image = ImageStats()
         self.latest_frame: np.ndarray | None = None
         self.max_path_error = 0.0
@@ -119,7 +120,9 @@ class DroneLink:
             return CommandResult(False, f"{type(exc).__name__}: {exc}", "")
 
     def send_setpoint(self, x: float, y: float, z: float, yaw: float) -> None:
-        self.setpoint_pub.publish(Setpoint(Header.now(seq=self.setpoints_sent), x, y, z, yaw, False))
+        pub = self.setpoint_pub
+        pub.publish(Setpoint(Header.now(seq=self.setpoints_sent), x, y, z, yaw, False))
+        self.sent["setpoint"].record(pub.sequence, pub.last_stamp_ns)
         self.setpoints_sent += 1
 
     @property

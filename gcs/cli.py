@@ -52,7 +52,8 @@ def add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mission", action="store_true",
                    help="fly: offboard, arm, pattern for --duration, land (needs one drone)")
     p.add_argument("--no-dashboard", action="store_true", help="log lines instead of the live table")
-    p.add_argument("--record", type=Path, help="write per-drone, per-stream figures here (JSON) at the end")
+    p.add_argument("--record", type=Path,
+                   help="write per-drone, per-stream figures and raw sample records here (JSON) at the end")
     p.add_argument("--save-image", type=Path, help="save the latest frame here (PNG/JPEG) every --save-every s")
     p.add_argument("--save-every", type=float, default=5.0)
     add_param_argument(p)
@@ -149,6 +150,10 @@ def summarize(gcs: Gcs, profile: str) -> dict[str, Any]:
             "max_path_error_m": d.max_path_error,
             "final_state": d.state.to_dict() if d.state else None,
             "events": [e.to_dict() for e in d.events],
+            # Raw (seq, stamp, arrival) records for offline analysis (the experiment joins them
+            # with the companion's to get exact delivered % over a time window).
+            "logs": {"sent": {k: v.to_dict() for k, v in d.sent.items()},
+                     "received": {k: v.to_dict() for k, v in d.streams.items()}},
         }
     return out
 

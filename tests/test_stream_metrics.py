@@ -1,10 +1,12 @@
-"""Whole-run stream metrics: delivered %, percentiles, longest gap."""
+"""Whole-run stream metrics: delivered %, percentiles, longest gap, windows against the sender."""
 from __future__ import annotations
 
 import math
 import time
 
-from zenoh_robot.stream_metrics import StreamRecorder
+from zenoh_robot.stream_metrics import StreamRecorder, analyse
+
+MS = 1_000_000
 
 
 def test_delivered_and_ages() -> None:
@@ -13,11 +15,12 @@ def test_delivered_and_ages() -> None:
     for seq in range(100):
         if seq % 10 == 3:
             continue                                   # 10 lost
-        rec.record(seq, now - 5_000_000, now_ns=now)   # 5 ms old
-    rec.record(5, now - 5_000_000, now_ns=now)         # a duplicate: counted received, not unique
+        rec.record(seq, now - 5 * MS, now_ns=now)      # 5 ms old
+    rec.record(5, now - 5 * MS, now_ns=now + 1)        # a duplicate: counted received, not unique
     s = rec.summary(sent=100)
     assert s.unique == 90 and s.received == 91 and s.delivered_pct == 90.0
     assert abs(s.age_avg_ms - 5.0) < 1e-6 and abs(s.age_p99_ms - 5.0) < 1e-6
+    assert abs(rec.lost_pct() - 100 * (1 - 90 / 100)) < 1e-9
 
 
 def test_empty_stream_is_nan_not_zero() -> None:
@@ -27,9 +30,27 @@ def test_empty_stream_is_nan_not_zero() -> None:
     assert s.longest_gap_ms >= 0
 
 
-def test_longest_gap_includes_silence_to_the_end() -> None:
+def test_window_against_the_senders_record() -> None:
+    sent, got = StreamRecorder(), StreamRecorder()
+    t0 = 1_000_000 * MS
+    for seq in range(100):                       # 10 Hz for 10 s
+        stamp = t0 + seq * 100 * MS
+        sent.record(seq, stamp, stamp)
+        if 40 <= seq < 45:
+            continue                             # a 600 ms hole
+        got.record(seq, stamp, stamp + 20 * MS)  # 20 ms transit
+        if seq % 2 == 0:
+            got.record(seq, stamp, stamp + 30 * MS)   # redundant copy
+    s = analyse(got, sent, t0 + 2000 * MS, t0 + 7000 * MS)   # seqs 20..70
+    assert s.sent == 51 and s.unique == 46
+    assert abs(s.delivered_pct - 100 * 46 / 51) < 1e-9
+    assert abs(s.age_avg_ms - 20.0) < 1e-6          # first copy's age, not the redundant one's
+    assert abs(s.longest_gap_ms - 600.0) < 1e-6
+    assert abs(s.period_avg_ms - 5000 / 45) < 1.0
+
+
+def test_dump_and_reload() -> None:
     rec = StreamRecorder()
-    rec.record(1, time.time_ns())
-    time.sleep(0.2)
-    s = rec.summary()
-    assert s.longest_gap_ms >= 150
+    rec.record(1, 10, 20)
+    back = StreamRecorder.from_dict(rec.to_dict())
+    assert back.to_dict() == rec.to_dict()

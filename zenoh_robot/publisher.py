@@ -43,6 +43,7 @@ class Publisher(Generic[M]):
         self._zpub = node.session.declare_publisher(key, **publisher_options(qos))
         self.published = 0
         self.last_publish_mono: float | None = None
+        self.last_stamp_ns = 0      # source stamp of the last sample (its seq is `sequence`)
         self._closed = False
         self._history = RedundantHistory(qos.redundancy) if qos.redundancy else None
         self._copies = 1 + qos.repeat
@@ -73,6 +74,7 @@ class Publisher(Generic[M]):
             for _ in range(self._copies):    # loss is per packet: each copy is another chance
                 self._zpub.put(payload)
             self.published += 1
+            self.last_stamp_ns = stamp
             self.last_publish_mono = time.monotonic()
         return seq
 

@@ -2,8 +2,10 @@
 
 Topic statistics (ROS 2's) are windowed averages for a live view; an experiment or a
 demo summary needs the whole distribution (p99), which samples were never seen
-(delivered = unique sequence numbers received / sent) and the longest silence.
-Memory is bounded: ages and arrivals are kept for at most ``max_samples`` samples.
+(delivered = unique sequence numbers received / sent) and the longest silence. A
+``StreamRecorder`` keeps the raw (seq, source stamp, arrival) of every sample, bounded
+by ``max_samples``, so a run can be summarised live or dumped and analysed later
+against the sender's own record over an exact time window.
 """
 from __future__ import annotations
 
@@ -18,9 +20,9 @@ import numpy as np
 
 @dataclass
 class StreamSummary:
-    received: int                 # callbacks, duplicates excluded
+    received: int                 # samples, duplicates included
     unique: int                   # distinct sequence numbers
-    sent: int | None              # as the publisher reported it, if known
+    sent: int | None              # as the sender recorded it, if known
     delivered_pct: float          # unique / sent * 100 (NaN without `sent`)
     age_avg_ms: float
     age_p50_ms: float
@@ -28,74 +30,110 @@ class StreamSummary:
     age_max_ms: float
     period_avg_ms: float
     period_max_ms: float
-    longest_gap_ms: float         # the longest time with nothing new, including to the end
-    rate_hz: float
+    longest_gap_ms: float         # the longest time with nothing new, window edges included
+    rate_hz: float                # unique samples per second over the window
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
 
 
 class StreamRecorder:
-    """Feed ``record(seq, source_stamp_ns)`` from a callback; ``summary()`` at any time."""
+    """Feed ``record(seq, source_stamp_ns)`` from a callback (or a sender); summarise any time."""
 
-    def __init__(self, max_samples: int = 200_000) -> None:
+    def __init__(self, max_samples: int = 500_000) -> None:
         self.max_samples = max_samples
         self._lock = threading.Lock()
-        self._ages: list[float] = []
-        self._arrivals: list[float] = []
-        self._seqs: set[int] = set()
-        self._start = time.monotonic()
-        self._received = 0
-
-    def reset(self) -> None:
-        with self._lock:
-            self._ages.clear()
-            self._arrivals.clear()
-            self._seqs.clear()
-            self._received = 0
-            self._start = time.monotonic()
+        self._seq: list[int] = []
+        self._stamp: list[int] = []
+        self._arrival: list[int] = []
+        self._start_ns = time.time_ns()
+        self.overflow = 0
 
     def record(self, seq: int, source_stamp_ns: int, now_ns: int | None = None) -> None:
         now_ns = now_ns or time.time_ns()
         with self._lock:
-            self._received += 1
-            if len(self._seqs) < self.max_samples:
-                self._seqs.add(seq)
-            if len(self._ages) < self.max_samples:
-                self._ages.append((now_ns - source_stamp_ns) / 1e6 if source_stamp_ns else math.nan)
-                self._arrivals.append(time.monotonic())
+            if len(self._seq) >= self.max_samples:
+                self.overflow += 1
+                return
+            self._seq.append(seq)
+            self._stamp.append(source_stamp_ns)
+            self._arrival.append(now_ns)
+
+    def __len__(self) -> int:
+        return len(self._seq)
+
+    def to_dict(self) -> dict[str, Any]:
+        with self._lock:
+            return {"seq": list(self._seq), "stamp_ns": list(self._stamp), "arrival_ns": list(self._arrival),
+                    "start_ns": self._start_ns, "overflow": self.overflow}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "StreamRecorder":
+        rec = cls()
+        rec._seq, rec._stamp, rec._arrival = list(data["seq"]), list(data["stamp_ns"]), list(data["arrival_ns"])
+        rec._start_ns = int(data.get("start_ns", rec._start_ns))
+        rec.overflow = int(data.get("overflow", 0))
+        return rec
 
     def lost_pct(self) -> float:
         """Share of the sequence range seen so far that never arrived (NaN before 2 samples)."""
         with self._lock:
-            if len(self._seqs) < 2:
-                return math.nan
-            span = max(self._seqs) - min(self._seqs) + 1
-            return 100.0 * (1 - len(self._seqs) / span)
+            seqs = set(self._seq)
+        if len(seqs) < 2:
+            return math.nan
+        return 100.0 * (1 - len(seqs) / (max(seqs) - min(seqs) + 1))
 
-    def summary(self, sent: int | None = None, end: float | None = None) -> StreamSummary:
+    def summary(self, sent: int | None = None) -> StreamSummary:
+        """Everything recorded so far, from creation to now."""
         with self._lock:
-            ages = np.array(self._ages, dtype=float)
-            arrivals = np.array(self._arrivals, dtype=float)
-            unique = len(self._seqs)
-            received = self._received
-            start = self._start
-        end = end if end is not None else time.monotonic()
-        nan = math.nan
-        valid = ages[~np.isnan(ages)] if ages.size else ages
-        periods = np.diff(arrivals) * 1000 if arrivals.size > 1 else np.array([])
-        edges = np.concatenate([[start], arrivals, [end]]) if arrivals.size else np.array([start, end])
-        longest_gap = float(np.max(np.diff(edges))) * 1000
-        duration = max(end - start, 1e-9)
+            start = self._start_ns
+        return analyse(self, None, start, time.time_ns(), sent=sent)
 
-        def stat(arr: np.ndarray, fn: Any) -> float:
-            return float(fn(arr)) if arr.size else nan
 
-        return StreamSummary(
-            received=received, unique=unique, sent=sent,
-            delivered_pct=(100.0 * unique / sent) if sent else nan,
-            age_avg_ms=stat(valid, np.mean), age_p50_ms=stat(valid, lambda a: np.percentile(a, 50)),
-            age_p99_ms=stat(valid, lambda a: np.percentile(a, 99)), age_max_ms=stat(valid, np.max),
-            period_avg_ms=stat(periods, np.mean), period_max_ms=stat(periods, np.max),
-            longest_gap_ms=longest_gap, rate_hz=received / duration,
-        )
+def analyse(received: StreamRecorder, sent_by: StreamRecorder | None, t0_ns: int, t1_ns: int,
+            sent: int | None = None) -> StreamSummary:
+    """Figures over the window [t0, t1] (ns since the epoch).
+
+    With the sender's record, what counts is the samples it sent in the window (by source
+    stamp) and which of those arrived at all (whenever they arrived); without it, the
+    samples that arrived in the window.
+    """
+    with received._lock:
+        seq = np.array(received._seq, dtype=np.int64)
+        stamp = np.array(received._stamp, dtype=np.int64)
+        arrival = np.array(received._arrival, dtype=np.int64)
+    if sent_by is not None:
+        with sent_by._lock:
+            s_seq = np.array(sent_by._seq, dtype=np.int64)
+            s_stamp = np.array(sent_by._stamp, dtype=np.int64)
+        wanted = s_seq[(s_stamp >= t0_ns) & (s_stamp <= t1_ns)]
+        sent = int(np.unique(wanted).size)
+        keep = np.isin(seq, wanted)
+    else:
+        keep = (arrival >= t0_ns) & (arrival <= t1_ns)
+    seq, stamp, arrival = seq[keep], stamp[keep], arrival[keep]
+    # First arrival of each sequence number: repeats and redundant copies count once.
+    order = np.argsort(arrival, kind="stable")
+    seq, stamp, arrival = seq[order], stamp[order], arrival[order]
+    _, first = np.unique(seq, return_index=True)
+    first.sort()
+    u_stamp, u_arrival = stamp[first], arrival[first]
+    ages = (u_arrival - u_stamp)[u_stamp > 0] / 1e6
+    in_window = u_arrival[(u_arrival >= t0_ns) & (u_arrival <= t1_ns)]
+    periods = np.diff(in_window) / 1e6
+    edges = np.concatenate([[t0_ns], in_window, [t1_ns]])
+    duration = max((t1_ns - t0_ns) / 1e9, 1e-9)
+    nan = math.nan
+
+    def stat(a: np.ndarray, fn: Any) -> float:
+        return float(fn(a)) if a.size else nan
+
+    unique = int(first.size)
+    return StreamSummary(
+        received=int(seq.size), unique=unique, sent=sent,
+        delivered_pct=(100.0 * unique / sent) if sent else nan,
+        age_avg_ms=stat(ages, np.mean), age_p50_ms=stat(ages, lambda a: np.percentile(a, 50)),
+        age_p99_ms=stat(ages, lambda a: np.percentile(a, 99)), age_max_ms=stat(ages, np.max),
+        period_avg_ms=stat(periods, np.mean), period_max_ms=stat(periods, np.max),
+        longest_gap_ms=float(np.max(np.diff(edges))) / 1e6, rate_hz=in_window.size / duration,
+    )
