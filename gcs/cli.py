@@ -35,7 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     c.add_argument("value", nargs="?", help="takeoff altitude, or NAME=VALUE for set_param")
     c.add_argument("--force", action="store_true", help="force (disarm in flight)")
     c.add_argument("--timeout", type=float, default=8.0)
-    c.add_argument("--config", help="Zenoh session config (JSON5)")
+    c.add_argument("--zenoh", help="Zenoh session config (JSON5)")
     p.set_defaults(func=run)
 
 
@@ -47,7 +47,7 @@ def add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--size", type=float, default=10.0, help="pattern size, m")
     p.add_argument("--speed", type=float, default=2.0, help="pattern speed, m/s")
     p.add_argument("--profile", choices=sorted(PROFILES), default="resilient", help="stream QoS/transport profile")
-    p.add_argument("--config", help="Zenoh session config (JSON5)")
+    p.add_argument("--zenoh", help="Zenoh session config (JSON5)")
     p.add_argument("--duration", type=float, help="stop after this many seconds")
     p.add_argument("--mission", action="store_true",
                    help="fly: offboard, arm, pattern for --duration, land (needs one drone)")
@@ -60,8 +60,8 @@ def add_common(p: argparse.ArgumentParser) -> None:
 
 
 def session_config(args: argparse.Namespace, profile_transport: dict[str, Any]) -> SessionConfig:
-    if args.config:
-        return SessionConfig.from_file(args.config)
+    if args.zenoh:
+        return SessionConfig.from_file(args.zenoh)
     return SessionConfig(**profile_transport)
 
 
@@ -190,7 +190,7 @@ def run_command(args: argparse.Namespace) -> int:
         except ValueError:
             print(f"gcs cmd: parameter value {raw!r} is not a number", file=sys.stderr)
             return 2
-    config = SessionConfig.from_file(args.config) if args.config else SessionConfig()
+    config = SessionConfig.from_file(args.zenoh) if args.zenoh else SessionConfig()
     with Node("gcs_cmd", config=config) as node:
         client = node.create_client(f"/{args.drone}/command", Command, CommandResult)
         try:

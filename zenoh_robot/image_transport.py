@@ -73,18 +73,31 @@ class ImagePublisher:
     """Publishes ``Image`` frames as independently decodable JPEG slices."""
 
     def __init__(self, node: Any, topic: str, qos: QoSProfile = IMAGE, *, quality: int = 70,
-                 slice_rows: int | None = None, max_slice_bytes: int = DEFAULT_SLICE_BYTES) -> None:
+                 slice_rows: int | None = None, max_slice_bytes: int = DEFAULT_SLICE_BYTES,
+                 pace_s: float = 0.0015) -> None:
         if not 1 <= quality <= 95:
             raise ValueError(f"JPEG quality must be 1..95, got {quality}")
         self.quality = quality
         self.max_slice_bytes = max_slice_bytes
         self._slice_rows = slice_rows
-        self._pub = node.create_publisher(ImageSlice, topic, qos)
+        # A frame is a burst of slices; Zenoh's TX queue holds two batches per priority and DROP
+        # congestion control discards what does not fit within 1 ms, i.e. most of the burst.
+        # BLOCK (KEEP_ALL) makes the camera thread wait microseconds instead; latest-frame
+        # semantics are kept on the receiving side.
+        self._pub = node.create_publisher(ImageSlice, topic, qos.replace(history="keep_all", depth=0))
         self.frames = 0
-        self.oversize_slices = 0   # slices that did not fit one datagram (Zenoh fragments them)
+        self.oversize_slices = 0
+        # Zenoh batches messages sent within 1 ms of each other into one datagram, and on the
+        # multicast transport a batch is not bounded by batch_size: a burst of slices would
+        # leave as one large, IP-fragmented datagram that any lost fragment destroys. Spacing
+        # the slices past the batching window keeps each in its own datagram.
+        self.pace_s = pace_s   # slices that did not fit one datagram (Zenoh fragments them)
 
     def publish(self, frame: Image | np.ndarray, header: Header | None = None) -> None:
-        for piece in self.encode(frame, header):
+        pieces = self.encode(frame, header)
+        for i, piece in enumerate(pieces):
+            if i and self.pace_s:
+                time.sleep(self.pace_s)
             self._pub.publish(piece)
         self.frames += 1
 

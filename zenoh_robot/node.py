@@ -15,6 +15,7 @@ from .parameters import ParametersMixin
 from .services import ServicesMixin
 from .message import Message
 from .publisher import Publisher
+from .repeater import Repeater
 from .qos import QoSProfile, SYSTEM_DEFAULT
 from .session_config import SessionConfig, open_session
 from .subscription import Subscription
@@ -59,6 +60,7 @@ class Node(GraphMixin, ServicesMixin, ParametersMixin):
         self.timers: list[Timer] = []
         self._on_close: list[Callable[[], None]] = []
         self.enable_topic_statistics = enable_topic_statistics
+        self._repeater: Repeater | None = None
         try:
             self._init_graph()
             self._init_services()
@@ -128,6 +130,14 @@ class Node(GraphMixin, ServicesMixin, ParametersMixin):
     def destroy_timer(self, timer: Timer) -> None:
         timer.cancel()
 
+    @property
+    def repeater(self) -> "Repeater":
+        """The thread that sends delayed copies for publishers with ``repeat`` (made on first use)."""
+        with self._lock:
+            if self._repeater is None:
+                self._repeater = Repeater()
+            return self._repeater
+
     def add_on_close(self, fn: Callable[[], None]) -> None:
         """Run ``fn`` when the node closes, before its session does (for add-ons)."""
         self._on_close.append(fn)
@@ -174,6 +184,8 @@ class Node(GraphMixin, ServicesMixin, ParametersMixin):
                 self._logger.exception("close hook failed")
         for t in self.timers:
             t.cancel()
+        if self._repeater is not None:
+            self._repeater.close()
         for entity in [*self.subscriptions, *self.publishers]:
             entity.destroy()
         self.session.close()

@@ -46,7 +46,7 @@ class Publisher(Generic[M]):
         self.last_stamp_ns = 0      # source stamp of the last sample (its seq is `sequence`)
         self._closed = False
         self._history = RedundantHistory(qos.redundancy) if qos.redundancy else None
-        self._copies = 1 + qos.repeat
+        self._repeats = qos.repeat
 
     @property
     def sequence(self) -> int:
@@ -71,8 +71,9 @@ class Publisher(Generic[M]):
                 extra = {**(extra or {}), **carried} if carried else extra
                 self._history.record(seq, stamp, body)
             payload = envelope.pack(self._type_name, self._type_hash, self.publisher_id, seq, stamp, body, extra)
-            for _ in range(self._copies):    # loss is per packet: each copy is another chance
-                self._zpub.put(payload)
+            self._zpub.put(payload)
+            if self._repeats:   # loss is per packet: each later copy is another chance
+                self.node.repeater.schedule(self._zpub.put, payload, self._repeats)
             self.published += 1
             self.last_stamp_ns = stamp
             self.last_publish_mono = time.monotonic()

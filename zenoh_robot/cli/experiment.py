@@ -1,0 +1,66 @@
+"""``zenoh-robot experiment``: the thesis's lossy-link experiment, reproduced and extended."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from rich.console import Console
+
+
+def _floats(text: str) -> list[float]:
+    try:
+        values = [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+    if any(not 0 <= v <= 100 for v in values):
+        raise argparse.ArgumentTypeError("loss values are percentages 0..100")
+    return values
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from ..experiment.sweep import LOSSES, PROFILES
+    p = sub.add_parser("experiment", help="sweep packet loss between two network namespaces (needs root)")
+    p.add_argument("--loss", type=_floats, default=list(LOSSES), help="loss %% values (default: the thesis's sweep)")
+    p.add_argument("--profiles", default=",".join(PROFILES), help=f"comma-separated (default {','.join(PROFILES)})")
+    p.add_argument("--start", choices=("after", "startup", "both"), default="after",
+                   help="apply loss after set-up (the thesis), from start-up, or both")
+    p.add_argument("--duration", type=float, default=20.0, help="measured seconds per cell (default 20)")
+    p.add_argument("--warmup", type=float, default=5.0, help="seconds before measuring (default 5)")
+    p.add_argument("--out", type=Path, default=Path("results/experiment"))
+    p.add_argument("--resume", action="store_true", help="keep finished cells of an earlier run in --out")
+    p.add_argument("--report-only", action="store_true", help="redraw figures and tables from --out")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..experiment.cell import CellSpec
+    from ..experiment.netns import unavailable_reason
+    from ..experiment.report import write_report
+    from ..experiment.sweep import load_results, run_sweep
+    from ..stream_profiles import PROFILES as KNOWN
+    from .main import CliError
+
+    console = Console()
+    out: Path = args.out
+    if not args.report_only:
+        reason = unavailable_reason()
+        if reason:
+            raise CliError(reason)
+        profiles = [p for p in args.profiles.split(",") if p]
+        unknown = [p for p in profiles if p not in KNOWN]
+        if unknown:
+            raise CliError(f"unknown profile(s) {unknown}; profiles: {', '.join(KNOWN)}")
+        starts = ["after", "startup"] if args.start == "both" else [args.start]
+        cells = [CellSpec(p, loss, s, args.duration, args.warmup) for s in starts for p in profiles for loss in args.loss]
+        console.print(f"{len(cells)} cells of {args.duration:g} s (+{args.warmup:g} s warm-up): "
+                      f"about {len(cells) * (args.duration + args.warmup + 4) / 60:.0f} min; results in {out}")
+        results = run_sweep(out, cells, resume=args.resume, console=console)
+    else:
+        results = load_results(out / "results.jsonl")
+        if not results:
+            raise CliError(f"no results in {out / 'results.jsonl'}")
+    files = write_report(results, out)
+    console.print((out / "results.md").read_text())
+    for name, path in files.items():
+        console.print(f"{name}: {path}")
+    return 0

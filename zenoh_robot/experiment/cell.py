@@ -1,0 +1,128 @@
+"""One experiment cell: a profile at a loss rate, GCS and drone in their own namespaces.
+
+The GCS (``python -m gcs``) runs in one namespace; the companion with its built-in
+PX4 simulator (``python -m companion --px4 sim``) in the other. They talk over the
+veth as a real deployment would, with the transport of the profile. Both ends keep a
+raw record of what they sent and received; the cell joins them over the measurement
+window, so delivered % is exact (unique sequence numbers received / sent).
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ..stream_metrics import StreamRecorder, analyse
+from ..stream_profiles import stream_profile
+from .netns import LossyLink
+
+DRONE_ID = "uav1"
+PORT = 7447
+MCAST = "224.0.0.251:7460"
+OFFBOARD_GAP_MS = 500.0     # PX4 leaves OFFBOARD when setpoints stop for longer (the 2 Hz rule)
+
+
+@dataclass(frozen=True)
+class CellSpec:
+    profile: str
+    loss: float
+    start: str = "after"        # "after": loss once sessions are up (the thesis); "startup": from the start
+    duration: float = 20.0
+    warmup: float = 5.0
+
+
+def transport_for(profile: str, link: LossyLink, side: str) -> dict[str, Any]:
+    """The Zenoh config of one side, as JSON (valid JSON5) for ``--zenoh``."""
+    gcs = link.addr("gcs")
+    base: dict[str, Any] = {
+        "mode": "peer",
+        "scouting": {"multicast": {"enabled": False}},
+        "transport": {"shared_memory": {"enabled": False},      # loss must touch every byte
+                      "unicast": {"max_links": 2}},
+    }
+    if profile == "resilient":
+        # No handshake to lose: the multicast transport discovers peers from periodic Join
+        # messages (every 250 ms here), so a session forms even behind 90 % loss; datagrams
+        # stay under the MTU, and keep-alives every 100 ms keep the lease through long bursts.
+        base["listen"] = {"endpoints": [f"udp/{MCAST}#iface={link.dev(side)}"]}
+        base["transport"]["multicast"] = {"join_interval": 250}
+        base["transport"]["link"] = {"tx": {"batch_size": 1300, "lease": 10000, "keep_alive": 100}}
+    else:
+        # The thesis's variants as a plain deployment would run them: TCP for reliable, UDP
+        # for best effort, Zenoh's default lease and batch size.
+        endpoints = [f"tcp/{gcs}:{PORT}", f"udp/{gcs}:{PORT}"]
+        if side == "gcs":
+            base["listen"] = {"endpoints": endpoints}
+        else:
+            base["connect"] = {"endpoints": endpoints}
+    return base
+
+
+def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
+    workdir.mkdir(parents=True, exist_ok=True)
+    total = spec.warmup + spec.duration + 2.0
+    with LossyLink(loss_pct=spec.loss if spec.start == "startup" else 0.0) as link:
+        procs = {}
+        for side in ("gcs", "drone"):
+            (workdir / f"{side}.json5").write_text(json.dumps(transport_for(spec.profile, link, side), indent=1))
+        common = ["--profile", spec.profile, "--duration", str(total)]
+        drone_cmd = [sys.executable, "-m", "companion", "--id", DRONE_ID, "--px4", "sim",
+                     "--zenoh", str(workdir / "drone.json5"), "--record", str(workdir / "drone.json"), *common]
+        gcs_cmd = [sys.executable, "-m", "gcs", "--drones", DRONE_ID, "--no-dashboard", "--pattern", "thesis",
+                   "--zenoh", str(workdir / "gcs.json5"), "--record", str(workdir / "gcs.json"), *common]
+        t_launch = time.time()
+        for side, cmd in (("drone", drone_cmd), ("gcs", gcs_cmd)):
+            log = open(workdir / f"{side}.log", "w")
+            procs[side] = subprocess.Popen(link.exec_in(side) + cmd, stdout=log, stderr=subprocess.STDOUT)
+        try:
+            time.sleep(spec.warmup)
+            if spec.start == "after":
+                link.set_loss(spec.loss)
+            t0 = time.time_ns()
+            time.sleep(spec.duration)
+            t1 = time.time_ns()
+            link.set_loss(0)
+            for p in procs.values():
+                p.wait(timeout=total + 30 - (time.time() - t_launch))
+        finally:
+            for p in procs.values():
+                if p.poll() is None:
+                    p.kill()
+                    p.wait()
+    return analyse_cell(spec, workdir, t0, t1, {k: p.returncode for k, p in procs.items()})
+
+
+def _load(path: Path) -> dict[str, Any] | None:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def analyse_cell(spec: CellSpec, workdir: Path, t0: int, t1: int, exit_codes: dict[str, int]) -> dict[str, Any]:
+    gcs, drone = _load(workdir / "gcs.json"), _load(workdir / "drone.json")
+    result: dict[str, Any] = {"profile": spec.profile, "loss": spec.loss, "start": spec.start,
+                              "duration": spec.duration, "exit_codes": exit_codes, "topics": {},
+                              "config": stream_profile(spec.profile).summary()}
+    if gcs is None or drone is None or DRONE_ID not in gcs.get("drones", {}):
+        result["error"] = f"missing records (see {workdir}/*.log)"
+        return result
+    g = gcs["drones"][DRONE_ID]["logs"]
+    d = drone["logs"]
+
+    def rec(x: dict[str, Any]) -> StreamRecorder:
+        return StreamRecorder.from_dict(x)
+
+    pairs = {"setpoint": (d["received"]["setpoint"], g["sent"]["setpoint"]),
+             "sensor": (g["received"]["sensor"], d["sent"]["sensor"]),
+             "image": (g["received"]["image"], d["sent"]["image"]),
+             "state": (g["received"]["state"], d["sent"]["state"])}
+    for topic, (received, sent) in pairs.items():
+        result["topics"][topic] = analyse(rec(received), rec(sent), t0, t1).as_dict()
+    sp = result["topics"]["setpoint"]
+    result["offboard_kept"] = sp["unique"] > 0 and sp["longest_gap_ms"] <= OFFBOARD_GAP_MS
+    return result
