@@ -83,6 +83,9 @@ class Companion:
             event_callbacks=SubscriptionEventCallbacks(deadline=self._on_deadline_missed))
         node.create_service("command", Command, CommandResult, self._on_command)
         node.create_timer(1.0 / config.state_rate_hz, self._publish_state)
+        # The QoS deadline event is the trigger; this watchdog is its backstop, checked at 20 Hz,
+        # so the failsafe never depends on one mechanism alone.
+        node.create_timer(0.05, self._watchdog)
         link.add_listener(self._on_imu, Imu)
         self._stop = threading.Event()
         self._camera_thread: threading.Thread | None = None
@@ -110,12 +113,15 @@ class Companion:
             self.failsafe = ""
             self._commands.submit(self._try, self.link.start_offboard)
 
+    def _watchdog(self) -> None:
+        if self.last_setpoint_at and time.monotonic() - self.last_setpoint_at > self.config.setpoint_deadline:
+            self._on_deadline_missed(None)
+
     def _on_deadline_missed(self, status: Any) -> None:
-        if not self.offboard_wanted or self.failsafe:
-            return
-        if self.link.state.mode != "OFFBOARD":
-            return
-        self.failsafe = f"no setpoint for {self.config.setpoint_deadline:.1f} s"
+        with self._lock:   # the event and the watchdog may race on a multi-threaded executor
+            if not self.offboard_wanted or self.failsafe:
+                return
+            self.failsafe = f"no setpoint for {self.config.setpoint_deadline:.1f} s"
         self._event("setpoint_deadline_missed", self.failsafe, "HOLD")
         self._commands.submit(self._hold_for_failsafe)
 
