@@ -22,6 +22,15 @@ N = 300
 PAYLOAD = "x" * 2000   # under the 3 KB shared-memory threshold, over any keep-alive noise
 
 
+def _free_port() -> int:
+    import socket
+    with socket.socket() as t, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as u:
+        t.bind(("127.0.0.1", 0))
+        port = t.getsockname()[1]
+        u.bind(("127.0.0.1", port))   # free for both TCP and UDP
+        return port
+
+
 def _udp_in_datagrams() -> int:
     lines = [line.split() for line in open("/proc/net/snmp") if line.startswith("Udp:")]
     return int(dict(zip(lines[0][1:], lines[1][1:]))["InDatagrams"])
@@ -38,10 +47,14 @@ def _tcp_bytes_sent(local_port: int) -> int:
 @pytest.mark.skipif(shutil.which("ss") is None, reason="needs iproute2's ss to read TCP socket counters")
 @pytest.mark.parametrize("reliability", ["best_effort", "reliable"])
 def test_reliability_picks_the_link(ns: str, reliability: str) -> None:
-    cfg = SessionConfig.localhost(shared_memory=False)
-    with Node("tx", namespace=ns, config=cfg) as tx, Node("rx", namespace=ns, config=cfg) as rx:
+    # Explicit endpoints, no scouting: the test must not depend on other Zenoh peers on the host.
+    port = _free_port()
+    endpoints = [f"tcp/127.0.0.1:{port}", f"udp/127.0.0.1:{port}"]
+    rx_cfg = SessionConfig(listen=endpoints, multicast_scouting=False, shared_memory=False)
+    tx_cfg = SessionConfig(listen=[], connect=endpoints, multicast_scouting=False, shared_memory=False)
+    with Node("rx", namespace=ns, config=rx_cfg) as rx, Node("tx", namespace=ns, config=tx_cfg) as tx:
         peer = rx.session.zid()
-        assert wait_for(lambda: len([l for l in tx.session.info.links() if l.zid == peer]) == 2, 5.0), \
+        assert wait_for(lambda: len([l for l in tx.session.info.links() if l.zid == peer]) == 2, 10.0), \
             [str(l) for l in tx.session.info.links()]
         links = [l for l in tx.session.info.links() if l.zid == peer]
         tcp = next(l for l in links if l.src.startswith("tcp/"))
