@@ -16,7 +16,7 @@ from zenoh_robot import Node, SessionConfig
 from zenoh_robot.names import validate_node_name
 from zenoh_robot.parameters import add_param_argument, params_from_args
 from zenoh_robot.qos import load_qos
-from zenoh_robot.stream_profiles import PROFILES, STREAMS, StreamProfile, stream_profile
+from zenoh_robot.stream_profiles import IMAGE_MODES, PROFILES, STREAMS, StreamProfile, stream_profile
 
 from .app import Companion, CompanionConfig
 
@@ -39,6 +39,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="after a failsafe HOLD, resume OFFBOARD by itself when setpoints return")
     p.add_argument("--camera", default="test", help="'test' pattern, a device, a video file, or 'none'")
     p.add_argument("--camera-rate", type=float, default=30.0)
+    p.add_argument("--image", choices=IMAGE_MODES,
+                   help="raw rgb8 (as the thesis), one JPEG per frame, or sliced JPEG; default: the profile's")
+    p.add_argument("--jpeg-quality", type=int, help="JPEG quality 1..95 (default: the profile's)")
     p.add_argument("--sensor-rate", type=float, default=200.0, help="HIGHRES_IMU rate asked of PX4, Hz")
     p.add_argument("--duration", type=float, help="stop after this many seconds")
     p.add_argument("--record", type=Path, help="write the setpoint stream's figures here (JSON) at exit")
@@ -47,7 +50,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def load_profile(args: argparse.Namespace, params: dict[str, Any]) -> StreamProfile:
-    profile = stream_profile(args.profile, params)
+    profile = stream_profile(args.profile, params, image_mode=args.image, jpeg_quality=args.jpeg_quality)
     if args.config:
         overrides = load_qos(args.config)
         unknown = sorted(set(overrides) - set(STREAMS))

@@ -14,7 +14,7 @@ from rich.live import Live
 
 from zenoh_robot import Node, SessionConfig
 from zenoh_robot.parameters import add_param_argument, params_from_args
-from zenoh_robot.stream_profiles import PROFILES, stream_profile
+from zenoh_robot.stream_profiles import IMAGE_MODES, PROFILES, stream_profile
 
 from .app import Gcs, GcsConfig
 from .dashboard import RateMeter, render
@@ -48,12 +48,14 @@ def add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--speed", type=float, default=2.0, help="pattern speed, m/s")
     p.add_argument("--profile", choices=sorted(PROFILES), default="resilient", help="stream QoS/transport profile")
     p.add_argument("--zenoh", help="Zenoh session config (JSON5)")
+    p.add_argument("--image", choices=IMAGE_MODES, help="image path, overriding the profile's (must match the drone's)")
     p.add_argument("--duration", type=float, help="stop after this many seconds")
     p.add_argument("--mission", action="store_true",
                    help="fly: offboard, arm, pattern for --duration, land (needs one drone)")
     p.add_argument("--no-dashboard", action="store_true", help="log lines instead of the live table")
     p.add_argument("--record", type=Path,
-                   help="write per-drone, per-stream figures and raw sample records here (JSON) at the end")
+                   help="write per-drone, per-stream figures here at the end: FILE.json (with raw sample "
+                        "records) or FILE.csv (one row per stream)")
     p.add_argument("--save-image", type=Path, help="save the latest frame here (PNG/JPEG) every --save-every s")
     p.add_argument("--save-every", type=float, default=5.0)
     add_param_argument(p)
@@ -69,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
     if args.gcs_action == "cmd":
         return run_command(args)
     params = params_from_args(args)
-    profile = stream_profile(args.profile, params)
+    profile = stream_profile(args.profile, params, image_mode=args.image)
     drones = [d for d in (args.drones or "").split(",") if d]
     config = GcsConfig(drones=drones, pattern=args.pattern, rate_hz=args.rate, altitude=args.altitude,
                        size=args.size, speed=args.speed, profile=profile, save_image=args.save_image,
@@ -102,8 +104,7 @@ def run(args: argparse.Namespace) -> int:
         summary["mission"] = result
         _print_summary(console, summary)
         if args.record:
-            args.record.parent.mkdir(parents=True, exist_ok=True)
-            args.record.write_text(json.dumps(summary, indent=2, default=str))
+            write_record(summary, args.record)
             console.print(f"gcs: figures written to {args.record}")
     if args.mission and not result.get("ok"):
         return 1
@@ -156,6 +157,22 @@ def summarize(gcs: Gcs, profile: str) -> dict[str, Any]:
                      "received": {k: v.to_dict() for k, v in d.streams.items()}},
         }
     return out
+
+
+def write_record(summary: dict[str, Any], path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if path.suffix.lower() != ".csv":
+        path.write_text(json.dumps(summary, indent=2, default=str))
+        return
+    import csv
+    with path.open("w", newline="") as f:
+        w = csv.writer(f)
+        fields = ["received", "unique", "lost_pct", "age_avg_ms", "age_p50_ms", "age_p99_ms", "age_max_ms",
+                  "period_avg_ms", "period_max_ms", "longest_gap_ms", "rate_hz"]
+        w.writerow(["profile", "drone", "stream", *fields])
+        for drone, d in summary["drones"].items():
+            for name, s in d["streams"].items():
+                w.writerow([summary["profile"], drone, name, *(s.get(k) for k in fields)])
 
 
 def _print_summary(console: Console, summary: dict[str, Any]) -> None:

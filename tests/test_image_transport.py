@@ -64,3 +64,13 @@ def test_a_lost_slice_costs_a_strip_and_old_frames_are_dropped(ns: str) -> None:
     # The lost strip shows the previous frame's pixels; the rest is frame 1.
     assert np.abs(partial[strip].astype(int) - _frame(0)[strip].astype(int)).mean() < 8
     assert np.abs(partial[:rows].astype(int) - _frame(1)[:rows].astype(int)).mean() < 8
+
+
+def test_a_whole_frame_as_one_jpeg_image_decodes() -> None:
+    from zenoh_robot.image_transport import encode_strip
+    from zenoh_robot.msgs import Image
+    frame = _frame(3)
+    img = Image(height=240, width=320, encoding="jpeg", data=encode_strip(frame, 80))
+    assert len(img.data) < frame.nbytes / 5
+    back = img.to_array()
+    assert back.shape == frame.shape and np.abs(back.astype(int) - frame.astype(int)).mean() < 6

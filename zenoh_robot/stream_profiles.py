@@ -13,6 +13,7 @@ from typing import Any
 from .qos import (RESILIENT, HistoryPolicy, Priority, QoSError, QoSProfile, ReliabilityPolicy)
 
 STREAMS = ("setpoint", "sensor", "state", "image", "events")
+IMAGE_MODES = ("raw", "jpeg", "sliced")
 
 
 @dataclass(frozen=True)
@@ -76,9 +77,19 @@ PROFILES: dict[str, StreamProfile] = {
 }
 
 
-def stream_profile(name: str, params: dict[str, Any] | None = None) -> StreamProfile:
+def stream_profile(name: str, params: dict[str, Any] | None = None, *, image_mode: str | None = None,
+                   jpeg_quality: int | None = None) -> StreamProfile:
+    """A profile by name, with the thesis's node parameters and image choices applied."""
     try:
         profile = PROFILES[name]
     except KeyError:
         raise QoSError(f"unknown stream profile {name!r}; choose one of {', '.join(PROFILES)}") from None
+    if image_mode is not None:
+        if image_mode not in IMAGE_MODES:
+            raise QoSError(f"unknown image mode {image_mode!r}; choose one of {', '.join(IMAGE_MODES)}")
+        profile = replace(profile, image_mode=image_mode)
+    if jpeg_quality is not None:
+        if not 1 <= jpeg_quality <= 95:
+            raise QoSError(f"JPEG quality {jpeg_quality}: must be 1..95")
+        profile = replace(profile, jpeg_quality=jpeg_quality)
     return profile.with_overrides(params or {})

@@ -96,8 +96,8 @@ class Image(Message):
     def to_array(self) -> np.ndarray:
         """A read-only numpy view over ``data`` (no copy); decodes JPEG when encoding is jpeg."""
         if self.encoding == "jpeg":
-            from ..image_codec import decode_jpeg
-            return decode_jpeg(self.data)
+            from ..image_transport import decode_strip   # lazy: Pillow only when JPEG is used
+            return decode_strip(self.data)
         channels = self._CHANNELS.get(self.encoding)
         if channels is None:
             raise ValueError(f"Image.to_array: unsupported encoding {self.encoding!r}")
