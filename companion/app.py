@@ -97,7 +97,6 @@ class Companion:
     # -- setpoints -------------------------------------------------------------------
     def _on_setpoint(self, msg: Setpoint, info: Any) -> None:
         self.setpoints.record(info.seq, info.source_stamp_ns, info.received_stamp_ns)
-        self.last_setpoint_at = time.monotonic()
         yaw = msg.yaw if math.isfinite(msg.yaw) else None
         sp = (VelocitySetpoint(msg.x, msg.y, msg.z, yaw) if msg.is_velocity
               else PositionSetpoint(msg.x, msg.y, msg.z, yaw))
@@ -108,6 +107,8 @@ class Companion:
             if self.setpoints_rejected == 1 or self.setpoints_rejected % 100 == 0:
                 log.warning("setpoint rejected, never sent to PX4: %s (%d so far)", exc, self.setpoints_rejected)
             return
+        # Only setpoints PX4 accepted keep the failsafe away: a stream of garbage is no link.
+        self.last_setpoint_at = time.monotonic()
         if self.failsafe and self.config.resume_on_setpoints and self.offboard_wanted:
             self._event("setpoints_resumed", "setpoints back: resuming OFFBOARD", "OFFBOARD")
             self.failsafe = ""

@@ -153,6 +153,12 @@ def test_nan_setpoint_from_a_rogue_publisher_never_reaches_px4(ns: str) -> None:
         assert wait_for(lambda: obs.state is not None and obs.state.setpoints_rejected >= 10, 5)
         time.sleep(0.3)
         assert sim.last_setpoint.position == (1.0, 2.0, -3.0)
+        # Bad commands get an error reply, never silence, and change nothing.
+        res = obs.command("dance")
+        assert not res.success and "unknown command 'dance'" in res.message
+        res = obs.command("takeoff", 500.0)
+        assert not res.success and "outside" in res.message
+        assert not sim.armed
 
 
 def test_two_drones_each_get_only_their_setpoints(ns: str) -> None:
