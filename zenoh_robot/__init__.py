@@ -20,3 +20,16 @@ __all__ = [
     "Reliability", "ReliabilityPolicy", "Durability", "DurabilityPolicy", "History", "HistoryPolicy",
     "Liveliness", "LivelinessPolicy", "Priority", "SessionConfig", "SessionConfigError", "InvalidNameError",
 ]
+
+# Services, parameters and launch (appended; imported after the core names above).
+from .launch import LaunchError, LaunchRunner  # noqa: E402
+from .parameters import (Parameter, ParameterDescriptor, ParameterType, SetParametersResult,  # noqa: E402
+                         parse_param_args, qos_from_parameters)
+from .services import (Client, Service, ServiceCallError, ServiceError, ServiceTimeout,  # noqa: E402
+                       ServiceUnavailable)
+
+__all__ += [
+    "Parameter", "ParameterType", "ParameterDescriptor", "SetParametersResult", "parse_param_args",
+    "qos_from_parameters", "Service", "Client", "ServiceCallError", "ServiceError", "ServiceTimeout",
+    "ServiceUnavailable", "LaunchRunner", "LaunchError",
+]

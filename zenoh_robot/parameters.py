@@ -336,14 +336,18 @@ def params_from_args(args: Any) -> dict[str, Any]:
 
 
 def format_param_value(value: Any) -> str:
-    """The ``-p`` form of a value (inverse of parse_param_value)."""
+    """The ``-p`` form of a value (inverse of parse_param_value): strings that would read back
+    as something else (``'5'``, ``'true'``, ``''``) are quoted."""
     if isinstance(value, str):
-        parsed = parse_param_value(value)
-        return value if parsed == value and value.strip() == value and value else yaml.safe_dump(
-            value, default_flow_style=True).strip().removesuffix("...").strip()
-    if isinstance(value, float) and not math.isfinite(value):
+        try:
+            same = value != "" and value.strip() == value and parse_param_value(value) == value
+        except InvalidParameterValueError:
+            same = False
+        if same:
+            return value
+    elif isinstance(value, float) and not math.isfinite(value):
         return ".nan" if math.isnan(value) else (".inf" if value > 0 else "-.inf")
-    return yaml.safe_dump(value, default_flow_style=True).strip().removesuffix("...").strip()
+    return yaml.safe_dump(value, default_flow_style=True, width=1 << 20).strip().removesuffix("...").strip()
 
 
 # -- the node side ---------------------------------------------------------------------------

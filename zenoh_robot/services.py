@@ -115,6 +115,7 @@ class Service(Generic[Req, Resp]):
         self.node = node
         self.name = name
         self.key = key
+        self.service_name = service_name_of_key(key)
         self.request_type = request_type
         self.response_type = response_type
         self.handler = handler
@@ -135,7 +136,7 @@ class Service(Generic[Req, Resp]):
             self._serve(query)
             return
         if not self.node.executor.call_soon(lambda: self._serve(query)):
-            self._reply_err(query, "busy", f"service {self.name}: server queue full, request dropped")
+            self._reply_err(query, "busy", f"service {self.service_name}: server queue full, request dropped")
             query.drop()
 
     def describe(self) -> dict[str, Any]:
@@ -150,7 +151,7 @@ class Service(Generic[Req, Resp]):
                 return
             self._call(query)
         except Exception as exc:  # a reply can fail once the querier gave up; never kill the executor
-            log.debug("service %s: reply failed: %s", self.name, exc)
+            log.debug("service %s: reply failed: %s", self.service_name, exc)
         finally:
             try:
                 query.drop()
@@ -162,26 +163,26 @@ class Service(Generic[Req, Resp]):
         try:
             env = envelope.unpack(payload.to_bytes() if payload is not None else b"")
         except envelope.MalformedSample as exc:
-            self._reply_err(query, "bad_request", f"service {self.name}: malformed request ({exc})")
+            self._reply_err(query, "bad_request", f"service {self.service_name}: malformed request ({exc})")
             return
         rt = self.request_type
         dict_form = env.extra.get("form") == "dict"
         if env.type_hash != rt._type_hash or env.type_name != rt._type_name:
             self._reply_err(query, "type",
-                            f"service {self.name} takes {rt._type_name} ({rt._type_hash}), "
+                            f"service {self.service_name} takes {rt._type_name} ({rt._type_hash}), "
                             f"got {env.type_name} ({env.type_hash})")
             return
         want_name, want_hash = env.extra.get("rt"), env.extra.get("rh")
         if want_hash is not None and (want_hash != self.response_type._type_hash
                                       or want_name != self.response_type._type_name):
             self._reply_err(query, "type",
-                            f"service {self.name} returns {self.response_type._type_name} "
+                            f"service {self.service_name} returns {self.response_type._type_name} "
                             f"({self.response_type._type_hash}), client expects {want_name} ({want_hash})")
             return
         try:
             request = rt.from_dict(env.body) if dict_form else rt._from_wire(env.body)
         except Exception as exc:
-            self._reply_err(query, "bad_request", f"service {self.name}: cannot decode {rt._type_name}: {exc}")
+            self._reply_err(query, "bad_request", f"service {self.service_name}: cannot decode {rt._type_name}: {exc}")
             return
         try:
             response = self.handler(request)
@@ -192,7 +193,7 @@ class Service(Generic[Req, Resp]):
         except Exception as exc:
             with self._lock:
                 self.errors += 1
-            self.node.get_logger().warning("service %s: handler raised %s: %s", self.name,
+            self.node.get_logger().warning("service %s: handler raised %s: %s", self.service_name,
                                            type(exc).__name__, exc)
             self._reply_err(query, "handler", f"{type(exc).__name__}: {exc}")
             return

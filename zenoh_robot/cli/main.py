@@ -60,7 +60,10 @@ def main(argv: list[str] | None = None, parser: argparse.ArgumentParser | None =
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    # Run as `python -m zenoh_robot.cli.main`, this file is `__main__`, a second copy of the
+    # module: subcommands raise the CliError of `zenoh_robot.cli.main`, so call that copy's main.
+    from zenoh_robot.cli.main import main as _main
+    sys.exit(_main())
 
 
 def run_single(register: Callable[[argparse._SubParsersAction], None], command: str, prog: str,

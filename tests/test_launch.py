@@ -1,0 +1,186 @@
+"""Launch files: validation, substitutions, prefixed output, stopping everything together."""
+from __future__ import annotations
+
+import io
+import os
+import re
+import signal
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+from conftest import ROOT, python_proc, wait_for
+
+CLI = ("-c", "import sys; from zenoh_robot.cli.main import main; sys.exit(main())")
+
+from zenoh_robot.launch import LaunchError, LaunchRunner, ProcessSpec, load_launch
+
+ZR = [sys.executable, *CLI]
+CHILD = str(ROOT / "tests" / "procs" / "launch_child.py")
+
+
+def write(tmp_path: Path, text: str, name: str = "test.yaml") -> Path:
+    path = tmp_path / name
+    path.write_text(textwrap.dedent(text))
+    return path
+
+
+def alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    try:   # a zombie is dead for our purpose
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(") ")[1][0] != "Z"
+    except OSError:
+        return False
+
+
+def test_required_failure_stops_the_rest_and_names_it(tmp_path):
+    path = write(tmp_path, f"""
+        processes:
+          - name: steady
+            cmd: ["$(python)", "{CHILD}"]
+          - name: flaky
+            cmd: ["$(python)", "{CHILD}", "--fail-after", "0.8", "--code", "7"]
+            delay: 0.2
+    """)
+    proc = python_proc(*CLI, "launch", str(path), "--sigint-timeout", "3")
+    out, _ = proc.communicate(timeout=60)
+    assert proc.returncode == 1, out
+    assert "required process 'flaky' failed (exit code 7); stopping everything" in out
+    lines = out.splitlines()
+    assert any(re.match(r"^\[steady\] +tick \d+$", line) for line in lines), out
+    assert any(re.match(r"^\[flaky\] +failing now$", line) for line in lines), out
+    assert any(re.match(r"^\[steady\] +interrupted, bye$", line) for line in lines), out
+    steady_pid = int(re.search(r"^\[steady\] +pid (\d+)", out, re.M).group(1))
+    assert not alive(steady_pid)
+
+
+def test_sigint_stops_everything_cleanly_including_grandchildren(tmp_path):
+    path = write(tmp_path, f"""
+        processes:
+          - name: a
+            cmd: ["$(python)", "{CHILD}", "--grandchild"]
+          - name: b
+            cmd: ["$(python)", "{CHILD}"]
+    """)
+    proc = python_proc(*CLI, "launch", str(path))
+    seen: list[str] = []
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        seen.append(line)
+        text = "".join(seen)
+        if "grandchild pid" in text and re.search(r"^\[b\] +tick", text, re.M):
+            break
+    text = "".join(seen)
+    grandchild = int(re.search(r"grandchild pid (\d+)", text).group(1))
+    pids = [int(p) for p in re.findall(r"^\[[ab]\] +pid (\d+)", text, re.M)]
+    assert len(pids) == 2 and alive(grandchild)
+    proc.send_signal(signal.SIGINT)
+    rest, _ = proc.communicate(timeout=30)
+    assert proc.returncode == 0, text + rest
+    assert "SIGINT received; stopping" in rest
+    assert "process 'a' stopped" in rest and "process 'b' stopped" in rest
+    assert wait_for(lambda: not any(alive(p) for p in [*pids, grandchild]), timeout=5)
+
+
+def test_escalates_to_sigterm_and_keeps_optional_exits(tmp_path):
+    out = io.StringIO()
+    runner = LaunchRunner([
+        ProcessSpec("stubborn", [sys.executable, CHILD, "--ignore-sigint"]),
+        ProcessSpec("oneshot", [sys.executable, "-c", "print('done')"], required=False),
+    ], output=out, color=False, sigint_timeout=0.5, sigterm_timeout=3.0)
+    t0 = time.monotonic()
+    code = runner.run(duration=1.5, handle_signals=False)
+    text = out.getvalue()
+    assert code == 0, text
+    assert time.monotonic() - t0 < 15
+    assert "process 'oneshot' exited (exit code 0)" in text       # optional: the launch went on
+    assert "duration of 1.5 s reached; stopping" in text
+    assert "sending SIGTERM to 'stubborn'" in text
+    assert runner.returncodes["stubborn"] == -signal.SIGTERM
+    assert runner.failed is None
+
+
+def test_respawn(tmp_path):
+    out = io.StringIO()
+    runner = LaunchRunner([ProcessSpec("blip", [sys.executable, "-c", "print('hi')"], respawn=True,
+                                       respawn_delay=0.1)], output=out, color=False)
+    assert runner.run(duration=2.5, handle_signals=False) == 0
+    assert len(re.findall(r"^\[blip\] +hi$", out.getvalue(), re.M)) >= 2
+
+
+def test_substitutions_params_and_includes(tmp_path, monkeypatch):
+    monkeypatch.setenv("ZR_TEST_LEVEL", "warn")
+    write(tmp_path, """
+        args:
+          ns: {description: drone namespace}
+        processes:
+          - name: sim_$(arg ns)
+            exec: sim --id $(arg ns)
+    """, "sim.yaml")
+    path = write(tmp_path, """
+        args:
+          ns: uav1
+          depth: 5
+        include:
+          - file: sim.yaml
+            args: {ns: $(arg ns)}
+        processes:
+          - name: companion
+            exec: zenoh-robot companion --id $(arg ns)
+            args: --verbose
+            params: {depth: $(arg depth), reliability: best_effort, frames: [a, b], label: "5", enabled: true}
+            env: {RUST_LOG: $(env ZR_TEST_LEVEL), MISSING: $(env ZR_NOT_SET fallback)}
+          - name: mod
+            module: companion
+            required: false
+            delay: 2
+    """)
+    desc = load_launch(path, {"ns": "uav7", "depth": "3"})
+    sim, comp, mod = desc.processes
+    assert sim.name == "sim_uav7"
+    assert sim.argv == [*ZR, "sim", "--id", "uav7"]
+    assert comp.argv == [*ZR, "companion", "--id", "uav7",
+                         "--verbose", "-p", "depth:=3", "-p", "reliability:=best_effort",
+                         "-p", "frames:=[a, b]", "-p", "label:='5'", "-p", "enabled:=true"]
+    assert comp.env == {"RUST_LOG": "warn", "MISSING": "fallback"}
+    assert mod.argv == [sys.executable, "-m", "companion"] and not mod.required and mod.delay == 2
+    # the -p strings parse back to the values the file meant
+    from zenoh_robot.parameters import parse_param_args
+    assert parse_param_args(comp.argv[comp.argv.index("-p"):]) == {
+        "depth": 3, "reliability": "best_effort", "frames": ["a", "b"], "label": "5", "enabled": True}
+
+
+@pytest.mark.parametrize("body, message", [
+    ("processes:\n  - name: x\n    comand: [ls]\n", "unknown key(s) comand"),
+    ("processes:\n  - name: x\n    args: [a]\n", "needs exactly one of cmd, exec, module"),
+    ("processes:\n  - name: x\n    cmd: [ls]\n    module: m\n", "(has cmd, module)"),
+    ("processes:\n  - cmd: [ls]\n", "needs a name"),
+    ("proceses: []\n", "unknown key(s) proceses"),
+    ("processes:\n  - {name: x, cmd: [ls]}\n  - {name: x, cmd: [ls]}\n", "two processes are named 'x'"),
+    ("processes:\n  - {name: x, cmd: [ls], delay: soon}\n", "'soon' is not a number"),
+    ("processes:\n  - {name: x, cmd: [\"$(arg nope)\"]}\n", "unknown launch argument $(arg nope)"),
+    ("args: {need: {description: d}}\nprocesses:\n  - {name: x, cmd: [ls]}\n", "pass need:=VALUE"),
+    ("processes: [\n", "not valid YAML"),
+])
+def test_validation_errors_are_clear(tmp_path, body, message):
+    path = write(tmp_path, body)
+    with pytest.raises(LaunchError) as err:
+        load_launch(path)
+    assert message in str(err.value)
+    assert str(path) in str(err.value)
+
+
+def test_cli_reports_bad_files_in_one_line(tmp_path):
+    path = write(tmp_path, "processes:\n  - name: x\n    cmd: [ls]\n")
+    proc = python_proc(*CLI, "launch", str(path), "bogus:=1")
+    out, _ = proc.communicate(timeout=30)
+    assert proc.returncode == 1
+    assert out.strip().splitlines() == [
+        f"zenoh-robot launch: {path}: unknown launch argument(s) bogus; declared: none"]

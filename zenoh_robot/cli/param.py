@@ -1,0 +1,139 @@
+"""``zenoh-robot param list|get|set|describe|dump NODE ...``: another node's parameters, remotely.
+
+NODE is the node's fully qualified name (``/uav1/companion``); the node must be spinning.
+"""
+from __future__ import annotations
+
+import argparse
+import secrets
+from typing import Any
+
+import yaml
+
+from ..parameters import (Parameter, ParameterClient, ParameterType,
+                          InvalidParameterValueError, parse_param_value)
+from ..services import ServiceCallError, ServiceTimeout
+from .main import CliError
+
+_LABEL = {ParameterType.BOOL: "Boolean", ParameterType.INTEGER: "Integer", ParameterType.DOUBLE: "Double",
+          ParameterType.STRING: "String", ParameterType.BOOL_ARRAY: "Boolean values",
+          ParameterType.INTEGER_ARRAY: "Integer values", ParameterType.DOUBLE_ARRAY: "Double values",
+          ParameterType.STRING_ARRAY: "String values"}
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("param", help="list, get and set a running node's parameters")
+    p.add_argument("--config", help="Zenoh session config (YAML/JSON5) to reach the node")
+    p.add_argument("--timeout", type=float, default=3.0, help="seconds to find and wait for the node (default 3)")
+    ops = p.add_subparsers(dest="op", metavar="OP", required=True)
+    o = ops.add_parser("list", help="names of the node's parameters")
+    o.add_argument("node", help="fully qualified node name, e.g. /uav1/companion")
+    o.add_argument("--prefix", action="append", default=[], help="only names under this prefix")
+    o = ops.add_parser("get", help="one parameter's value")
+    o.add_argument("node")
+    o.add_argument("name")
+    o = ops.add_parser("set", help="change one parameter (the node may refuse)")
+    o.add_argument("node")
+    o.add_argument("name")
+    o.add_argument("value", help="YAML scalar or list: 5, 0.5, true, best_effort, [1, 2]")
+    o = ops.add_parser("describe", help="type, description and read-only flag of a parameter")
+    o.add_argument("node")
+    o.add_argument("name")
+    o = ops.add_parser("dump", help="every parameter as YAML (a launch file's params: block)")
+    o.add_argument("node")
+    p.set_defaults(func=run)
+
+
+def _node_name(text: str) -> str:
+    text = text.strip()
+    if not text or text == "/":
+        raise CliError("NODE must be a node's fully qualified name, e.g. /uav1/companion")
+    return text if text.startswith("/") else "/" + text
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..node import Node   # imported late so `zenoh-robot --help` stays fast
+
+    target = _node_name(args.node)
+    with Node(f"_zr_param_{secrets.token_hex(3)}", config=args.config) as node:
+        try:
+            client = ParameterClient(node, target, timeout=args.timeout)
+        except ValueError as exc:
+            raise CliError(f"bad node name {args.node!r}: {exc}") from None
+        if not client.wait_for_node(args.timeout):
+            raise CliError(f"node {target} not found (no parameter service answered within "
+                           f"{args.timeout:g} s; is it running, and on this network?)")
+        try:
+            return _OPS[args.op](client, target, args)
+        except ServiceTimeout:
+            raise CliError(f"node {target} does not answer (is it spinning?)") from None
+        except ServiceCallError as exc:
+            raise CliError(f"node {target}: {exc}") from None
+
+
+def _list(client: ParameterClient, target: str, args: argparse.Namespace) -> int:
+    for name in client.list(args.prefix):
+        print(f"  {name}")
+    return 0
+
+
+def _get_one(client: ParameterClient, target: str, name: str) -> Parameter:
+    (param,) = client.get([name])
+    if param is None:
+        raise CliError(f"node {target} has no parameter {name!r}")
+    return param
+
+
+def _get(client: ParameterClient, target: str, args: argparse.Namespace) -> int:
+    param = _get_one(client, target, args.name)
+    print(f"{_LABEL.get(param.type_, param.type_.label)} value is: {_show(param.value)}")
+    return 0
+
+
+def _show(value: Any) -> str:
+    if isinstance(value, bool):
+        return "True" if value else "False"
+    return str(value)
+
+
+def _set(client: ParameterClient, target: str, args: argparse.Namespace) -> int:
+    (desc,) = client.describe([args.name])
+    if desc is None:
+        raise CliError(f"node {target} has no parameter {args.name!r}")
+    try:
+        value = parse_param_value(args.value)
+    except InvalidParameterValueError as exc:
+        raise CliError(str(exc)) from None
+    if desc.type is ParameterType.STRING and not isinstance(value, str):
+        value = args.value   # `param set n mode 5` on a string parameter means the text "5"
+    try:
+        param = Parameter(args.name, value=value)
+    except (TypeError, ValueError) as exc:
+        raise CliError(f"bad value {args.value!r}: {exc}") from None
+    (result,) = client.set([param])
+    if not result.successful:
+        raise CliError(f"setting parameter {args.name!r} failed: {result.reason}")
+    print("Set parameter successful")
+    return 0
+
+
+def _describe(client: ParameterClient, target: str, args: argparse.Namespace) -> int:
+    (desc,) = client.describe([args.name])
+    if desc is None:
+        raise CliError(f"node {target} has no parameter {args.name!r}")
+    print(f"Parameter name: {desc.name}")
+    print(f"  Type: {desc.type.label}")
+    if desc.description:
+        print(f"  Description: {desc.description}")
+    print(f"  Read only: {str(desc.read_only).lower()}")
+    return 0
+
+
+def _dump(client: ParameterClient, target: str, args: argparse.Namespace) -> int:
+    names = client.list()
+    values = {p.name: p.value for p in client.get(names) if p is not None} if names else {}
+    print(yaml.safe_dump({target: {"params": values}}, sort_keys=False).rstrip())
+    return 0
+
+
+_OPS = {"list": _list, "get": _get, "set": _set, "describe": _describe, "dump": _dump}
