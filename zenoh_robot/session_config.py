@@ -91,6 +91,36 @@ class SessionConfig:
         kw.setdefault("listen", ["tcp/127.0.0.1:0", "udp/127.0.0.1:0"])
         return cls(**kw)
 
+    @classmethod
+    def resilient(cls, interface: str, group: str = "224.0.0.251:7460", **kw: Any) -> "SessionConfig":
+        """The lossy-link transport of the resilient profile, on network ``interface``.
+
+        Zenoh's UDP multicast transport needs no handshake (peers learn of each other from
+        Join messages, here every 250 ms), so a session forms even behind 90 % loss, where a
+        unicast handshake almost never completes; keep-alives every 100 ms hold the 10 s lease
+        through long bursts; batches stay under the MTU. Everything on it is best effort:
+        pair it with ``qos.RESILIENT`` (redundancy + repeats) for streams that must arrive.
+        """
+        kw.setdefault("listen", [f"udp/{group}#iface={interface}"])
+        kw.setdefault("multicast_scouting", False)
+        kw.setdefault("shared_memory", False)
+        kw.setdefault("batch_size", 1300)
+        kw.setdefault("lease_s", 10.0)
+        kw.setdefault("keep_alive", 100)
+        kw.setdefault("extra", {"transport/multicast/join_interval": 250})
+        return cls(**kw)
+
+    def to_json5(self) -> dict[str, Any]:
+        """The settings as a nested Zenoh config (for a ``--zenoh`` file or another process)."""
+        out: dict[str, Any] = {}
+        for key, value in self._values().items():
+            node = out
+            *parents, leaf = key.split("/")
+            for part in parents:
+                node = node.setdefault(part, {})
+            node[leaf] = value
+        return out
+
     @property
     def shared_memory_enabled(self) -> bool:
         if self.shared_memory is not None:
@@ -106,6 +136,14 @@ class SessionConfig:
                 raise SessionConfigError(f"{self.source}: {exc}") from None
         else:
             conf = zenoh.Config()
+        for key, value in self._values().items():
+            try:
+                conf.insert_json5(key, json.dumps(value))
+            except Exception as exc:
+                raise SessionConfigError(f"zenoh config {key}={value!r}: {exc}") from None
+        return conf
+
+    def _values(self) -> dict[str, Any]:
         values: dict[str, Any] = {
             "mode": self.mode,
             "listen/endpoints": self.listen,
@@ -122,12 +160,7 @@ class SessionConfig:
         if self.keep_alive is not None:
             values["transport/link/tx/keep_alive"] = self.keep_alive
         values.update(self.extra)
-        for key, value in values.items():
-            try:
-                conf.insert_json5(key, json.dumps(value))
-            except Exception as exc:
-                raise SessionConfigError(f"zenoh config {key}={value!r}: {exc}") from None
-        return conf
+        return values
 
     @classmethod
     def from_file(cls, path: str | Path) -> "SessionConfig":

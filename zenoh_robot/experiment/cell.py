@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from ..session_config import SessionConfig
 from ..stream_metrics import StreamRecorder, analyse
 from ..stream_profiles import stream_profile
 from .netns import LossyLink
@@ -37,29 +38,18 @@ class CellSpec:
 
 def transport_for(profile: str, link: LossyLink, side: str) -> dict[str, Any]:
     """The Zenoh config of one side, as JSON (valid JSON5) for ``--zenoh``."""
-    gcs = link.addr("gcs")
-    base: dict[str, Any] = {
-        "mode": "peer",
-        "scouting": {"multicast": {"enabled": False}},
-        "transport": {"shared_memory": {"enabled": False},      # loss must touch every byte
-                      "unicast": {"max_links": 2}},
-    }
     if profile == "resilient":
-        # No handshake to lose: the multicast transport discovers peers from periodic Join
-        # messages (every 250 ms here), so a session forms even behind 90 % loss; datagrams
-        # stay under the MTU, and keep-alives every 100 ms keep the lease through long bursts.
-        base["listen"] = {"endpoints": [f"udp/{MCAST}#iface={link.dev(side)}"]}
-        base["transport"]["multicast"] = {"join_interval": 250}
-        base["transport"]["link"] = {"tx": {"batch_size": 1300, "lease": 10000, "keep_alive": 100}}
+        return SessionConfig.resilient(link.dev(side), MCAST).to_json5()
+    # The thesis's variants as a plain deployment would run them: TCP for reliable, UDP for best
+    # effort, Zenoh's default lease, batch size and accept timeout; no shared memory (loss must
+    # touch every byte).
+    endpoints = [f"tcp/{link.addr('gcs')}:{PORT}", f"udp/{link.addr('gcs')}:{PORT}"]
+    plain = dict(multicast_scouting=False, shared_memory=False, accept_timeout_s=10.0)
+    if side == "gcs":
+        cfg = SessionConfig(listen=endpoints, **plain)
     else:
-        # The thesis's variants as a plain deployment would run them: TCP for reliable, UDP
-        # for best effort, Zenoh's default lease and batch size.
-        endpoints = [f"tcp/{gcs}:{PORT}", f"udp/{gcs}:{PORT}"]
-        if side == "gcs":
-            base["listen"] = {"endpoints": endpoints}
-        else:
-            base["connect"] = {"endpoints": endpoints}
-    return base
+        cfg = SessionConfig(listen=[], connect=endpoints, **plain)
+    return cfg.to_json5()
 
 
 def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
