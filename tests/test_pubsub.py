@@ -38,9 +38,15 @@ def test_every_message_type_arrives(pair, reliability: str) -> None:
         b.create_subscription(type(msg), topic, lambda m, t=topic: received.setdefault(t, []).append(m), profile)
         pubs.append((a.create_publisher(type(msg), topic, profile), msg))
     time.sleep(0.3)
-    for pub, msg in pubs:
-        pub.publish(msg)
-    assert b.spin_until(lambda: len(received) == len(ALL), timeout=5.0), sorted(received)
+    # Best effort promises nothing per sample (a 230 KB frame is ~160 datagrams): send again
+    # until each type has arrived once.
+    deadline = time.monotonic() + 10.0
+    while len(received) < len(ALL) and time.monotonic() < deadline:
+        for i, (pub, msg) in enumerate(pubs):
+            if f"t{i}" not in received:
+                pub.publish(msg)
+        b.spin_until(lambda: len(received) == len(ALL), timeout=0.3)
+    assert len(received) == len(ALL), sorted(received)
     for i, msg in enumerate(ALL):
         assert received[f"t{i}"][0] == msg
 
