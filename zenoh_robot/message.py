@@ -272,5 +272,11 @@ def lookup(type_name: str) -> type:
         raise KeyError(f"unknown message type {type_name!r}; known: {', '.join(known)}") from None
 
 
+def require_message_type(t: Any, context: str) -> None:
+    """A clear TypeError when ``t`` is not a message type (``context`` says where it was given)."""
+    if not (isinstance(t, type) and issubclass(t, Message)):
+        raise TypeError(f"{context}: {t!r} is not a message type (an @message class)")
+
+
 def is_finite(*values: float) -> bool:
     return all(math.isfinite(v) for v in values)

@@ -7,7 +7,7 @@ import time
 from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 from . import envelope
-from .message import Message
+from .message import Message, require_message_type
 from .qos import QoSProfile
 from .qos_mapping import publisher_options
 from .redundancy import RedundantHistory
@@ -25,8 +25,7 @@ class PublisherClosed(RuntimeError):
 class Publisher(Generic[M]):
     def __init__(self, node: "Node", msg_type: type[M], topic: str, key: str, qos: QoSProfile,
                  event_callbacks: Any = None) -> None:
-        if not (isinstance(msg_type, type) and issubclass(msg_type, Message)):
-            raise TypeError(f"create_publisher: {msg_type!r} is not a message type")
+        require_message_type(msg_type, "create_publisher")
         self.node = node
         self.msg_type = msg_type
         self.topic = topic

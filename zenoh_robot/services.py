@@ -36,7 +36,7 @@ import msgpack
 import zenoh
 
 from . import envelope, names
-from .message import Message
+from .message import Message, require_message_type
 
 if TYPE_CHECKING:
     from .node import Node
@@ -108,8 +108,7 @@ class Service(Generic[Req, Resp]):
     def __init__(self, node: "Node", name: str, key: str, request_type: type[Req],
                  response_type: type[Resp], handler: Callable[[Req], Resp]) -> None:
         for what, t in (("request", request_type), ("response", response_type)):
-            if not (isinstance(t, type) and issubclass(t, Message)):
-                raise TypeError(f"create_service {name!r}: {what} type {t!r} is not a message type")
+            require_message_type(t, f"create_service {name!r}: {what} type")
         if not callable(handler):
             raise TypeError(f"create_service {name!r}: handler must be callable")
         self.node = node
@@ -270,11 +269,9 @@ class Client(Generic[Req, Resp]):
 
     def __init__(self, node: "Node", name: str, key: str, request_type: type[Req],
                  response_type: type[Resp] | None) -> None:
-        if not (isinstance(request_type, type) and issubclass(request_type, Message)):
-            raise TypeError(f"create_client {name!r}: request type {request_type!r} is not a message type")
-        if response_type is not None and not (isinstance(response_type, type)
-                                              and issubclass(response_type, Message)):
-            raise TypeError(f"create_client {name!r}: response type {response_type!r} is not a message type")
+        require_message_type(request_type, f"create_client {name!r}: request type")
+        if response_type is not None:
+            require_message_type(response_type, f"create_client {name!r}: response type")
         self.node = node
         self.name = name
         self.key = key

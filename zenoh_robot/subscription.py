@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable, Generic, TypeVar
 
 from . import envelope
-from .message import Message
+from .message import Message, require_message_type
 from .qos import QoSProfile
 from .redundancy import Deduplicator
 
@@ -58,8 +58,7 @@ class Subscription(Generic[M]):
     def __init__(self, node: "Node", msg_type: type[M], topic: str, key: str,
                  callback: Callable[..., Any], qos: QoSProfile, event_callbacks: Any = None,
                  raw: bool = False) -> None:
-        if not (isinstance(msg_type, type) and issubclass(msg_type, Message)):
-            raise TypeError(f"create_subscription: {msg_type!r} is not a message type")
+        require_message_type(msg_type, "create_subscription")
         if not callable(callback):
             raise TypeError("create_subscription: callback is not callable")
         self.node = node
