@@ -1,0 +1,59 @@
+"""The benchmark's table (terminal and markdown), with the targets of the issue beside the ratios."""
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from rich.table import Table
+
+from .runner import CellResult
+
+TARGETS = {"small_p50": 1.5, "image_p50": 1.2, "throughput": 0.5, "soak_mb": 5.0}
+
+
+def _f(v: float, fmt: str = "{:.2f}") -> str:
+    return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else fmt.format(v)
+
+
+def rows(results: list[CellResult]) -> list[list[str]]:
+    out = []
+    for r in results:
+        c, fw, raw = r.cell, r.framework, r.raw
+        what = f"{c.rate:g} Hz" if c.kind == "latency" else "max"
+        if c.kind == "latency":
+            target = TARGETS["image_p50"] if c.payload in ("image", "jpeg") else TARGETS["small_p50"]
+            fig = f"p50 {_f(fw.p50_ms, '{:.3f}')} / {_f(raw.p50_ms, '{:.3f}')} ms, p99 {_f(fw.p99_ms, '{:.2f}')} / {_f(raw.p99_ms, '{:.2f}')}"
+            ratio = r.ratios.get("p50", math.nan)
+            verdict = "ok" if ratio <= target else f"over {target}x"
+        else:
+            fig = (f"{_f(fw.msgs_per_s, '{:.0f}')} / {_f(raw.msgs_per_s, '{:.0f}')} msg/s, "
+                   f"{_f(fw.mb_per_s, '{:.1f}')} / {_f(raw.mb_per_s, '{:.1f}')} MB/s, "
+                   f"lost {fw.sent - fw.received} / {raw.sent - raw.received}")
+            ratio = r.ratios.get("throughput", math.nan)
+            verdict = "ok" if ratio >= TARGETS["throughput"] else f"under {TARGETS['throughput']}x"
+        cpu = f"{_f(fw.cpu_us_per_msg_sub, '{:.0f}')} / {_f(raw.cpu_us_per_msg_sub, '{:.0f}')}"
+        err = fw.error or raw.error
+        out.append([c.payload, f"{r.payload_bytes} B", what, fig, _f(ratio), cpu, err[:40] if err else verdict])
+    return out
+
+
+HEAD = ["payload", "size", "rate", "framework / raw", "ratio", "sub CPU us/msg (fw / raw)", "target"]
+
+
+def table(results: list[CellResult]) -> Table:
+    t = Table(title="zenoh-robot vs raw zenoh-python (same run, same processes layout, same bytes)")
+    for h in HEAD:
+        t.add_column(h)
+    for row in rows(results):
+        t.add_row(*row)
+    return t
+
+
+def markdown(results: list[CellResult], soak: dict[str, Any] | None) -> str:
+    lines = ["| " + " | ".join(HEAD) + " |", "|" + "---|" * len(HEAD)]
+    lines += ["| " + " | ".join(r) + " |" for r in rows(results)]
+    if soak:
+        lines += ["", f"Soak: {soak['minutes']:g} min at {soak['rate_hz']:g} Hz, subscriber RSS growth "
+                      f"{_f(soak['rss_growth_mb'])} MB (target < {TARGETS['soak_mb']} MB), "
+                      f"{soak['received']}/{soak['sent']} received."]
+    return "\n".join(lines)

@@ -1,0 +1,171 @@
+"""One side of a benchmark cell, in its own process: ``python -m zenoh_robot.bench.worker``.
+
+``framework``: a Node publisher/subscription with the message type.
+``raw``: zenoh-python declare_publisher/put of msgpack bytes of the same fields plus a
+stamp, and a plain callback that unpacks them: the physical limit of this stack.
+Prints ``READY`` when its session is up, then one JSON line with its figures.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import sys
+import threading
+import time
+from typing import Any
+
+import msgpack
+import zenoh
+
+from .. import Node, QoSProfile, SessionConfig
+from . import payloads
+
+KEY = "bench/data"
+
+
+def _cpu() -> float:
+    return time.process_time()   # all threads of this process, ns resolution (os.times ticks 10 ms)
+
+
+def _rss_mb() -> float:
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def _config(args: argparse.Namespace) -> SessionConfig:
+    endpoint = [f"tcp/127.0.0.1:{args.port}"]
+    if args.role == "sub":
+        return SessionConfig(listen=endpoint, multicast_scouting=False, shared_memory=False)
+    return SessionConfig(listen=[], connect=endpoint, multicast_scouting=False, shared_memory=False)
+
+
+def _qos(throughput: bool) -> QoSProfile:
+    # Throughput: reliable and KEEP_ALL (BLOCK), so nothing may be lost; latency: keep last 100.
+    return QoSProfile(reliability="reliable", history="keep_all" if throughput else "keep_last",
+                      depth=0 if throughput else 100)
+
+
+def run_sub(args: argparse.Namespace) -> dict[str, Any]:
+    msg = payloads.make(args.payload)
+    ages: list[float] = []
+    arrivals: list[float] = []
+    done = threading.Event()
+    rss: list[float] = []
+
+    def record(stamp_ns: int) -> None:
+        now = time.time_ns()
+        ages.append((now - stamp_ns) / 1e6)
+        arrivals.append(now / 1e9)
+        if len(ages) >= args.count:
+            done.set()
+
+    cfg = _config(args)
+    cpu0 = 0.0
+    if args.mode == "raw":
+        session = zenoh.open(cfg.to_zenoh())
+        try:
+            def on_sample(sample: Any) -> None:
+                values = msgpack.unpackb(sample.payload.to_bytes())
+                type(msg)._from_wire(values[1])   # same decoding work as the framework's body
+                record(values[0])
+            sub = session.declare_subscriber(KEY, on_sample)
+            print("READY", flush=True)
+            cpu0 = _cpu()   # per-message CPU: count the flow, not imports and session set-up
+            _wait(done, args, rss)
+            sub.undeclare()
+        finally:
+            session.close()
+    else:
+        with Node("bench_sub", config=cfg) as node:
+            node.create_subscription(type(msg), "/" + KEY, lambda m, info: record(info.source_stamp_ns),
+                                     _qos(args.throughput))
+            spinner = threading.Thread(target=node.spin, daemon=True)
+            spinner.start()
+            print("READY", flush=True)
+            cpu0 = _cpu()
+            _wait(done, args, rss)
+            node.shutdown()
+    cpu = _cpu() - cpu0
+    return {"received": len(ages), "ages_ms": ages, "t_first": arrivals[0] if arrivals else None,
+            "t_last": arrivals[-1] if arrivals else None, "cpu_s": cpu, "rss_mb": rss,
+            "maxrss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+
+
+def _wait(done: threading.Event, args: argparse.Namespace, rss: list[float]) -> None:
+    deadline = time.monotonic() + args.timeout
+    next_rss = time.monotonic()
+    while not done.is_set() and time.monotonic() < deadline:
+        if args.rss_every and time.monotonic() >= next_rss:
+            rss.append(_rss_mb())
+            next_rss += args.rss_every
+        done.wait(0.05)
+    if args.rss_every:
+        rss.append(_rss_mb())
+
+
+def run_pub(args: argparse.Namespace) -> dict[str, Any]:
+    msg = payloads.make(args.payload)
+    body = type(msg)._to_wire(msg)
+    cfg = _config(args)
+    period = 1.0 / args.rate if args.rate > 0 else 0.0
+    if args.mode == "raw":
+        session = zenoh.open(cfg.to_zenoh())
+        try:
+            cc = zenoh.CongestionControl.BLOCK if args.throughput else zenoh.CongestionControl.DROP
+            pub = session.declare_publisher(KEY, reliability=zenoh.Reliability.RELIABLE, congestion_control=cc)
+            time.sleep(args.settle)
+            cpu0 = _cpu()
+
+            def send() -> None:
+                pub.put(msgpack.packb((time.time_ns(), body), use_bin_type=True))
+            sent, elapsed = _loop(send, args.count, period)
+        finally:
+            session.close()
+    else:
+        with Node("bench_pub", config=cfg) as node:
+            pub = node.create_publisher(type(msg), "/" + KEY, _qos(args.throughput))
+            time.sleep(args.settle)
+            cpu0 = _cpu()
+            sent, elapsed = _loop(lambda: pub.publish(msg), args.count, period)
+            cpu = _cpu() - cpu0
+            time.sleep(0.5)   # let the tail leave before the session closes
+        return {"sent": sent, "elapsed_s": elapsed, "cpu_s": cpu}
+    return {"sent": sent, "elapsed_s": elapsed, "cpu_s": _cpu() - cpu0}
+
+
+def _loop(send: Any, count: int, period: float) -> tuple[int, float]:
+    t0 = time.monotonic()
+    for i in range(count):
+        send()
+        if period:
+            delay = t0 + (i + 1) * period - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+    return count, time.monotonic() - t0
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser()
+    p.add_argument("role", choices=("pub", "sub"))
+    p.add_argument("mode", choices=("framework", "raw"))
+    p.add_argument("payload", choices=payloads.PAYLOADS)
+    p.add_argument("--rate", type=float, default=0.0, help="Hz; 0 = as fast as possible")
+    p.add_argument("--count", type=int, required=True)
+    p.add_argument("--port", type=int, required=True)
+    p.add_argument("--throughput", action="store_true")
+    p.add_argument("--timeout", type=float, default=60.0)
+    p.add_argument("--settle", type=float, default=1.0)
+    p.add_argument("--rss-every", type=float, default=0.0)
+    args = p.parse_args(argv)
+    zenoh.init_log_from_env_or("error")
+    out = run_sub(args) if args.role == "sub" else run_pub(args)
+    print(json.dumps(out), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,44 @@
+"""``zenoh-robot bench``: framework vs raw zenoh-python, same run; ``--soak`` for memory growth."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("bench", help="latency, throughput and CPU against raw zenoh-python")
+    p.add_argument("--quick", action="store_true", help="a tenth of the messages (a smoke run)")
+    p.add_argument("--only", help="comma-separated payloads: setpoint,sensor,image,jpeg")
+    p.add_argument("--soak", action="store_true", help="also a soak at 1 kHz measuring memory growth")
+    p.add_argument("--soak-minutes", type=float, default=10.0)
+    p.add_argument("--out", type=Path, default=Path("results/bench"))
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from rich.console import Console
+
+    from ..bench.report import markdown, table
+    from ..bench.runner import plan, run_all, run_soak, to_json
+    from .main import CliError
+
+    only = [p for p in (args.only or "").split(",") if p]
+    cells = plan(args.quick, only)
+    if not cells:
+        raise CliError(f"no cells for --only {args.only!r} (payloads: setpoint, sensor, image, jpeg)")
+    console = Console()
+    with console.status("") as status:
+        results = run_all(cells, lambda c: status.update(
+            f"{c.payload} {c.kind} {c.rate:g} Hz x{c.count}: framework, then raw zenoh-python"))
+        soak = None
+        if args.soak:
+            status.update(f"soak: {args.soak_minutes:g} min at 1 kHz")
+            soak = run_soak(args.soak_minutes)
+    console.print(table(results))
+    md = markdown(results, soak)
+    if soak:
+        console.print(md.split("\n\n")[-1])
+    to_json(results, soak, args.out / "bench.json")
+    (args.out / "bench.md").write_text(md + "\n")
+    console.print(f"bench: {args.out / 'bench.json'}, {args.out / 'bench.md'}")
+    return 0
