@@ -6,7 +6,6 @@ import threading
 import time
 
 import pytest
-import zenoh
 
 from zenoh_robot import InvalidNameError, MultiThreadedExecutor, Node, QoSProfile, qos
 from zenoh_robot.msgs import Setpoint, String

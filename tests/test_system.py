@@ -16,7 +16,6 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
-import pytest
 
 from px4_link.sim import Simulator
 from zenoh_robot import Node, qos

@@ -16,7 +16,7 @@ from .subscription import MessageInfo, Subscription
 __version__ = "0.1.0"
 __all__ = [
     "Node", "Publisher", "Subscription", "MessageInfo", "Timer", "Executor", "MultiThreadedExecutor",
-    "Message", "message", "array", "ros_field", "load_msg", "qos", "QoSProfile", "QoSError",
+    "Message", "message", "array", "ros_field", "load_msg", "msgs", "qos", "QoSProfile", "QoSError",
     "Reliability", "ReliabilityPolicy", "Durability", "DurabilityPolicy", "History", "HistoryPolicy",
     "Liveliness", "LivelinessPolicy", "Priority", "SessionConfig", "SessionConfigError", "InvalidNameError",
 ]

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import math
 import typing
 from dataclasses import dataclass, field
 from operator import attrgetter
@@ -276,7 +275,3 @@ def require_message_type(t: Any, context: str) -> None:
     """A clear TypeError when ``t`` is not a message type (``context`` says where it was given)."""
     if not (isinstance(t, type) and issubclass(t, Message)):
         raise TypeError(f"{context}: {t!r} is not a message type (an @message class)")
-
-
-def is_finite(*values: float) -> bool:
-    return all(math.isfinite(v) for v in values)

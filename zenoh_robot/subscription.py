@@ -8,7 +8,6 @@ oldest is dropped and counted when a new one arrives.
 from __future__ import annotations
 
 import inspect
-import logging
 import threading
 import time
 from collections import deque
