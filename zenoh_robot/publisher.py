@@ -10,7 +10,7 @@ from . import envelope
 from .message import Message, require_message_type
 from .qos import QoSProfile
 from .qos_mapping import publisher_options
-from .redundancy import RedundantHistory
+from .redundancy import REPEAT_KEY, RedundantHistory
 
 if TYPE_CHECKING:
     from .node import Node
@@ -68,6 +68,9 @@ class Publisher(Generic[M]):
             if self._history is not None:
                 carried = self._history.extra()
                 extra = {**(extra or {}), **carried} if carried else extra
+            if self._repeats:
+                # Tells every subscriber, whatever its own QoS, that copies follow: deduplicate.
+                extra = {**(extra or {}), REPEAT_KEY: self._repeats}
                 self._history.record(seq, stamp, body)
             payload = envelope.pack(self._type_name, self._type_hash, self.publisher_id, seq, stamp, body, extra)
             self._zpub.put(payload)

@@ -11,6 +11,7 @@ from collections import deque
 from typing import Any
 
 HISTORY_KEY = "r"   # envelope.extra key: [[seq, stamp_ns, body], ...], oldest first
+REPEAT_KEY = "n"    # envelope.extra key: how many delayed copies of this packet follow
 
 
 class RedundantHistory:

@@ -125,6 +125,10 @@ class Subscription(Generic[M]):
                                "%s (hash %s); its samples are dropped", self.topic, env.publisher_id,
                                env.type_name, env.type_hash, self.msg_type._type_name, self._hash)
             return
+        if self.dedup is None and env.extra:
+            # A redundant or repeating publisher, whatever this subscription's own QoS: from now
+            # on, deliver each of its samples once.
+            self.dedup = Deduplicator()
         if self.dedup is None:
             self._decode_and_deliver(env, env.seq, env.stamp_ns, env.body, received_ns)
         else:
