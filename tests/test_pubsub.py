@@ -207,16 +207,19 @@ def test_timer_and_multithreaded_executor(ns: str) -> None:
         assert not t.is_alive()
 
 
-def test_repeated_and_redundant_samples_arrive_once_whatever_the_subscriber_qos(pair) -> None:
+@pytest.mark.parametrize("profile", [qos.RESILIENT, qos.SENSOR.replace(repeat=3), qos.SENSOR.replace(redundancy=3)],
+                         ids=["redundant+repeated", "repeated", "redundant"])
+def test_repeated_and_redundant_samples_arrive_once_whatever_the_subscriber_qos(pair, profile) -> None:
     a, b = pair
     got: list[int] = []
     sub = b.create_subscription(Setpoint, "rep", lambda m, info: got.append(info.seq), QoSProfile(depth=100))
-    pub = a.create_publisher(Setpoint, "rep", qos.RESILIENT)
+    pub = a.create_publisher(Setpoint, "rep", profile)
     time.sleep(0.3)
     for _ in range(20):
         pub.publish(Setpoint())
         time.sleep(0.01)
-    b.spin_until(lambda: sub.counters.received >= 20 * 4, 5.0)
+    copies = 1 + profile.repeat
+    b.spin_until(lambda: sub.counters.received >= 20 * copies, 5.0)
     b.spin_until(lambda: False, 0.3)
-    assert sub.counters.received >= 20 * 4        # every packet went out 4 times
+    assert sub.counters.received >= 20 * copies   # every packet went out 1 + repeat times
     assert got == list(range(1, 21))              # yet each sample was delivered once, in order

@@ -68,10 +68,10 @@ class Publisher(Generic[M]):
             if self._history is not None:
                 carried = self._history.extra()
                 extra = {**(extra or {}), **carried} if carried else extra
+                self._history.record(seq, stamp, body)
             if self._repeats:
                 # Tells every subscriber, whatever its own QoS, that copies follow: deduplicate.
                 extra = {**(extra or {}), REPEAT_KEY: self._repeats}
-                self._history.record(seq, stamp, body)
             payload = envelope.pack(self._type_name, self._type_hash, self.publisher_id, seq, stamp, body, extra)
             self._zpub.put(payload)
             if self._repeats:   # loss is per packet: each later copy is another chance
