@@ -34,3 +34,26 @@ def python_proc(*args: str, env: dict[str, str] | None = None, **kw) -> subproce
     full_env = dict(os.environ, PYTHONUNBUFFERED="1", **(env or {}))
     return subprocess.Popen([sys.executable, *args], cwd=ROOT, env=full_env, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, **kw)
+
+
+def free_port() -> int:
+    """A port free for both TCP and UDP on 127.0.0.1."""
+    import socket
+    with socket.socket() as t, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as u:
+        t.bind(("127.0.0.1", 0))
+        port = t.getsockname()[1]
+        u.bind(("127.0.0.1", port))
+        return port
+
+
+def linked_configs():
+    """Session configs for a listener and a connector on loopback, TCP + UDP, no scouting.
+
+    Tests that are not about discovery use these, so they never wait on multicast scouting
+    (which a busy machine can delay) nor meet other tests' sessions.
+    """
+    from zenoh_robot import SessionConfig
+    endpoints = [f"tcp/127.0.0.1:{free_port()}", f"udp/127.0.0.1:{free_port()}"]
+    listen = SessionConfig(listen=endpoints, multicast_scouting=False, shared_memory=False)
+    connect = SessionConfig(listen=[], connect=endpoints, multicast_scouting=False, shared_memory=False)
+    return listen, connect

@@ -5,6 +5,7 @@ import time
 
 import numpy as np
 
+from conftest import linked_configs
 from zenoh_robot import Node, QoSProfile
 from zenoh_robot.image_transport import ImagePublisher, ImageSlice, ImageSubscription
 from zenoh_robot.qos import IMAGE
@@ -18,7 +19,8 @@ def _frame(i: int) -> np.ndarray:
 def test_frames_arrive_sliced_and_close_to_the_original(ns: str) -> None:
     frames = []
     slice_sizes = []
-    with Node("cam", namespace=ns) as a, Node("viewer", namespace=ns) as b:
+    listen, connect = linked_configs()
+    with Node("viewer", namespace=ns, config=listen) as b, Node("cam", namespace=ns, config=connect) as a:
         b.create_subscription(ImageSlice, "image", lambda s: slice_sizes.append(len(s.data)), QoSProfile(depth=500))
         sub = ImageSubscription(b, "image", lambda img, info: frames.append((img, info)))
         pub = ImagePublisher(a, "image", quality=70)
@@ -37,7 +39,8 @@ def test_frames_arrive_sliced_and_close_to_the_original(ns: str) -> None:
 
 def test_a_lost_slice_costs_a_strip_and_old_frames_are_dropped(ns: str) -> None:
     frames = []
-    with Node("cam", namespace=ns) as a, Node("viewer", namespace=ns) as b:
+    listen, connect = linked_configs()
+    with Node("viewer", namespace=ns, config=listen) as b, Node("cam", namespace=ns, config=connect) as a:
         sub = ImageSubscription(b, "image", lambda img, info: frames.append((img.to_array().copy(), info)))
         pub = ImagePublisher(a, "image", quality=70)
         raw = a.create_publisher(ImageSlice, "image", IMAGE)   # same link as pub: no reordering

@@ -10,13 +10,17 @@ import pytest
 from zenoh_robot import InvalidNameError, MultiThreadedExecutor, Node, QoSProfile, qos
 from zenoh_robot.msgs import Setpoint, String
 
-from conftest import python_proc, wait_for
+from conftest import linked_configs, python_proc, wait_for
 from test_messages import ALL
 
 
 @pytest.fixture
 def pair(ns: str):
-    with Node("talker", namespace=ns) as a, Node("listener", namespace=ns) as b:
+    listen, connect = linked_configs()
+    with Node("listener", namespace=ns, config=listen) as b, Node("talker", namespace=ns, config=connect) as a:
+        peer = b.session.zid()
+        assert wait_for(lambda: len([l for l in a.session.info.links() if l.zid == peer]) == 2, 10.0), \
+            "the two sessions never linked"
         yield a, b
 
 

@@ -13,22 +13,13 @@ import time
 
 import pytest
 
-from zenoh_robot import Node, QoSProfile, SessionConfig
+from zenoh_robot import Node, QoSProfile
 from zenoh_robot.msgs import String
 
-from conftest import wait_for
+from conftest import linked_configs, wait_for
 
 N = 300
 PAYLOAD = "x" * 2000   # under the 3 KB shared-memory threshold, over any keep-alive noise
-
-
-def _free_port() -> int:
-    import socket
-    with socket.socket() as t, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as u:
-        t.bind(("127.0.0.1", 0))
-        port = t.getsockname()[1]
-        u.bind(("127.0.0.1", port))   # free for both TCP and UDP
-        return port
 
 
 def _udp_in_datagrams() -> int:
@@ -48,10 +39,7 @@ def _tcp_bytes_sent(local_port: int) -> int:
 @pytest.mark.parametrize("reliability", ["best_effort", "reliable"])
 def test_reliability_picks_the_link(ns: str, reliability: str) -> None:
     # Explicit endpoints, no scouting: the test must not depend on other Zenoh peers on the host.
-    port = _free_port()
-    endpoints = [f"tcp/127.0.0.1:{port}", f"udp/127.0.0.1:{port}"]
-    rx_cfg = SessionConfig(listen=endpoints, multicast_scouting=False, shared_memory=False)
-    tx_cfg = SessionConfig(listen=[], connect=endpoints, multicast_scouting=False, shared_memory=False)
+    rx_cfg, tx_cfg = linked_configs()
     with Node("rx", namespace=ns, config=rx_cfg) as rx, Node("tx", namespace=ns, config=tx_cfg) as tx:
         peer = rx.session.zid()
         assert wait_for(lambda: len([l for l in tx.session.info.links() if l.zid == peer]) == 2, 10.0), \
