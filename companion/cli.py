@@ -34,7 +34,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--profile", choices=sorted(PROFILES), default="resilient")
     p.add_argument("--config", type=Path, help="QoS YAML overriding streams (setpoint, sensor, state, image, events)")
     p.add_argument("--zenoh", help="Zenoh session config (JSON5)")
-    p.add_argument("--deadline", type=float, default=1.0, help="setpoint deadline before HOLD, s (default 1)")
+    p.add_argument("--deadline", type=float, default=1.0, help="setpoint deadline before HOLD, s (default 1; the GCS offers 0.5, "
+                        "so a shorter one is an incompatible QoS pair)")
     p.add_argument("--resume-on-setpoints", action="store_true",
                    help="after a failsafe HOLD, resume OFFBOARD by itself when setpoints return")
     p.add_argument("--camera", default="test", help="'test' pattern, a device, a video file, or 'none'")

@@ -21,7 +21,7 @@ def test_frames_arrive_sliced_and_close_to_the_original(ns: str) -> None:
     slice_sizes = []
     listen, connect = linked_configs()
     with Node("viewer", namespace=ns, config=listen) as b, Node("cam", namespace=ns, config=connect) as a:
-        b.create_subscription(ImageSlice, "image", lambda s: slice_sizes.append(len(s.data)), QoSProfile(depth=500))
+        b.create_subscription(ImageSlice, "image", lambda s: slice_sizes.append(len(s.data)), IMAGE.replace(depth=500))
         sub = ImageSubscription(b, "image", lambda img, info: frames.append((img, info)))
         pub = ImagePublisher(a, "image", quality=70)
         time.sleep(0.3)

@@ -216,7 +216,7 @@ def test_timer_and_multithreaded_executor(ns: str) -> None:
 def test_repeated_and_redundant_samples_arrive_once_whatever_the_subscriber_qos(pair, profile) -> None:
     a, b = pair
     got: list[int] = []
-    sub = b.create_subscription(Setpoint, "rep", lambda m, info: got.append(info.seq), QoSProfile(depth=100))
+    sub = b.create_subscription(Setpoint, "rep", lambda m, info: got.append(info.seq), qos.SENSOR.replace(depth=100))
     pub = a.create_publisher(Setpoint, "rep", profile)
     time.sleep(0.3)
     for _ in range(20):

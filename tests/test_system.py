@@ -20,9 +20,11 @@ from typing import Iterator
 from px4_link.sim import Simulator
 from zenoh_robot import Node, qos
 from zenoh_robot.msgs import Command, CommandResult, FailsafeEvent, Header, Setpoint, VehicleState
-from zenoh_robot.stream_profiles import stream_profile
+from zenoh_robot.stream_profiles import SETPOINT_DEADLINE, stream_profile
 
 from conftest import python_proc, wait_for
+
+SETPOINT_QOS = qos.RESILIENT.replace(deadline=SETPOINT_DEADLINE)   # what the companion accepts
 
 FAST = {"MPC_TKO_SPEED": 3.0, "MPC_LAND_SPEED": 2.0}   # shorter climbs and landings; failsafe params untouched
 
@@ -139,7 +141,7 @@ def test_nan_setpoint_from_a_rogue_publisher_never_reaches_px4(ns: str) -> None:
     with drone(ns) as (sim, companion), Node("rogue") as node:
         obs = Observer(node, ns)
         _spin(node)
-        pub = node.create_publisher(Setpoint, f"/{ns}/setpoint", qos.RESILIENT)
+        pub = node.create_publisher(Setpoint, f"/{ns}/setpoint", SETPOINT_QOS)
         assert wait_for(lambda: obs.state is not None and obs.state.connected, 20)
         for i in range(5):
             pub.publish(Setpoint(Header.now(seq=i), 1.0, 2.0, -3.0))
@@ -163,7 +165,7 @@ def test_nan_setpoint_from_a_rogue_publisher_never_reaches_px4(ns: str) -> None:
 def test_two_drones_each_get_only_their_setpoints(ns: str) -> None:
     a, b = f"{ns}a", f"{ns}b"
     with drone(a, 1) as (sim_a, _), drone(b, 2) as (sim_b, _), Node("gcs2") as node:
-        pubs = {d: node.create_publisher(Setpoint, f"/{d}/setpoint", qos.RESILIENT) for d in (a, b)}
+        pubs = {d: node.create_publisher(Setpoint, f"/{d}/setpoint", SETPOINT_QOS) for d in (a, b)}
         xs = {a: 1.5, b: -1.5}
         seen: dict[str, set] = {a: set(), b: set()}
         deadline = time.monotonic() + 20

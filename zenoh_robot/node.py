@@ -10,11 +10,12 @@ import zenoh
 
 from . import names
 from .executor import Executor, Timer
-from .graph import GraphMixin
+from .graph import EndpointType, GraphMixin
 from .parameters import ParametersMixin
 from .services import ServicesMixin
 from .message import Message
 from .publisher import Publisher
+from .qos_monitor import QoSMonitor
 from .repeater import Repeater
 from .qos import QoSProfile, SYSTEM_DEFAULT
 from .session_config import SessionConfig, open_session
@@ -46,7 +47,7 @@ class Node(GraphMixin, ServicesMixin, ParametersMixin):
                  config: SessionConfig | str | Path | None = None, *,
                  executor: Executor | None = None,
                  parameter_overrides: dict[str, Any] | None = None,
-                 enable_topic_statistics: bool = False) -> None:
+                 enable_topic_statistics: Any = False) -> None:
         self.name = names.validate_node_name(name)
         self.namespace = names.normalize_namespace(namespace)
         self.executor = executor or Executor()
@@ -61,6 +62,7 @@ class Node(GraphMixin, ServicesMixin, ParametersMixin):
         self._on_close: list[Callable[[], None]] = []
         self.enable_topic_statistics = enable_topic_statistics
         self._repeater: Repeater | None = None
+        self._qos_monitor: QoSMonitor | None = None
         try:
             self._init_graph()
             self._init_services()
@@ -94,17 +96,32 @@ class Node(GraphMixin, ServicesMixin, ParametersMixin):
         pub = Publisher(self, msg_type, topic, key, _qos(qos), event_callbacks)
         with self._lock:
             self.publishers.append(pub)
+        self._match_existing(pub, EndpointType.SUBSCRIPTION)
         return pub
 
     def create_subscription(self, msg_type: type[M], topic: str, callback: Callable[..., Any],
                             qos: QoSProfile | int = SYSTEM_DEFAULT, *,
-                            event_callbacks: Any = None) -> Subscription[M]:
-        """``callback(msg)`` or ``callback(msg, info)`` (info: MessageInfo with age, seq)."""
+                            event_callbacks: Any = None, topic_statistics: Any = None) -> Subscription[M]:
+        """``callback(msg)`` or ``callback(msg, info)`` (info: MessageInfo with age, seq).
+
+        ``topic_statistics``: True or a ``TopicStatisticsOptions`` to publish windowed
+        age/period statistics for this subscription; None follows the node's
+        ``enable_topic_statistics``.
+        """
         self._check_open()
         key = self.resolve_topic_name(topic)
         sub = Subscription(self, msg_type, topic, key, callback, _qos(qos), event_callbacks)
         with self._lock:
             self.subscriptions.append(sub)
+        self._match_existing(sub, EndpointType.PUBLISHER)
+        stats = self.enable_topic_statistics if topic_statistics is None else topic_statistics
+        if stats and msg_type._type_name != "zenoh_robot/TopicStatistics":
+            from .topic_statistics import attach   # lazy: most nodes never use it
+            try:
+                sub.statistics = attach(self, sub, None if stats is True else stats)
+            except BaseException:
+                self.destroy_subscription(sub)
+                raise
         return sub
 
     def create_timer(self, period_s: float, callback: Callable[[], None]) -> Timer:
@@ -137,6 +154,19 @@ class Node(GraphMixin, ServicesMixin, ParametersMixin):
             if self._repeater is None:
                 self._repeater = Repeater()
             return self._repeater
+
+    @property
+    def qos_monitor(self) -> QoSMonitor:
+        """The thread that checks deadlines and leases (made on first use)."""
+        with self._lock:
+            if self._qos_monitor is None:
+                self._qos_monitor = QoSMonitor()
+            return self._qos_monitor
+
+    def qos_monitor_if_any(self, fn: Callable[[QoSMonitor], None]) -> None:
+        monitor = self._qos_monitor
+        if monitor is not None:
+            fn(monitor)
 
     def add_on_close(self, fn: Callable[[], None]) -> None:
         """Run ``fn`` when the node closes, before its session does (for add-ons)."""
@@ -186,8 +216,11 @@ class Node(GraphMixin, ServicesMixin, ParametersMixin):
             t.cancel()
         if self._repeater is not None:
             self._repeater.close()
+        if self._qos_monitor is not None:
+            self._qos_monitor.close()
         for entity in [*self.subscriptions, *self.publishers]:
             entity.destroy()
+        self._close_graph()
         self.session.close()
 
     destroy_node = close

@@ -8,8 +8,10 @@ from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 from . import envelope
 from .message import Message, require_message_type
+from .graph import PUBLISHER, TopicEndpointInfo
 from .qos import QoSProfile
-from .qos_mapping import publisher_options
+from .qos_events import PublisherEvents
+from .qos_mapping import declare_publisher
 from .redundancy import REPEAT_KEY, RedundantHistory
 
 if TYPE_CHECKING:
@@ -34,18 +36,21 @@ class Publisher(Generic[M]):
         self.event_callbacks = event_callbacks
         # 63 bits: unique per publisher without coordination, a msgpack uint64 at most.
         self.publisher_id = secrets.randbits(63)
+        self.gid = self.publisher_id
         self._seq = 0
         self._lock = threading.Lock()
         self._type_name = msg_type._type_name
         self._type_hash = msg_type._type_hash
         self._to_wire = msg_type._to_wire
-        self._zpub = node.session.declare_publisher(key, **publisher_options(qos))
         self.published = 0
         self.last_publish_mono: float | None = None
         self.last_stamp_ns = 0      # source stamp of the last sample (its seq is `sequence`)
         self._closed = False
         self._history = RedundantHistory(qos.redundancy) if qos.redundancy else None
         self._repeats = qos.repeat
+        self.events = PublisherEvents(self, event_callbacks)
+        self._zpub = declare_publisher(node.session, key, qos)
+        self._token = node._declare_endpoint_token(PUBLISHER, self)
 
     @property
     def sequence(self) -> int:
@@ -81,13 +86,27 @@ class Publisher(Generic[M]):
             self.last_publish_mono = time.monotonic()
         return seq
 
+    def assert_liveliness(self) -> None:
+        """Tell subscriptions this publisher is alive (MANUAL_BY_TOPIC; publish() also does)."""
+        if self._closed:
+            raise PublisherClosed(f"publisher on {self.topic!r} is closed")
+        self.events.assert_liveliness()
+
     def get_subscription_count(self) -> int:
-        return self.node.count_subscribers(self.topic)
+        """Subscriptions matched with this publisher (same type, compatible QoS), in any process."""
+        return self.events.current_count
+
+    def on_peer(self, appeared: bool, info: TopicEndpointInfo) -> None:
+        self.events.on_peer(appeared, info)
 
     def destroy(self) -> None:
         with self._lock:   # waits for a publish in flight on another thread
+            if self._closed:
+                return
             self._closed = True
-        try:
-            self._zpub.undeclare()
-        except Exception:
-            pass  # already closed with the session
+        self.events.close()
+        for handle in (self._token, self._zpub):
+            try:
+                handle.undeclare()
+            except Exception:
+                pass  # already closed with the session

@@ -4,8 +4,9 @@ from __future__ import annotations
 from typing import Any
 
 import zenoh
+import zenoh.ext
 
-from .qos import HistoryPolicy, Priority, QoSProfile, ReliabilityPolicy
+from .qos import KEEP_ALL_LIMIT, DurabilityPolicy, HistoryPolicy, Priority, QoSProfile, ReliabilityPolicy
 
 _PRIORITY = {p: getattr(zenoh.Priority, p.name) for p in Priority}
 
@@ -26,3 +27,26 @@ def publisher_options(qos: QoSProfile) -> dict[str, Any]:
         "priority": _PRIORITY[qos.priority],
         "express": qos.express,
     }
+
+
+def _history_limit(qos: QoSProfile) -> int:
+    return KEEP_ALL_LIMIT if qos.history is HistoryPolicy.KEEP_ALL else qos.depth
+
+
+def declare_publisher(session: zenoh.Session, key: str, qos: QoSProfile) -> Any:
+    """A plain Zenoh publisher, or for TRANSIENT_LOCAL an advanced one whose cache serves late joiners."""
+    if qos.durability is DurabilityPolicy.TRANSIENT_LOCAL:
+        return zenoh.ext.declare_advanced_publisher(
+            session, key, cache=zenoh.ext.CacheConfig(_history_limit(qos)), publisher_detection=True,
+            # Sequence numbers, not timestamps: no need for timestamping in every session config.
+            sample_miss_detection=zenoh.ext.MissDetectionConfig(),
+            **publisher_options(qos))
+    return session.declare_publisher(key, **publisher_options(qos))
+
+
+def declare_subscriber(session: zenoh.Session, key: str, qos: QoSProfile, callback: Any) -> Any:
+    """TRANSIENT_LOCAL asks every transient-local publisher, present or late, for its kept samples."""
+    if qos.durability is DurabilityPolicy.TRANSIENT_LOCAL:
+        history = zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=_history_limit(qos))
+        return zenoh.ext.declare_advanced_subscriber(session, key, callback, history=history)
+    return session.declare_subscriber(key, callback)

@@ -13,6 +13,9 @@ from typing import Any
 from .qos import (RESILIENT, HistoryPolicy, Priority, QoSError, QoSProfile, ReliabilityPolicy)
 
 STREAMS = ("setpoint", "sensor", "state", "image", "events")
+# The GCS offers this deadline on setpoints: PX4 leaves OFFBOARD below 2 Hz, so a setpoint
+# stream that promises less is no use. A companion may request any deadline >= this one.
+SETPOINT_DEADLINE = 0.5
 IMAGE_MODES = ("raw", "jpeg", "sliced")
 
 
@@ -44,7 +47,7 @@ class StreamProfile:
 
 
 def _all(q: QoSProfile) -> dict[str, QoSProfile]:
-    return {s: q for s in STREAMS}
+    return {s: q.replace(deadline=SETPOINT_DEADLINE) if s == "setpoint" else q for s in STREAMS}
 
 
 _KEEP_LAST_10 = dict(history=HistoryPolicy.KEEP_LAST, depth=10)
@@ -63,7 +66,7 @@ PROFILES: dict[str, StreamProfile] = {
         "semantics; UDP multicast transport (no handshake to lose), joins every 250 ms, keep-alives "
         "every 100 ms",
         {
-            "setpoint": RESILIENT,
+            "setpoint": RESILIENT.replace(deadline=SETPOINT_DEADLINE),
             # One delayed copy: ~99 % of the 200 Hz stream at 10 % loss, no waiting for anything.
             "sensor": QoSProfile(ReliabilityPolicy.BEST_EFFORT, depth=5, priority=Priority.DATA_HIGH, repeat=1),
             "state": QoSProfile(ReliabilityPolicy.BEST_EFFORT, depth=1, priority=Priority.INTERACTIVE_HIGH,

@@ -8,6 +8,7 @@ oldest is dropped and counted when a new one arrives.
 from __future__ import annotations
 
 import inspect
+import secrets
 import threading
 import time
 from collections import deque
@@ -16,7 +17,10 @@ from typing import TYPE_CHECKING, Any, Callable, Generic, TypeVar
 
 from . import envelope
 from .message import Message, require_message_type
+from .graph import SUBSCRIPTION, TopicEndpointInfo
 from .qos import QoSProfile
+from .qos_events import SubscriptionEvents
+from .qos_mapping import declare_subscriber
 from .redundancy import Deduplicator
 
 if TYPE_CHECKING:
@@ -49,6 +53,7 @@ class SubscriptionCounters:
     type_mismatch: int = 0     # envelope of another type
     lost: int = 0              # gaps in a publisher's sequence numbers
     expired: int = 0           # older than the lifespan when delivered
+    incompatible: int = 0      # from a publisher whose QoS this subscription cannot accept
     callback_errors: int = 0
     per_publisher_seq: dict[int, int] = field(default_factory=dict)
 
@@ -71,6 +76,7 @@ class Subscription(Generic[M]):
         self.log = node.get_logger().getChild(topic.replace("/", "."))
         self._with_info = _takes_two_args(callback)
         self._queue: deque[tuple[bytes, int]] = deque()
+        self._dropped_unseen = 0
         self._limit = qos.queue_limit
         self._lock = threading.Lock()
         self._scheduled = False
@@ -81,9 +87,14 @@ class Subscription(Generic[M]):
         self._executor = node.executor
         self._lifespan_ns = int(qos.lifespan * 1e9) if qos.lifespan else None
         self.sample_hooks: list[Callable[[M, MessageInfo], None]] = []
+        self.statistics: Any = None   # a TopicStatisticsCollector when statistics are enabled
         # Redundant or repeated publishers send samples more than once: deliver each once, in order.
         self.dedup = Deduplicator() if (qos.redundancy or qos.repeat) else None
-        self._zsub = node.session.declare_subscriber(key, self._on_sample)
+        self.gid = secrets.randbits(63)
+        self.last_sample_mono: float | None = None
+        self.events = SubscriptionEvents(self, event_callbacks)
+        self._zsub = declare_subscriber(node.session, key, qos, self._on_sample)
+        self._token = node._declare_endpoint_token(SUBSCRIPTION, self)
 
     # -- Zenoh thread --------------------------------------------------------------
     def _on_sample(self, sample: Any) -> None:
@@ -94,6 +105,7 @@ class Subscription(Generic[M]):
             if len(self._queue) >= self._limit:
                 self._queue.popleft()
                 self.counters.dropped += 1
+                self._dropped_unseen += 1   # will show as a sequence gap: not a network loss
             self._queue.append((data, now))
             if self._scheduled:
                 return
@@ -116,6 +128,9 @@ class Subscription(Generic[M]):
             env = envelope.unpack(data)
         except envelope.MalformedSample as exc:
             self._malformed(f"{exc} ({len(data)} bytes)")
+            return
+        if self.events.blocked and env.publisher_id in self.events.blocked:
+            self.counters.incompatible += 1    # reported once as an incompatible-QoS event
             return
         if env.type_hash != self._hash:
             self.counters.type_mismatch += 1
@@ -142,10 +157,17 @@ class Subscription(Generic[M]):
         except (TypeError, ValueError) as exc:
             self._malformed(f"body does not decode as {self.msg_type._type_name}: {exc}")
             return
-        self._track_sequence(env.publisher_id, seq)
-        if self._lifespan_ns is not None and received_ns - stamp_ns > self._lifespan_ns:
+        gap = self._track_sequence(env.publisher_id, seq)
+        if gap:
+            self.events.on_lost(gap)
+        # Lifespan is the publisher's promise (ROS 2): its offered one, else this profile's.
+        lifespan_ns = self.events.lifespans_ns.get(env.publisher_id, self._lifespan_ns)
+        if lifespan_ns is not None and time.time_ns() - stamp_ns > lifespan_ns:   # age when delivered
             self.counters.expired += 1
             return
+        now = time.monotonic()
+        self.last_sample_mono = now
+        self.events.on_sample(env.publisher_id, now)
         info = MessageInfo(env.publisher_id, seq, stamp_ns, received_ns, env.type_name)
         for hook in self.sample_hooks:
             hook(msg, info)
@@ -168,6 +190,10 @@ class Subscription(Generic[M]):
         self.counters.per_publisher_seq[pub_id] = seq if last is None else max(last, seq)
         if last is not None and seq > last + 1:
             gap = seq - last - 1
+            with self._lock:    # samples this subscription dropped itself (KEEP_LAST) were not lost
+                excused = min(gap, self._dropped_unseen)
+                self._dropped_unseen -= excused
+            gap -= excused
             self.counters.lost += gap
             return gap
         return 0
@@ -185,11 +211,22 @@ class Subscription(Generic[M]):
         with self._lock:
             return len(self._queue)
 
+    def on_peer(self, appeared: bool, info: TopicEndpointInfo) -> None:
+        self.events.on_peer(appeared, info)
+
+    def get_publisher_count(self) -> int:
+        """Publishers matched with this subscription (same type, compatible QoS), in any process."""
+        return self.events.current_count
+
     def destroy(self) -> None:
-        try:
-            self._zsub.undeclare()
-        except Exception:
-            pass
+        if self.statistics is not None:
+            self.statistics.destroy()
+        self.events.close()
+        for handle in (self._token, self._zsub):
+            try:
+                handle.undeclare()
+            except Exception:
+                pass
 
 
 def _takes_two_args(fn: Callable[..., Any]) -> bool:
