@@ -33,3 +33,22 @@ __all__ += [
     "qos_from_parameters", "Service", "Client", "ServiceCallError", "ServiceError", "ServiceTimeout",
     "ServiceUnavailable", "LaunchRunner", "LaunchError",
 ]
+
+# QoS events, compatibility and the graph.
+from .events import (IncompatibleTypeInfo, MatchedInfo, PublisherEventCallbacks,  # noqa: E402
+                     QoSLivelinessChangedInfo, QoSLivelinessLostInfo, QoSMessageLostInfo,
+                     QoSOfferedDeadlineMissedInfo, QoSOfferedIncompatibleQoSInfo,
+                     QoSRequestedDeadlineMissedInfo, QoSRequestedIncompatibleQoSInfo, SubscriptionEventCallbacks)
+from .graph import EndpointType, NodeInfo, TopicEndpointInfo  # noqa: E402
+from .qos_compat import Compatibility, PolicyKind, check_compatibility  # noqa: E402
+
+__all__ += [
+    "PublisherEventCallbacks", "SubscriptionEventCallbacks", "QoSRequestedDeadlineMissedInfo",
+    "QoSOfferedDeadlineMissedInfo", "QoSLivelinessChangedInfo", "QoSLivelinessLostInfo",
+    "QoSRequestedIncompatibleQoSInfo", "QoSOfferedIncompatibleQoSInfo", "QoSMessageLostInfo",
+    "IncompatibleTypeInfo", "MatchedInfo", "EndpointType", "NodeInfo", "TopicEndpointInfo",
+    "Compatibility", "PolicyKind", "check_compatibility",
+]
+from .topic_statistics import StatisticsRecorder, TopicStatisticsOptions  # noqa: E402
+
+__all__ += ["StatisticsRecorder", "TopicStatisticsOptions"]

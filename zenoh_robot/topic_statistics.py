@@ -1,0 +1,442 @@
+"""ROS 2-style topic statistics: windowed message age and period per subscription.
+
+Enable it per subscription (``create_subscription(..., topic_statistics=True)`` or
+``=TopicStatisticsOptions(window=0.5)``) or for every subscription of a node
+(``Node(..., enable_topic_statistics=True)``). Every ``window`` seconds the collector
+publishes a ``msgs.TopicStatistics`` with, in milliseconds:
+
+* ``message_age_ms``: received time minus the message's source time, where the source
+  time is ``msg.header.stamp`` when the message type has a ``header`` field (as ROS 2
+  does), and the envelope's source stamp (the publisher's clock at ``publish()``) for
+  types without one. A stamp of 0 means "not stamped": that sample adds no age, so a
+  window of only unstamped samples reports age NaN with ``sample_count`` 0. Ages are
+  kept even when negative: a negative age shows a clock offset between the hosts,
+  hiding it would make a skewed link look healthy.
+* ``message_period_ms``: time between consecutive arrivals at this subscription.
+  The first sample ever gives no period; the previous arrival carries over window
+  boundaries, so a steady stream has one period per sample in every window.
+
+An empty window reports NaN average/min/max/std and ``sample_count`` 0, never the
+previous window's values. ``std_dev`` is the population standard deviation.
+
+The default statistics topic is ``<namespace>/statistics/<topic>``, ``<topic>`` being
+the subscription's key without the node's namespace prefix (``uav1/setpoint`` in
+namespace ``uav1`` -> ``uav1/statistics/setpoint``; ``chatter`` with no namespace ->
+``statistics/chatter``). ``StatisticsRecorder`` collects these messages and writes
+them as CSV or JSON.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import math
+import os
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable
+
+from .msgs import StatisticsEntry, TopicStatistics
+from .qos import QoSProfile, ReliabilityPolicy
+
+if TYPE_CHECKING:
+    from .node import Node
+    from .publisher import Publisher
+    from .subscription import MessageInfo, Subscription
+
+log = logging.getLogger("zenoh_robot.topic_statistics")
+
+STATISTICS_QOS = QoSProfile(ReliabilityPolicy.RELIABLE, depth=10)
+# A recorder may listen to many collectors whose windows end together: a deeper queue.
+RECORDER_QOS = QoSProfile(ReliabilityPolicy.RELIABLE, depth=100)
+
+
+@dataclass(frozen=True)
+class TopicStatisticsOptions:
+    """``window``: seconds per statistics message; ``topic``: where to publish (None: the
+    default ``<namespace>/statistics/<topic>``; a relative name is resolved in the node's
+    namespace, a ``/name`` is absolute); ``publish``: False to only compute (``last``,
+    listeners) without a publisher."""
+    window: float = 1.0
+    topic: str | None = None
+    publish: bool = True
+
+    def __post_init__(self) -> None:
+        w = self.window
+        if isinstance(w, bool) or not isinstance(w, (int, float)):
+            raise TypeError(f"TopicStatisticsOptions.window must be a number of seconds, got {w!r}")
+        if not (w > 0 and math.isfinite(w)):   # NaN fails `w > 0` too
+            raise ValueError(f"TopicStatisticsOptions.window must be a finite number of seconds > 0, got {w!r}")
+        object.__setattr__(self, "window", float(w))
+        if self.topic is not None and (not isinstance(self.topic, str) or not self.topic):
+            raise ValueError(f"TopicStatisticsOptions.topic must be a non-empty topic name or None, "
+                             f"got {self.topic!r}")
+        if not isinstance(self.publish, bool):
+            raise TypeError(f"TopicStatisticsOptions.publish must be True or False, got {self.publish!r}")
+
+
+class _Moments:
+    """Running count/mean/min/max/population std (Welford: no catastrophic cancellation
+    when ages are large and close together, unlike sum of squares)."""
+    __slots__ = ("count", "mean", "m2", "minimum", "maximum")
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.mean = 0.0
+        self.m2 = 0.0
+        self.minimum = math.inf
+        self.maximum = -math.inf
+
+    def add(self, x: float) -> None:
+        self.count += 1
+        delta = x - self.mean
+        self.mean += delta / self.count
+        self.m2 += delta * (x - self.mean)
+        if x < self.minimum:
+            self.minimum = x
+        if x > self.maximum:
+            self.maximum = x
+
+    def entry(self) -> StatisticsEntry:
+        if self.count == 0:
+            return StatisticsEntry()     # NaN everywhere, sample_count 0
+        return StatisticsEntry(average=self.mean, minimum=self.minimum, maximum=self.maximum,
+                               std_dev=math.sqrt(max(self.m2, 0.0) / self.count), sample_count=self.count)
+
+
+def _has_header(msg_type: type) -> bool:
+    return any(s.name == "header" and s.is_message and s.array is None for s in msg_type._fields_spec)
+
+
+def _header_stamp_ns(msg: Any) -> int:
+    """The header's stamp in ns, 0 if absent; also takes a ROS ``Time`` (sec, nanosec)
+    so types loaded from .msg files with builtin_interfaces/Time work."""
+    stamp = getattr(getattr(msg, "header", None), "stamp", 0)
+    if isinstance(stamp, int):
+        return stamp
+    if isinstance(stamp, float):
+        return int(stamp)
+    sec = getattr(stamp, "sec", None)
+    if sec is not None:
+        return int(sec) * 1_000_000_000 + int(getattr(stamp, "nanosec", 0))
+    return 0
+
+
+def default_statistics_key(namespace: str, sub_key: str) -> str:
+    """``<namespace>/statistics/<topic>`` with ``<topic>`` = ``sub_key`` minus ``namespace/``."""
+    topic = sub_key
+    if namespace and sub_key.startswith(namespace + "/"):
+        topic = sub_key[len(namespace) + 1:]
+    return "/".join(p for p in (namespace, "statistics", topic) if p)
+
+
+class TopicStatisticsCollector:
+    """Accumulates one subscription's samples and emits a ``TopicStatistics`` per window.
+
+    The sample hook and the timer both run on the node's executor; the lock is there
+    for a MultiThreadedExecutor (hook and timer on different threads) and for readers
+    of ``last`` on other threads.
+    """
+
+    def __init__(self, node: "Node", sub: "Subscription[Any]", options: TopicStatisticsOptions) -> None:
+        self.node = node
+        self.subscription = sub
+        self.options = options
+        self.listeners: list[Callable[[TopicStatistics], None]] = []
+        self._lock = threading.Lock()
+        self._topic_name = "/" + sub.key
+        self._node_name = node.fully_qualified_name
+        self._use_header = _has_header(sub.msg_type)
+        self._age = _Moments()
+        self._period = _Moments()
+        self._prev_received_ns: int | None = None
+        self._window_start_ns = time.time_ns()
+        self._last: TopicStatistics | None = None
+        self._closed = False
+        self.windows = 0
+        if options.topic is None:
+            self.topic = default_statistics_key(node.namespace, sub.key)
+        else:
+            self.topic = node.resolve_topic_name(options.topic)   # InvalidNameError says why
+        self.publisher: "Publisher[TopicStatistics] | None" = None
+        if options.publish:
+            # Absolute, so the node does not prefix its namespace a second time.
+            self.publisher = node.create_publisher(TopicStatistics, "/" + self.topic, STATISTICS_QOS)
+        try:
+            sub.sample_hooks.append(self._on_sample)
+            self._timer = node.create_timer(options.window, self._on_window)
+        except BaseException:
+            self.destroy()
+            raise
+
+    # -- executor ------------------------------------------------------------------
+    def _on_sample(self, msg: Any, info: "MessageInfo") -> None:
+        received = info.received_stamp_ns
+        stamp = _header_stamp_ns(msg) if self._use_header else info.source_stamp_ns
+        with self._lock:
+            if stamp:
+                self._age.add((received - stamp) / 1e6)
+            if self._prev_received_ns is not None:
+                self._period.add((received - self._prev_received_ns) / 1e6)
+            self._prev_received_ns = received
+
+    def _on_window(self) -> None:
+        stop = time.time_ns()
+        counters = self.subscription.counters
+        with self._lock:
+            if self._closed:
+                return
+            age, period = self._age, self._period
+            self._age, self._period = _Moments(), _Moments()
+            start, self._window_start_ns = self._window_start_ns, stop
+            stats = TopicStatistics(topic=self._topic_name, node=self._node_name, window_start=start,
+                                    window_stop=stop, message_age_ms=age.entry(),
+                                    message_period_ms=period.entry(), received=counters.received,
+                                    lost=counters.lost, dropped=counters.dropped)
+            self._last = stats
+            self.windows += 1
+        pub = self.publisher
+        if pub is not None:
+            try:
+                pub.publish(stats)
+            except Exception:
+                # Closing races with a last tick; statistics must never take the node down.
+                if not (self._closed or self.node.closed):
+                    log.exception("publishing topic statistics on %r failed", self.topic)
+        for listener in list(self.listeners):
+            try:
+                listener(stats)
+            except Exception:
+                log.exception("topic statistics listener %r raised", listener)
+
+    # -- any thread ----------------------------------------------------------------
+    @property
+    def last(self) -> TopicStatistics | None:
+        """The latest window's statistics, None before the first window ends."""
+        with self._lock:
+            return self._last
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def destroy(self) -> None:
+        """Stop collecting and publishing; idempotent, and safe after the node has closed."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+        timer = getattr(self, "_timer", None)
+        if timer is not None:
+            timer.cancel()
+        try:
+            self.subscription.sample_hooks.remove(self._on_sample)
+        except ValueError:
+            pass
+        if self.publisher is not None:
+            try:
+                self.node.destroy_publisher(self.publisher)
+            except Exception:
+                log.debug("statistics publisher on %r already gone", self.topic, exc_info=True)
+
+    def __repr__(self) -> str:
+        return f"TopicStatisticsCollector({self._topic_name!r} -> {self.topic!r}, window={self.options.window})"
+
+
+def attach(node: "Node", sub: "Subscription[Any]",
+           options: TopicStatisticsOptions | None) -> TopicStatisticsCollector:
+    """Collect statistics for ``sub`` (None: default options). Called by create_subscription."""
+    if options is None:
+        options = TopicStatisticsOptions()
+    elif not isinstance(options, TopicStatisticsOptions):
+        raise TypeError(f"topic statistics for {sub.topic!r}: expected True or a TopicStatisticsOptions, "
+                        f"got {options!r}")
+    return TopicStatisticsCollector(node, sub, options)
+
+
+# -- recording -----------------------------------------------------------------------
+COLUMNS: tuple[str, ...] = (
+    "topic", "node", "window_start", "window_stop",
+    "age_avg_ms", "age_min_ms", "age_max_ms", "age_std_ms", "age_count",
+    "period_avg_ms", "period_min_ms", "period_max_ms", "period_std_ms", "period_count",
+    "received", "lost", "dropped",
+)
+_STR_COLUMNS = frozenset({"topic", "node"})
+_INT_COLUMNS = frozenset({"window_start", "window_stop", "age_count", "period_count", "received", "lost",
+                          "dropped"})
+
+
+def _flatten(msg: TopicStatistics) -> dict[str, Any]:
+    row: dict[str, Any] = {"topic": msg.topic, "node": msg.node, "window_start": msg.window_start,
+                           "window_stop": msg.window_stop}
+    for prefix, e in (("age", msg.message_age_ms), ("period", msg.message_period_ms)):
+        row[f"{prefix}_avg_ms"] = float(e.average)
+        row[f"{prefix}_min_ms"] = float(e.minimum)
+        row[f"{prefix}_max_ms"] = float(e.maximum)
+        row[f"{prefix}_std_ms"] = float(e.std_dev)
+        row[f"{prefix}_count"] = e.sample_count
+    row.update(received=msg.received, lost=msg.lost, dropped=msg.dropped)
+    return row
+
+
+def _typed(row: dict[str, Any], where: str) -> dict[str, Any]:
+    """A row read back from CSV/JSON with its column types (None/"nan" -> NaN)."""
+    if not isinstance(row, dict):
+        raise ValueError(f"{where}: a row must be an object, got {row!r}")
+    missing = [c for c in COLUMNS if c not in row]
+    if missing:
+        raise ValueError(f"{where}: not a topic statistics file, missing column(s) {missing}")
+    out: dict[str, Any] = {}
+    for c in COLUMNS:
+        v = row[c]
+        try:
+            if c in _STR_COLUMNS:
+                out[c] = "" if v is None else str(v)
+            elif c in _INT_COLUMNS:
+                out[c] = int(v)
+            else:
+                out[c] = math.nan if v is None or v == "" else float(v)
+        except (TypeError, ValueError):
+            raise ValueError(f"{where}: column {c!r} has a bad value {v!r}") from None
+    return out
+
+
+def _prepare(path: str | os.PathLike[str]) -> Path:
+    p = Path(path)
+    if p.is_dir():
+        raise IsADirectoryError(f"cannot write statistics to {str(p)!r}: it is a directory")
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OSError(f"cannot create the directory for {str(p)!r}: {exc}") from exc
+    return p
+
+
+def _write_atomically(p: Path, write: Callable[[Any], None], newline: str | None = None) -> None:
+    # A crash mid-write must not leave a truncated file where a good one was.
+    tmp = p.with_name(p.name + ".tmp")
+    try:
+        with open(tmp, "w", encoding="utf-8", newline=newline) as f:
+            write(f)
+        os.replace(tmp, p)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise OSError(f"cannot write statistics to {str(p)!r}: {exc}") from exc
+
+
+class StatisticsRecorder:
+    """Collects ``TopicStatistics`` messages as flat rows and saves them as CSV or JSON.
+
+    ``record`` works as a subscription callback (see ``subscribe``) or a collector
+    listener, from any thread. At most ``max_rows`` rows are kept: later ones are
+    counted in ``dropped_rows`` and not stored, so a saved file is always a contiguous
+    run from the start of the recording.
+    """
+
+    def __init__(self, max_rows: int = 100_000) -> None:
+        if isinstance(max_rows, bool) or not isinstance(max_rows, int) or max_rows < 1:
+            raise ValueError(f"StatisticsRecorder: max_rows must be an integer >= 1, got {max_rows!r}")
+        self.max_rows = max_rows
+        self.dropped_rows = 0
+        self.subscription: "Subscription[TopicStatistics] | None" = None
+        self._node: "Node | None" = None
+        self._rows: list[dict[str, Any]] = []
+        self._lock = threading.Lock()
+
+    @classmethod
+    def subscribe(cls, node: "Node", topic: str, qos: QoSProfile | int = RECORDER_QOS, *,
+                  max_rows: int = 100_000) -> "StatisticsRecorder":
+        """A recorder fed by a subscription on the statistics ``topic`` (node name rules:
+        relative names are namespaced, ``/name`` is absolute). Runs on ``node``'s executor."""
+        rec = cls(max_rows)
+        rec.subscription = node.create_subscription(TopicStatistics, topic, rec.record, qos)
+        rec._node = node
+        return rec
+
+    def record(self, msg: TopicStatistics) -> None:
+        if not isinstance(msg, TopicStatistics):
+            raise TypeError(f"StatisticsRecorder.record takes a TopicStatistics, got {type(msg).__name__}")
+        row = _flatten(msg)
+        with self._lock:
+            if len(self._rows) >= self.max_rows:
+                self.dropped_rows += 1
+                return
+            self._rows.append(row)
+
+    __call__ = record
+
+    @property
+    def rows(self) -> list[dict[str, Any]]:
+        """A copy of the recorded rows (columns as ``COLUMNS``)."""
+        with self._lock:
+            return [dict(r) for r in self._rows]
+
+    def __len__(self) -> int:
+        with self._lock:
+            return len(self._rows)
+
+    def clear(self) -> None:
+        with self._lock:
+            self._rows.clear()
+            self.dropped_rows = 0
+
+    def save_csv(self, path: str | os.PathLike[str]) -> Path:
+        """One row per window, header = ``COLUMNS``; NaN is written ``nan``. Creates parent dirs."""
+        p = _prepare(path)
+        rows = self.rows
+
+        def write(f: Any) -> None:
+            w = csv.DictWriter(f, fieldnames=COLUMNS)
+            w.writeheader()
+            w.writerows(rows)      # csv writes float NaN as "nan", which float() reads back
+        _write_atomically(p, write, newline="")
+        return p
+
+    def save_json(self, path: str | os.PathLike[str]) -> Path:
+        """``{"columns": [...], "rows": [{...}], "dropped_rows": n}``; NaN is written null
+        (NaN is not JSON, and strict parsers refuse it). Creates parent dirs."""
+        p = _prepare(path)
+        with self._lock:
+            rows = [{k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in r.items()}
+                    for r in self._rows]
+            doc = {"columns": list(COLUMNS), "rows": rows, "dropped_rows": self.dropped_rows}
+        _write_atomically(p, lambda f: json.dump(doc, f, indent=1, allow_nan=False))
+        return p
+
+    @staticmethod
+    def load_csv(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
+        """Rows written by ``save_csv``, typed as recorded ("nan" -> NaN)."""
+        p = Path(path)
+        try:
+            with open(p, encoding="utf-8", newline="") as f:
+                return [_typed(r, str(p)) for r in csv.DictReader(f)]
+        except OSError as exc:
+            raise OSError(f"cannot read statistics from {str(p)!r}: {exc}") from exc
+
+    @staticmethod
+    def load_json(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
+        """Rows written by ``save_json``, typed as recorded (null -> NaN)."""
+        p = Path(path)
+        try:
+            with open(p, encoding="utf-8") as f:
+                doc = json.load(f)
+        except OSError as exc:
+            raise OSError(f"cannot read statistics from {str(p)!r}: {exc}") from exc
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{str(p)!r} is not JSON: {exc}") from None
+        if not isinstance(doc, dict) or not isinstance(doc.get("rows"), list):
+            raise ValueError(f"{str(p)!r}: not a topic statistics file (no 'rows' list)")
+        return [_typed(r, str(p)) for r in doc["rows"]]
+
+    def close(self) -> None:
+        """Destroy the subscription made by ``subscribe`` (the rows stay)."""
+        sub, node = self.subscription, self._node
+        self.subscription = None
+        if sub is not None and node is not None:
+            node.destroy_subscription(sub)
+
+
+__all__ = ["TopicStatisticsOptions", "TopicStatisticsCollector", "attach", "StatisticsRecorder",
+           "default_statistics_key", "COLUMNS"]
