@@ -34,6 +34,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--profile", choices=sorted(PROFILES), default="resilient")
     p.add_argument("--config", type=Path, help="QoS YAML overriding streams (setpoint, sensor, state, image, events)")
     p.add_argument("--zenoh", help="Zenoh session config (JSON5)")
+    p.add_argument("--no-topic-statistics", action="store_true",
+                   help="do not publish per-stream statistics (what `zenoh-robot stats` shows)")
     p.add_argument("--deadline", type=float, default=1.0, help="setpoint deadline before HOLD, s (default 1; the GCS offers 0.5, "
                         "so a shorter one is an incompatible QoS pair)")
     p.add_argument("--resume-on-setpoints", action="store_true",
@@ -100,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     with px4_connection(args.px4, args.sysid) as connection, Px4Link(connection) as link, \
             Node("companion", namespace=args.id, config=session, executor=MultiThreadedExecutor(3),
-                 parameter_overrides=params) as node:
+                 parameter_overrides=params, enable_topic_statistics=not args.no_topic_statistics) as node:
         log.info("companion %s: PX4 at %s, profile %s", args.id, connection, profile.name)
         if not link.wait_connected(timeout=10.0):
             log.warning("no PX4 heartbeat yet on %s; waiting in the background", connection)

@@ -58,6 +58,8 @@ def add_common(p: argparse.ArgumentParser) -> None:
                         "records) or FILE.csv (one row per stream)")
     p.add_argument("--save-image", type=Path, help="save the latest frame here (PNG/JPEG) every --save-every s")
     p.add_argument("--save-every", type=float, default=5.0)
+    p.add_argument("--no-topic-statistics", action="store_true",
+                   help="do not publish per-stream statistics (what `zenoh-robot stats` shows)")
     add_param_argument(p)
 
 
@@ -77,7 +79,8 @@ def run(args: argparse.Namespace) -> int:
                        size=args.size, speed=args.speed, profile=profile, save_image=args.save_image,
                        save_every=args.save_every)
     console = Console(stderr=False)
-    with Node("gcs", config=session_config(args, profile.transport), parameter_overrides=params) as node:
+    with Node("gcs", config=session_config(args, profile.transport), parameter_overrides=params,
+              enable_topic_statistics=not args.no_topic_statistics) as node:
         gcs = Gcs(node, config)
         spinner = threading.Thread(target=node.spin, name="gcs-spin", daemon=True)
         spinner.start()
