@@ -10,7 +10,8 @@ parser.add_argument("--rate", type=float, default=10.0)
 args = parser.parse_args()
 
 with Node("talker", namespace=args.ns) as node:
-    pub = node.create_publisher(Setpoint, "setpoint", qos.SETPOINT)
+    # Offers a 0.5 s deadline and a 1 s liveliness lease: subscriptions may request either, or longer.
+    pub = node.create_publisher(Setpoint, "setpoint", qos.SETPOINT.replace(deadline=0.5, liveliness_lease_duration=1.0))
     seq = 0
 
     def tick() -> None:
