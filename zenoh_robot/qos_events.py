@@ -206,6 +206,7 @@ class SubscriptionEvents(_EntityEvents):
         self.alive_count = 0
         self.not_alive_count = 0
         self._writers: dict[int, _Writer] = {}
+        self.leased_writers = False     # any matched publisher with a lease: samples then assert it
         self._hb_sub: Any = None
         self._registered = False
         if sub.qos.deadline is not None:
@@ -261,6 +262,7 @@ class SubscriptionEvents(_EntityEvents):
             if alive:
                 self.alive_count += 1
         if lease is not None:
+            self.leased_writers = True
             self.tick_period = min(self.tick_period, lease)
             self._ensure_heartbeats()
             self._register()

@@ -157,17 +157,19 @@ class Subscription(Generic[M]):
         except (TypeError, ValueError) as exc:
             self._malformed(f"body does not decode as {self.msg_type._type_name}: {exc}")
             return
+        events = self.events
         gap = self._track_sequence(env.publisher_id, seq)
         if gap:
-            self.events.on_lost(gap)
-        # Lifespan is the publisher's promise (ROS 2): its offered one, else this profile's.
-        lifespan_ns = self.events.lifespans_ns.get(env.publisher_id, self._lifespan_ns)
-        if lifespan_ns is not None and time.time_ns() - stamp_ns > lifespan_ns:   # age when delivered
-            self.counters.expired += 1
-            return
-        now = time.monotonic()
-        self.last_sample_mono = now
-        self.events.on_sample(env.publisher_id, now)
+            events.on_lost(gap)
+        if self._lifespan_ns is not None or events.lifespans_ns:
+            # Lifespan is the publisher's promise (ROS 2): its offered one, else this profile's.
+            lifespan_ns = events.lifespans_ns.get(env.publisher_id, self._lifespan_ns)
+            if lifespan_ns is not None and time.time_ns() - stamp_ns > lifespan_ns:   # age when delivered
+                self.counters.expired += 1
+                return
+        self.last_sample_mono = now = time.monotonic()
+        if events.leased_writers:
+            events.on_sample(env.publisher_id, now)
         info = MessageInfo(env.publisher_id, seq, stamp_ns, received_ns, env.type_name)
         for hook in self.sample_hooks:
             hook(msg, info)
