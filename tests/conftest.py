@@ -6,6 +6,7 @@ import secrets
 import subprocess
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Callable
 
@@ -57,3 +58,15 @@ def linked_configs():
     listen = SessionConfig(listen=endpoints, multicast_scouting=False, shared_memory=False)
     connect = SessionConfig(listen=[], connect=endpoints, multicast_scouting=False, shared_memory=False)
     return listen, connect
+
+
+@contextmanager
+def linked_nodes(ns: str, links: int = 2):
+    """(talker, listener): two Nodes in namespace ``ns`` whose sessions hold ``links`` links."""
+    from zenoh_robot import Node
+    listen, connect = linked_configs()
+    with Node("listener", namespace=ns, config=listen) as b, Node("talker", namespace=ns, config=connect) as a:
+        peer = b.session.zid()
+        assert wait_for(lambda: len([l for l in a.session.info.links() if l.zid == peer]) >= links, 10.0), \
+            "the two sessions never linked"
+        yield a, b

@@ -10,18 +10,14 @@ import pytest
 from zenoh_robot import InvalidNameError, MultiThreadedExecutor, Node, QoSProfile, qos
 from zenoh_robot.msgs import Setpoint, String
 
-from conftest import linked_configs, python_proc, wait_for
+from conftest import linked_configs, linked_nodes, python_proc, wait_for
 from test_messages import ALL
 
 
 @pytest.fixture
 def pair(ns: str):
-    listen, connect = linked_configs()
-    with Node("listener", namespace=ns, config=listen) as b, Node("talker", namespace=ns, config=connect) as a:
-        peer = b.session.zid()
-        assert wait_for(lambda: len([l for l in a.session.info.links() if l.zid == peer]) == 2, 10.0), \
-            "the two sessions never linked"
-        yield a, b
+    with linked_nodes(ns) as nodes:
+        yield nodes
 
 
 def _spin_in_background(node: Node) -> threading.Thread:

@@ -14,7 +14,7 @@ from typing import Any
 import msgpack
 import pytest
 
-from conftest import linked_configs, python_proc, wait_for
+from conftest import linked_configs, linked_nodes, python_proc, wait_for
 from zenoh_robot import Node, QoSProfile, envelope
 from zenoh_robot.events import PublisherEventCallbacks, SubscriptionEventCallbacks
 from zenoh_robot.msgs import Float32, String
@@ -25,11 +25,8 @@ BE = QoSProfile(reliability="best_effort", depth=10)
 
 @pytest.fixture
 def pair(ns: str):
-    listen, connect = linked_configs()
-    with Node("listener", namespace=ns, config=listen) as b, Node("talker", namespace=ns, config=connect) as a:
-        peer = b.session.zid()
-        assert wait_for(lambda: any(l.zid == peer for l in a.session.info.links()), 10.0), "sessions never linked"
-        yield a, b
+    with linked_nodes(ns, links=1) as nodes:
+        yield nodes
 
 
 class Events:

@@ -17,7 +17,7 @@ from zenoh_robot.msgs import Header, Setpoint, StatisticsEntry, String, TopicSta
 from zenoh_robot.topic_statistics import (COLUMNS, StatisticsRecorder, TopicStatisticsCollector,
                                           TopicStatisticsOptions, default_statistics_key)
 
-from conftest import linked_configs, wait_for
+from conftest import linked_configs, linked_nodes, wait_for
 
 RELIABLE = QoSProfile(reliability="reliable", depth=50)
 
@@ -25,11 +25,7 @@ RELIABLE = QoSProfile(reliability="reliable", depth=50)
 @pytest.fixture
 def pair(ns: str):
     """(talker, listener), linked over loopback, both spinning in background threads."""
-    listen, connect = linked_configs()
-    with Node("listener", namespace=ns, config=listen) as b, Node("talker", namespace=ns, config=connect) as a:
-        peer = b.session.zid()
-        assert wait_for(lambda: any(l.zid == peer for l in a.session.info.links()), 10.0), \
-            "the two sessions never linked"
+    with linked_nodes(ns, links=1) as (a, b):
         threads = [threading.Thread(target=n.spin, daemon=True) for n in (a, b)]
         for t in threads:
             t.start()

@@ -15,15 +15,29 @@ from .qos_compat import PolicyKind
 
 
 @dataclass(frozen=True)
-class QoSRequestedDeadlineMissedInfo:
+class _Counted:
     total_count: int
     total_count_change: int
 
 
 @dataclass(frozen=True)
-class QoSOfferedDeadlineMissedInfo:
-    total_count: int
-    total_count_change: int
+class QoSRequestedDeadlineMissedInfo(_Counted):
+    """A subscription got no sample within its deadline (once per whole period)."""
+
+
+@dataclass(frozen=True)
+class QoSOfferedDeadlineMissedInfo(_Counted):
+    """A publisher did not publish within its deadline (once per whole period)."""
+
+
+@dataclass(frozen=True)
+class QoSLivelinessLostInfo(_Counted):
+    """A MANUAL_BY_TOPIC publisher did not assert within its lease."""
+
+
+@dataclass(frozen=True)
+class QoSMessageLostInfo(_Counted):
+    """Gaps in a publisher's sequence numbers: samples that never reached this process."""
 
 
 @dataclass(frozen=True)
@@ -35,44 +49,28 @@ class QoSLivelinessChangedInfo:
 
 
 @dataclass(frozen=True)
-class QoSLivelinessLostInfo:
-    total_count: int
-    total_count_change: int
-
-
-@dataclass(frozen=True)
-class QoSRequestedIncompatibleQoSInfo:
-    total_count: int
-    total_count_change: int
+class _Incompatible(_Counted):
     last_policy_kind: PolicyKind
     reason: str = ""
 
 
 @dataclass(frozen=True)
-class QoSOfferedIncompatibleQoSInfo:
-    total_count: int
-    total_count_change: int
-    last_policy_kind: PolicyKind
-    reason: str = ""
+class QoSRequestedIncompatibleQoSInfo(_Incompatible):
+    """A publisher offers less than this subscription requests; nothing flows between them."""
 
 
 @dataclass(frozen=True)
-class QoSMessageLostInfo:
-    total_count: int
-    total_count_change: int
+class QoSOfferedIncompatibleQoSInfo(_Incompatible):
+    """A subscription requests more than this publisher offers; nothing flows between them."""
 
 
 @dataclass(frozen=True)
-class IncompatibleTypeInfo:
-    total_count: int
-    total_count_change: int
+class IncompatibleTypeInfo(_Counted):
     other_type: str = ""
 
 
 @dataclass(frozen=True)
-class MatchedInfo:
-    total_count: int
-    total_count_change: int
+class MatchedInfo(_Counted):
     current_count: int
     current_count_change: int
 
