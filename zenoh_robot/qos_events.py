@@ -47,6 +47,7 @@ class _EntityEvents:
         self.callbacks = callbacks
         self._lock = threading.Lock()
         self.matched: dict[int, TopicEndpointInfo] = {}
+        self._peers: set[int] = set()      # every peer judged once, compatible or not
         self.matched_total = 0
         self.incompatible_total = 0
         self.incompatible_type_total = 0
@@ -82,11 +83,16 @@ class _EntityEvents:
         """Update matching; returns True (matched), False (incompatible) or None (gone/unchanged)."""
         if not appeared:
             with self._lock:
+                self._peers.discard(info.endpoint_gid)
                 gone = self.matched.pop(info.endpoint_gid, None)
                 current = len(self.matched)
             if gone is not None:
                 self.fire("matched", ev.MatchedInfo(self.matched_total, 0, current, -1))
             return None
+        with self._lock:    # the graph and a new entity's first look may both report a peer
+            if info.endpoint_gid in self._peers:
+                return None
+            self._peers.add(info.endpoint_gid)
         if info.topic_type_hash != own_type_hash:
             with self._lock:
                 self.incompatible_type_total += 1
@@ -112,8 +118,6 @@ class _EntityEvents:
             self.fire("incompatible_qos", status)
             return False
         with self._lock:
-            if info.endpoint_gid in self.matched:
-                return None
             self.matched[info.endpoint_gid] = info
             self.matched_total += 1
             total, current = self.matched_total, len(self.matched)
