@@ -1,0 +1,215 @@
+"""``zenoh-robot stats [TOPIC]``: every subscription's topic statistics, as a live table.
+
+Subscriptions with statistics enabled publish a ``TopicStatistics`` per window on
+``<namespace>/statistics/<topic>``. This listens to ``**/statistics/**`` with a plain Zenoh
+subscriber (no graph entry, no QoS matching: it hears every publisher of statistics),
+skipping and counting samples there that are not ``TopicStatistics``.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import queue
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from .main import CliError
+from .topic import add_config_arg, add_duration_arg, cli_node, deadline_of, quiet_exit
+
+if TYPE_CHECKING:
+    from rich.table import Table
+
+    from ..msgs import TopicStatistics
+
+STATS_KEY = "**/statistics/**"     # `**` also matches no chunk: "statistics/chatter" too
+REFRESH_PERIOD = 0.25              # seconds between table redraws
+STALE_WINDOWS = 3                  # a row not updated for this many windows is dimmed
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("stats", help="live table of topic statistics (age, period, rate, lost)")
+    p.add_argument("topic", nargs="?", help="only statistics of this measured topic, e.g. /uav1/setpoint")
+    add_config_arg(p)
+    add_duration_arg(p)
+    p.add_argument("--plain", action="store_true",
+                   help="print one line per statistics message instead of the live table "
+                        "(the default when stdout is not a terminal)")
+    p.set_defaults(func=run)
+
+
+@dataclass(frozen=True)
+class StatsRow:
+    key: str                 # the statistics key it came on
+    stats: "TopicStatistics"
+    updated_wall: float      # time.time() of arrival
+    updated_mono: float
+
+    @property
+    def topic(self) -> str:
+        return self.stats.topic or "/" + self.key
+
+    @property
+    def window_s(self) -> float:
+        return max((self.stats.window_stop - self.stats.window_start) / 1e9, 0.0)
+
+
+def decode(data: bytes) -> "TopicStatistics | None":
+    """The TopicStatistics in a sample, None for anything else on a statistics key."""
+    from .. import envelope
+    from ..msgs import TopicStatistics
+
+    try:
+        env = envelope.unpack(data)
+    except envelope.MalformedSample:
+        return None
+    if env.type_hash != TopicStatistics._type_hash:
+        return None
+    try:
+        return TopicStatistics._from_wire(env.body)
+    except (TypeError, ValueError):
+        return None
+
+
+def _same_topic(a: str, b: str) -> bool:
+    return a.strip("/") == b.strip("/")
+
+
+class StatsBoard:
+    """The latest statistics per statistics key and node: fed on Zenoh's thread, read on the main one."""
+
+    def __init__(self, topic_filter: str | None) -> None:
+        self.topic_filter = topic_filter
+        self.skipped = 0
+        self.updates: queue.SimpleQueue[StatsRow] = queue.SimpleQueue()
+        self._lock = threading.Lock()
+        self._rows: dict[tuple[str, str], StatsRow] = {}
+
+    def on_sample(self, sample: Any) -> None:
+        key = str(sample.key_expr)
+        stats = decode(sample.payload.to_bytes())
+        if stats is None:
+            with self._lock:
+                self.skipped += 1
+            return
+        row = StatsRow(key, stats, time.time(), time.monotonic())
+        if self.topic_filter and not _same_topic(row.topic, self.topic_filter):
+            return
+        with self._lock:
+            self._rows[(key, stats.node)] = row
+        self.updates.put(row)
+
+    def rows(self) -> list[StatsRow]:
+        with self._lock:
+            return sorted(self._rows.values(), key=lambda r: (r.topic, r.stats.node))
+
+
+# -- formatting ------------------------------------------------------------------------------
+def _number(value: Any) -> float | None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        return None     # NaN: no sample in the window (ROS 2's rule)
+    return float(value)
+
+
+def _ms(value: Any) -> str:
+    v = _number(value)
+    return "-" if v is None else f"{v:.2f}"
+
+
+def _rate(row: StatsRow) -> str:
+    period = _number(row.stats.message_period_ms.average)
+    return "-" if period is None or period <= 0 else f"{1000.0 / period:.1f}"
+
+
+def _samples(row: StatsRow) -> int:
+    s = row.stats
+    counts = [s.message_age_ms.sample_count, s.message_period_ms.sample_count]
+    return max((c for c in counts if isinstance(c, int)), default=0)
+
+
+def plain_line(row: StatsRow) -> str:
+    s = row.stats
+    age = s.message_age_ms
+    stamp = time.strftime("%H:%M:%S", time.localtime(row.updated_wall))
+    return (f"{row.topic} node={s.node} age_ms avg={_ms(age.average)} min={_ms(age.minimum)} "
+            f"max={_ms(age.maximum)} period_ms avg={_ms(s.message_period_ms.average)} rate_hz={_rate(row)} "
+            f"samples={_samples(row)} lost={s.lost} dropped={s.dropped} updated={stamp} key={row.key}")
+
+
+def render_table(board: StatsBoard) -> "Table":
+    from rich import box
+    from rich.table import Table
+
+    table = Table(title=f"topic statistics on {STATS_KEY} (ms; n: samples in the window; last: s since update)",
+                  title_justify="left", box=box.SIMPLE_HEAD, pad_edge=False)
+    for name in ("topic", "node"):
+        table.add_column(name, overflow="fold", min_width=8)
+    for name in ("age avg/min/max", "period", "Hz", "n", "lost", "drop", "last"):
+        table.add_column(name, justify="right", no_wrap=True)
+    now = time.monotonic()
+    for row in board.rows():
+        s, age = row.stats, row.stats.message_age_ms
+        since = now - row.updated_mono
+        stale = row.window_s > 0 and since > STALE_WINDOWS * row.window_s
+        table.add_row(row.topic, s.node, f"{_ms(age.average)}/{_ms(age.minimum)}/{_ms(age.maximum)}",
+                      _ms(s.message_period_ms.average), _rate(row), str(_samples(row)), str(s.lost),
+                      str(s.dropped), f"{since:.1f}", style="dim" if stale else None)
+    if not table.rows:
+        table.caption = "waiting for topic statistics (subscriptions publish them when statistics are enabled)"
+    elif board.skipped:
+        table.caption = f"{board.skipped} sample(s) on statistics keys were not TopicStatistics"
+    return table
+
+
+# -- running ---------------------------------------------------------------------------------
+def _remaining(deadline: float | None) -> float | None:
+    return None if deadline is None else deadline - time.monotonic()
+
+
+def _watch_plain(board: StatsBoard, deadline: float | None) -> None:
+    while True:
+        left = _remaining(deadline)
+        if left is not None and left <= 0:
+            return
+        try:
+            row = board.updates.get(timeout=0.2 if left is None else min(0.2, left))
+        except queue.Empty:
+            continue
+        print(plain_line(row), flush=True)
+
+
+def _watch_live(board: StatsBoard, deadline: float | None) -> None:
+    from rich.live import Live
+
+    with Live(render_table(board), auto_refresh=False, transient=False) as live:
+        while True:
+            left = _remaining(deadline)
+            if left is not None and left <= 0:
+                return
+            time.sleep(REFRESH_PERIOD if left is None else min(REFRESH_PERIOD, left))
+            live.update(render_table(board), refresh=True)
+
+
+@quiet_exit
+def run(args: argparse.Namespace) -> int:
+    deadline = deadline_of(args)
+    if args.topic is not None and not args.topic.strip("/"):
+        raise CliError("TOPIC must be a topic name, e.g. /uav1/setpoint")
+    plain = args.plain or not sys.stdout.isatty()
+    board = StatsBoard(args.topic)
+    with cli_node("stats", args) as node:
+        zsub = node.session.declare_subscriber(STATS_KEY, board.on_sample)
+        try:
+            (_watch_plain if plain else _watch_live)(board, deadline)
+        finally:
+            try:
+                zsub.undeclare()
+            except Exception:
+                pass
+    if not board.rows():
+        print("no topic statistics received" + (f" for {args.topic}" if args.topic else ""), file=sys.stderr)
+    if board.skipped:
+        print(f"skipped {board.skipped} sample(s) on statistics keys that are not TopicStatistics", file=sys.stderr)
+    return 0
