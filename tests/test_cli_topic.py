@@ -2,7 +2,8 @@
 
 One talker process serves the whole module: a BEST_EFFORT String stream with a RELIABLE
 (so incompatible) subscription beside it, a Setpoint stream, a type the CLI does not
-know, and TopicStatistics published by hand so `stats` is tested on its own.
+know, a TRANSIENT_LOCAL topic published once at start, and TopicStatistics published by
+hand so `stats` is tested apart from the statistics module.
 """
 from __future__ import annotations
 
@@ -25,7 +26,8 @@ from zenoh_robot.cli.topic import adapted_qos
 CLI = [sys.executable, "-c", "import sys; from zenoh_robot.cli.main import main; sys.exit(main())"]
 # As from a terminal: a test run started in the background (`pytest &`) passes an ignored
 # SIGINT on to its children, and Python then never turns Ctrl-C into KeyboardInterrupt.
-INTERACTIVE_CLI = [sys.executable, "-c", "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+INTERACTIVE_CLI = [sys.executable, "-c", "import signal, sys; "
+                   "signal.signal(signal.SIGINT, signal.default_int_handler); "
                    "from zenoh_robot.cli.main import main; sys.exit(main())"]
 
 TALKER = r"""

@@ -97,6 +97,26 @@ def _close_uninterrupted(node: "Node") -> None:
             signal.signal(signal.SIGINT, previous)
 
 
+class CallbackOutput:
+    """stdout for text printed from callbacks, where the executor would catch (and log) a
+    closed pipe: a reader gone (`| head`) is remembered, and ends the command."""
+
+    def __init__(self) -> None:
+        self.closed = False
+
+    def print(self, text: str) -> None:
+        if self.closed:
+            return
+        try:
+            print(text, flush=True)
+        except BrokenPipeError:
+            self.closed = True
+
+    def check(self) -> None:
+        if self.closed:
+            raise BrokenPipeError("stdout closed")
+
+
 def one_line(text: str) -> str:
     return " ".join(text.split())
 
@@ -473,18 +493,20 @@ def _echo(args: argparse.Namespace) -> int:
     limit = 1 if args.once else args.count
     if limit is not None and limit < 1:
         raise CliError(f"--count must be >= 1, got {limit}")
+    out = CallbackOutput()
     printed = 0
 
     def show(value: Any, _received_ns: int) -> None:
         nonlocal printed
         if limit is not None and printed >= limit:
             return     # samples already queued when the count is reached
-        print(render_sample(value, args.no_arr), "---", sep="\n", flush=True)
+        out.print(f"{render_sample(value, args.no_arr)}\n---")
         printed += 1
 
     with cli_node("topic", args) as node:
         open_reader(node, key, args.type, deadline, show)
-        spin_until(node, lambda: limit is not None and printed >= limit, deadline)
+        spin_until(node, lambda: out.closed or (limit is not None and printed >= limit), deadline)
+    out.check()
     return 0
 
 
@@ -520,23 +542,25 @@ def _hz(args: argparse.Namespace) -> int:
     if args.window < 1:
         raise CliError(f"--window must be >= 1, got {args.window}")
     window = RateWindow.of(args.window)
+    out = CallbackOutput()
     reported = 0
 
     def report() -> None:
         nonlocal reported
         if window.total == reported:
             if reported:
-                print("no new messages", flush=True)
+                out.print("no new messages")
             return
         reported = window.total
         text = window.report()
         if text:
-            print(text, flush=True)
+            out.print(text)
 
     with cli_node("topic", args) as node:
         open_reader(node, key, args.type, deadline, lambda _value, received_ns: window.add(received_ns))
         node.create_timer(REPORT_PERIOD, report)
-        spin_until(node, lambda: False, deadline)
+        spin_until(node, lambda: out.closed, deadline)
+    out.check()
     return 0
 
 
@@ -608,6 +632,10 @@ def build_message(cls: type, data: dict[str, Any]) -> tuple[Any, bool]:
     except (TypeError, ValueError) as exc:
         raise CliError(one_line(str(exc))) from None
     check_fields(msg)
+    try:
+        cls._to_wire(msg)   # the checks only encoding makes (a fixed array's length), before any session
+    except (TypeError, ValueError) as exc:
+        raise CliError(one_line(str(exc))) from None
     return msg, auto_header
 
 
@@ -649,10 +677,18 @@ def _pub(args: argparse.Namespace) -> int:
             wait_end = time.monotonic() + plan.max_wait
             spin_until(node, lambda: pub.get_subscription_count() > 0,
                        wait_end if deadline is None else min(wait_end, deadline))
+            if pub.get_subscription_count() == 0:
+                print(f"no matching subscription on /{key} yet: publishing anyway", file=sys.stderr, flush=True)
         print("publisher: beginning loop", flush=True)
         _publish_loop(node, pub, msg, auto_header, plan, deadline)
         spin_until(node, lambda: False, time.monotonic() + plan.keep_alive)
     return 0
+
+
+def _flow(msg: Any) -> str:
+    """The message on one line: ``{data: hello}``."""
+    return yaml.safe_dump(_plain(msg.to_dict(), False), default_flow_style=True, sort_keys=False,
+                          width=1 << 16).strip()
 
 
 def _publish_loop(node: "Node", pub: Any, msg: Any, auto_header: bool, plan: PubPlan,
@@ -669,8 +705,7 @@ def _publish_loop(node: "Node", pub: Any, msg: Any, auto_header: bool, plan: Pub
         except (TypeError, ValueError) as exc:   # e.g. a fixed array of the wrong length
             raise CliError(one_line(str(exc))) from None
         sent += 1
-        flow = yaml.safe_dump(_plain(msg.to_dict(), False), default_flow_style=True, sort_keys=False, width=1 << 16).strip()
-        print(f"publishing #{sent}: {flow}", flush=True)
+        print(f"publishing #{sent}: {_flow(msg)}", flush=True)
         if plan.times is not None and sent >= plan.times:
             return
         next_at = start + sent / plan.rate
