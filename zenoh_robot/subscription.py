@@ -60,8 +60,7 @@ class SubscriptionCounters:
 
 class Subscription(Generic[M]):
     def __init__(self, node: "Node", msg_type: type[M], topic: str, key: str,
-                 callback: Callable[..., Any], qos: QoSProfile, event_callbacks: Any = None,
-                 raw: bool = False) -> None:
+                 callback: Callable[..., Any], qos: QoSProfile, event_callbacks: Any = None) -> None:
         require_message_type(msg_type, "create_subscription")
         if not callable(callback):
             raise TypeError("create_subscription: callback is not callable")
