@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any, Callable, Generic, TypeVar
 from . import envelope
 from .message import Message, require_message_type
 from .graph import SUBSCRIPTION, TopicEndpointInfo
-from .qos import QoSProfile
+from .qos import HistoryPolicy, QoSProfile
 from .qos_events import SubscriptionEvents
 from .qos_mapping import declare_subscriber
 from .redundancy import Deduplicator
@@ -77,6 +77,7 @@ class Subscription(Generic[M]):
         self._queue: deque[tuple[bytes, int]] = deque()
         self._dropped_unseen = 0
         self._limit = qos.queue_limit
+        self._take_batch = qos.history is HistoryPolicy.KEEP_ALL
         self._lock = threading.Lock()
         self._scheduled = False
         self._mismatch_reported: set[int] = set()
@@ -113,6 +114,9 @@ class Subscription(Generic[M]):
 
     # -- executor ------------------------------------------------------------------
     def _drain(self) -> None:
+        if self._take_batch:
+            self._drain_batch()
+            return
         for _ in range(DRAIN_BATCH):
             with self._lock:
                 if not self._queue:
@@ -121,6 +125,19 @@ class Subscription(Generic[M]):
                 data, received = self._queue.popleft()
             self._handle(data, received)
         self._executor.submit(self._drain)  # still scheduled: give other entities a turn
+
+    def _drain_batch(self) -> None:
+        # KEEP_ALL never drops, so samples may leave the queue in batches: one lock per batch
+        # instead of one per sample, which the Zenoh thread would otherwise contend for.
+        with self._lock:
+            queue = self._queue
+            batch = [queue.popleft() for _ in range(min(len(queue), DRAIN_BATCH))]
+            if not batch:
+                self._scheduled = False
+                return
+        for data, received in batch:
+            self._handle(data, received)
+        self._executor.submit(self._drain)
 
     def _handle(self, data: bytes, received_ns: int) -> None:
         try:
