@@ -100,8 +100,8 @@ class _EntityEvents:
             status = ev.IncompatibleTypeInfo(total, 1, info.topic_type)
             if getattr(self.callbacks, "incompatible_type", None) is None:
                 log.info("%s on topic %r uses type %s, this one %s: they will not communicate",
-                            "publisher" if incompatible_cls is ev.QoSRequestedIncompatibleQoSInfo else "subscription",
-                            info.topic_name, info.topic_type, own_type)
+                         "publisher" if incompatible_cls is ev.QoSRequestedIncompatibleQoSInfo else "subscription",
+                         info.topic_name, info.topic_type, own_type)
             self.fire("incompatible_type", status)
             return None     # not blocked here: its samples are counted and logged as type mismatches
         verdict = check_compatibility(offered, requested)
@@ -217,9 +217,9 @@ class SubscriptionEvents(_EntityEvents):
             self._register()
 
     def _register(self) -> None:
-        if not self._registered:
-            self._registered = True
-            self.node.qos_monitor.register(self)
+        # Again on every new leased writer: the monitor re-reads tick_period, which may have shrunk.
+        self._registered = True
+        self.node.qos_monitor.register(self)
 
     # -- graph (Zenoh thread) ---------------------------------------------------------
     def on_peer(self, appeared: bool, info: TopicEndpointInfo) -> None:
