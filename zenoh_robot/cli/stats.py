@@ -26,6 +26,7 @@ if TYPE_CHECKING:
 
 STATS_KEY = "**/statistics/**"     # `**` also matches no chunk: "statistics/chatter" too
 REFRESH_PERIOD = 0.25              # seconds between table redraws
+MAX_PENDING_LINES = 10_000         # --plain: lines not yet printed (a stalled pipe must not grow us)
 STALE_WINDOWS = 3                  # a row not updated for this many windows is dimmed
 
 
@@ -80,10 +81,13 @@ def _same_topic(a: str, b: str) -> bool:
 class StatsBoard:
     """The latest statistics per statistics key and node: fed on Zenoh's thread, read on the main one."""
 
-    def __init__(self, topic_filter: str | None) -> None:
+    def __init__(self, topic_filter: str | None, lines: bool = False) -> None:
         self.topic_filter = topic_filter
         self.skipped = 0
-        self.updates: queue.SimpleQueue[StatsRow] = queue.SimpleQueue()
+        self.lines_dropped = 0
+        # Only --plain prints every update; the live table reads the latest rows, so a queue of
+        # updates nobody drains would grow for as long as the command runs.
+        self.updates: queue.Queue[StatsRow] | None = queue.Queue(MAX_PENDING_LINES) if lines else None
         self._lock = threading.Lock()
         self._rows: dict[tuple[str, str], StatsRow] = {}
 
@@ -99,7 +103,12 @@ class StatsBoard:
             return
         with self._lock:
             self._rows[(key, stats.node)] = row
-        self.updates.put(row)
+        if self.updates is not None:
+            try:
+                self.updates.put_nowait(row)
+            except queue.Full:
+                with self._lock:
+                    self.lines_dropped += 1
 
     def rows(self) -> list[StatsRow]:
         with self._lock:
@@ -169,6 +178,7 @@ def _remaining(deadline: float | None) -> float | None:
 
 
 def _watch_plain(board: StatsBoard, deadline: float | None) -> None:
+    assert board.updates is not None
     while True:
         left = _remaining(deadline)
         if left is not None and left <= 0:
@@ -198,7 +208,7 @@ def run(args: argparse.Namespace) -> int:
     if args.topic is not None and not args.topic.strip("/"):
         raise CliError("TOPIC must be a topic name, e.g. /uav1/setpoint")
     plain = args.plain or not sys.stdout.isatty()
-    board = StatsBoard(args.topic)
+    board = StatsBoard(args.topic, lines=plain)
     with cli_node("stats", args) as node:
         zsub = node.session.declare_subscriber(STATS_KEY, board.on_sample)
         try:
@@ -210,6 +220,8 @@ def run(args: argparse.Namespace) -> int:
                 pass
     if not board.rows():
         print("no topic statistics received" + (f" for {args.topic}" if args.topic else ""), file=sys.stderr)
+    if board.lines_dropped:
+        print(f"{board.lines_dropped} update(s) not printed: output could not keep up", file=sys.stderr)
     if board.skipped:
         print(f"skipped {board.skipped} sample(s) on statistics keys that are not TopicStatistics", file=sys.stderr)
     return 0
