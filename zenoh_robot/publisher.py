@@ -36,7 +36,6 @@ class Publisher(Generic[M]):
         self.event_callbacks = event_callbacks
         # 63 bits: unique per publisher without coordination, a msgpack uint64 at most.
         self.publisher_id = secrets.randbits(63)
-        self.gid = self.publisher_id
         self._seq = 0
         self._lock = threading.Lock()
         self._type_name = msg_type._type_name
@@ -51,6 +50,11 @@ class Publisher(Generic[M]):
         self.events = PublisherEvents(self, event_callbacks)
         self._zpub = declare_publisher(node.session, key, qos)
         self._token = node._declare_endpoint_token(PUBLISHER, self)
+
+    @property
+    def gid(self) -> int:
+        """The graph's id of this publisher: the publisher id its samples carry."""
+        return self.publisher_id
 
     @property
     def sequence(self) -> int:

@@ -47,8 +47,19 @@ class CompatibilityVerdict:
         return f"{self.compatibility.value}: {self.reason}"
 
 
-def _fmt(seconds: float | None) -> str:
+def format_duration(seconds: float | None) -> str:
+    """A QoS duration for people: ``0.5 s`` or ``infinite``."""
     return "infinite" if seconds is None else f"{seconds:g} s"
+
+
+def _longer(offered: float | None, requested: float | None) -> bool:
+    """A period offered longer than requested (None: infinite) fails the request."""
+    return requested is not None and (offered is None or offered > requested)
+
+
+def _longer_reason(what: str, offered: float | None, requested: float | None) -> str:
+    return (f"publisher offers {what} {format_duration(offered)}, subscription requests "
+            f"{format_duration(requested)} (offered must be <= requested)")
 
 
 def check_compatibility(offered: QoSProfile, requested: QoSProfile) -> CompatibilityVerdict:
@@ -61,21 +72,17 @@ def check_compatibility(offered: QoSProfile, requested: QoSProfile) -> Compatibi
             and requested.durability is DurabilityPolicy.TRANSIENT_LOCAL):
         return CompatibilityVerdict(Compatibility.ERROR, PolicyKind.DURABILITY,
                                     "publisher offers VOLATILE durability, subscription requests TRANSIENT_LOCAL")
-    if requested.deadline is not None and (offered.deadline is None or offered.deadline > requested.deadline):
+    if _longer(offered.deadline, requested.deadline):
         return CompatibilityVerdict(Compatibility.ERROR, PolicyKind.DEADLINE,
-                                    f"publisher offers deadline {_fmt(offered.deadline)}, subscription requests "
-                                    f"{_fmt(requested.deadline)} (offered must be <= requested)")
+                                    _longer_reason("deadline", offered.deadline, requested.deadline))
     if (offered.liveliness is LivelinessPolicy.AUTOMATIC
             and requested.liveliness is LivelinessPolicy.MANUAL_BY_TOPIC):
         return CompatibilityVerdict(Compatibility.ERROR, PolicyKind.LIVELINESS,
                                     "publisher offers AUTOMATIC liveliness, subscription requests MANUAL_BY_TOPIC")
-    if requested.liveliness_lease_duration is not None and (
-            offered.liveliness_lease_duration is None
-            or offered.liveliness_lease_duration > requested.liveliness_lease_duration):
+    if _longer(offered.liveliness_lease_duration, requested.liveliness_lease_duration):
         return CompatibilityVerdict(Compatibility.ERROR, PolicyKind.LIVELINESS_LEASE_DURATION,
-                                    f"publisher offers liveliness lease {_fmt(offered.liveliness_lease_duration)}, subscription "
-                                    f"requests {_fmt(requested.liveliness_lease_duration)} "
-                                    "(offered must be <= requested)")
+                                    _longer_reason("liveliness lease", offered.liveliness_lease_duration,
+                                                   requested.liveliness_lease_duration))
     undecided = [name for name in ("reliability", "durability", "liveliness")
                  if getattr(offered, name).name == "SYSTEM_DEFAULT" or getattr(requested, name).name == "SYSTEM_DEFAULT"]
     if undecided:

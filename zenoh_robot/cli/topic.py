@@ -326,10 +326,6 @@ def _verdict(pub: "TopicEndpointInfo", sub: "TopicEndpointInfo") -> str:
     return f"{word} ({v.policy.name}): {v.reason}"
 
 
-def _seconds(value: float | None) -> str:
-    return "infinite" if value is None else f"{value:g} s"
-
-
 def endpoint_lines(e: "TopicEndpointInfo") -> list[str]:
     return [f"Node name: {e.node_name}", f"Node namespace: {e.node_namespace}", f"Topic type: {e.topic_type}",
             f"Topic type hash: {e.topic_type_hash}", f"Endpoint type: {e.endpoint_type.name}",
@@ -338,6 +334,7 @@ def endpoint_lines(e: "TopicEndpointInfo") -> list[str]:
 
 def qos_lines(q: "QoSProfile") -> list[str]:
     from ..qos import HistoryPolicy
+    from ..qos_compat import format_duration as _seconds
 
     history = f"{q.history.name} ({q.depth})" if q.history is HistoryPolicy.KEEP_LAST else q.history.name
     lines = [f"Reliability: {q.reliability.name}", f"Durability: {q.durability.name}",
