@@ -6,7 +6,6 @@ skipping it, so CI can never pass by silently skipping the one thing it must pro
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 import time
@@ -14,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from conftest import skip_unless_required
 from zenoh_robot.experiment.netns import LossyLink, unavailable_reason
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -24,9 +24,7 @@ PEER = str(ROOT / "tests" / "procs" / "lossy_peer.py")
 def lossy_link():
     reason = unavailable_reason()
     if reason:
-        if os.environ.get("ZR_REQUIRE_NETNS") == "1":
-            pytest.fail(f"ZR_REQUIRE_NETNS=1 but network namespaces are unavailable: {reason}")
-        pytest.skip(f"lossy-link test skipped: {reason}")
+        skip_unless_required(f"lossy-link test: network namespaces are unavailable: {reason}")
     link = LossyLink(loss_pct=0)
     with link:
         yield link

@@ -16,7 +16,7 @@ import pytest
 from zenoh_robot import Node, QoSProfile
 from zenoh_robot.msgs import String
 
-from conftest import linked_configs, wait_for
+from conftest import linked_configs, skip_unless_required, wait_for
 
 N = 300
 PAYLOAD = "x" * 2000   # under the 3 KB shared-memory threshold, over any keep-alive noise
@@ -35,9 +35,10 @@ def _tcp_bytes_sent(local_port: int) -> int:
     return int(m.group(1))
 
 
-@pytest.mark.skipif(shutil.which("ss") is None, reason="needs iproute2's ss to read TCP socket counters")
 @pytest.mark.parametrize("reliability", ["best_effort", "reliable"])
 def test_reliability_picks_the_link(ns: str, reliability: str) -> None:
+    if shutil.which("ss") is None:
+        skip_unless_required("iproute2's ss is missing: it reads the TCP socket counters (`make sysdeps`)")
     # Explicit endpoints, no scouting: the test must not depend on other Zenoh peers on the host.
     rx_cfg, tx_cfg = linked_configs()
     with Node("rx", namespace=ns, config=rx_cfg) as rx, Node("tx", namespace=ns, config=tx_cfg) as tx:
