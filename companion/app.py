@@ -21,6 +21,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
+from companion.interface import Command, CommandResult, FailsafeEvent, VehicleState
 from px4_link import Px4Link
 from px4_link.commands import CommandError
 from px4_link.setpoints import PositionSetpoint, SetpointRejected, VelocitySetpoint
@@ -28,11 +29,10 @@ from px4_link.telemetry import Attitude, Battery, Imu, LocalPosition
 from zenoh_robot import Node
 from zenoh_robot.events import SubscriptionEventCallbacks
 from zenoh_robot.image_transport import ImagePublisher, encode_strip
-from zenoh_robot.msgs import (Command, CommandResult, FailsafeEvent, Header, Image, SensorCombined, Setpoint,
-                              VehicleState)
+from zenoh_robot.msgs import Header, Image, SensorCombined, Setpoint
 from zenoh_robot.publisher import PublisherClosed
-from zenoh_robot.stream_metrics import StreamRecorder
-from zenoh_robot.stream_profiles import StreamProfile, stream_profile
+from zenoh_robot.tools.stream_metrics import StreamRecorder
+from zenoh_robot.tools.stream_profiles import StreamProfile, stream_profile
 
 from .camera import RateKeeper, open_source
 

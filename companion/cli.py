@@ -16,7 +16,7 @@ from zenoh_robot import Node, SessionConfig
 from zenoh_robot.names import validate_node_name
 from zenoh_robot.parameters import add_param_argument, params_from_args
 from zenoh_robot.qos import load_qos
-from zenoh_robot.stream_profiles import IMAGE_MODES, PROFILES, STREAMS, StreamProfile, stream_profile
+from zenoh_robot.tools.stream_profiles import IMAGE_MODES, PROFILES, STREAMS, StreamProfile, stream_profile
 
 from .app import Companion, CompanionConfig
 
@@ -83,7 +83,7 @@ def _free_udp_port() -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from zenoh_robot.cli.main import CliError
+    from zenoh_robot.tools.cli.main import CliError
     try:
         validate_node_name(args.id)
     except ValueError as exc:

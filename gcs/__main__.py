@@ -1,7 +1,7 @@
 """``python -m gcs``: the same as ``zenoh-robot gcs``."""
 import sys
 
-from zenoh_robot.cli.main import run_single
+from zenoh_robot.tools.cli.main import run_single
 
 from .cli import register
 

@@ -16,13 +16,13 @@ from typing import Any
 
 import numpy as np
 
+from companion.interface import Command, CommandResult, FailsafeEvent, VehicleState
 from zenoh_robot import Node
 from zenoh_robot.image_transport import FrameInfo, ImageSubscription
-from zenoh_robot.msgs import (Command, CommandResult, FailsafeEvent, Header, Image, SensorCombined, Setpoint,
-                              VehicleState)
+from zenoh_robot.msgs import Header, Image, SensorCombined, Setpoint
 from zenoh_robot.services import ServiceCallError
-from zenoh_robot.stream_metrics import StreamRecorder
-from zenoh_robot.stream_profiles import StreamProfile, stream_profile
+from zenoh_robot.tools.stream_metrics import StreamRecorder
+from zenoh_robot.tools.stream_profiles import StreamProfile, stream_profile
 
 from .patterns import make_pattern, path_distance
 

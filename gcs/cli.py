@@ -14,7 +14,7 @@ from rich.live import Live
 
 from zenoh_robot import Node, SessionConfig
 from zenoh_robot.parameters import add_param_argument, params_from_args
-from zenoh_robot.stream_profiles import IMAGE_MODES, PROFILES, stream_profile
+from zenoh_robot.tools.stream_profiles import IMAGE_MODES, PROFILES, stream_profile
 
 from .app import Gcs, GcsConfig
 from .dashboard import RateMeter, render
@@ -194,7 +194,7 @@ def _print_summary(console: Console, summary: dict[str, Any]) -> None:
 
 
 def run_command(args: argparse.Namespace) -> int:
-    from zenoh_robot.msgs import Command, CommandResult
+    from companion.interface import Command, CommandResult
     from zenoh_robot.services import ServiceCallError
     name = "offboard_start" if args.command == "offboard" else args.command
     value, text = 0.0, ""

@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import math
 
-from zenoh_robot.bench.report import markdown
-from zenoh_robot.bench.runner import Cell, run_cell
+from zenoh_robot.tools.bench.report import markdown
+from zenoh_robot.tools.bench.runner import Cell, run_cell
 
 
 def test_small_and_image_cells_produce_complete_figures() -> None:

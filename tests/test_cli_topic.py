@@ -21,14 +21,14 @@ from conftest import ROOT, python_proc, wait_for
 
 from zenoh_robot import (DurabilityPolicy, EndpointType, Node, QoSProfile, TopicEndpointInfo,
                          check_compatibility, msgs, qos)
-from zenoh_robot.cli.topic import adapted_qos
+from zenoh_robot.tools.cli.topic import adapted_qos
 
-CLI = [sys.executable, "-c", "import sys; from zenoh_robot.cli.main import main; sys.exit(main())"]
+CLI = [sys.executable, "-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())"]
 # As from a terminal: a test run started in the background (`pytest &`) passes an ignored
 # SIGINT on to its children, and Python then never turns Ctrl-C into KeyboardInterrupt.
 INTERACTIVE_CLI = [sys.executable, "-c", "import signal, sys; "
                    "signal.signal(signal.SIGINT, signal.default_int_handler); "
-                   "from zenoh_robot.cli.main import main; sys.exit(main())"]
+                   "from zenoh_robot.tools.cli.main import main; sys.exit(main())"]
 
 TALKER = r"""
 import sys

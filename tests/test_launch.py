@@ -13,9 +13,9 @@ from pathlib import Path
 import pytest
 from conftest import ROOT, python_proc, wait_for
 
-CLI = ("-c", "import sys; from zenoh_robot.cli.main import main; sys.exit(main())")
+CLI = ("-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())")
 
-from zenoh_robot.launch import LaunchError, LaunchRunner, ProcessSpec, load_launch
+from zenoh_robot.tools.launch import LaunchError, LaunchRunner, ProcessSpec, load_launch
 
 ZR = [sys.executable, *CLI]
 CHILD = str(ROOT / "tests" / "procs" / "launch_child.py")
@@ -188,7 +188,7 @@ def test_cli_reports_bad_files_in_one_line(tmp_path):
 
 @pytest.mark.parametrize("name", ["demo", "gcs_reliable", "gcs_best_effort", "drone_reliable", "drone_best_effort"])
 def test_shipped_launch_files_validate(name: str) -> None:
-    from zenoh_robot.launch import load_launch
+    from zenoh_robot.tools.launch import load_launch
     path = Path(__file__).resolve().parents[1] / "configs" / "launch" / f"{name}.yaml"
     specs = load_launch(path).processes
     assert specs and all(s.argv[1] == "-m" for s in specs), specs

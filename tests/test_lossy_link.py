@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from conftest import skip_unless_required
-from zenoh_robot.experiment.netns import LossyLink, unavailable_reason
+from zenoh_robot.tools.experiment.netns import LossyLink, unavailable_reason
 
 ROOT = Path(__file__).resolve().parents[1]
 PEER = str(ROOT / "tests" / "procs" / "lossy_peer.py")

@@ -51,7 +51,7 @@ def test_fixed_array_length_is_checked_on_the_wire() -> None:
 
 
 def test_numpy_values_are_accepted_in_fields() -> None:
-    from zenoh_robot import envelope
+    from zenoh_robot._wire import envelope
     msg = SensorCombined(gyro_rad=np.array([1.0, 2.0, 3.0], dtype=np.float32))
     data = envelope.pack(msg._type_name, msg._type_hash, 1, 1, 0, SensorCombined._to_wire(msg))
     back = SensorCombined._from_wire(envelope.unpack(data).body)

@@ -4,7 +4,7 @@ from __future__ import annotations
 import pytest
 from conftest import python_proc
 
-CLI = ("-c", "import sys; from zenoh_robot.cli.main import main; sys.exit(main())")
+CLI = ("-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())")
 
 from zenoh_robot import Node, QoSError, QoSProfile, Reliability, History
 from zenoh_robot.parameters import (InvalidParameterTypeError, InvalidParameterValueError, Parameter,

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import random
 
-from zenoh_robot.redundancy import Deduplicator, RedundantHistory
+from zenoh_robot._wire.redundancy import Deduplicator, RedundantHistory
 
 
 def _send(n: int, k: int):

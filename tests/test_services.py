@@ -8,7 +8,7 @@ from concurrent.futures import Future
 import pytest
 from conftest import python_proc
 
-CLI = ("-c", "import sys; from zenoh_robot.cli.main import main; sys.exit(main())")
+CLI = ("-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())")
 
 from zenoh_robot import Message, Node, message
 from zenoh_robot.services import (ServiceCallError, ServiceError, ServiceTimeout, ServiceUnavailable,

@@ -4,7 +4,7 @@ from __future__ import annotations
 import math
 import time
 
-from zenoh_robot.stream_metrics import StreamRecorder, analyse
+from zenoh_robot.tools.stream_metrics import StreamRecorder, analyse
 
 MS = 1_000_000
 

@@ -19,8 +19,9 @@ from typing import Iterator
 
 from px4_link.sim import Simulator
 from zenoh_robot import Node, qos
-from zenoh_robot.msgs import Command, CommandResult, FailsafeEvent, Header, Setpoint, VehicleState
-from zenoh_robot.stream_profiles import SETPOINT_DEADLINE, stream_profile
+from companion.interface import Command, CommandResult, FailsafeEvent, VehicleState
+from zenoh_robot.msgs import Header, Setpoint
+from zenoh_robot.tools.stream_profiles import SETPOINT_DEADLINE, stream_profile
 
 from conftest import python_proc, wait_for
 

@@ -14,8 +14,8 @@ import pytest
 
 from zenoh_robot import Node, QoSProfile
 from zenoh_robot.msgs import Header, Setpoint, StatisticsEntry, String, TopicStatistics
-from zenoh_robot.topic_statistics import (COLUMNS, StatisticsRecorder, TopicStatisticsCollector,
-                                          TopicStatisticsOptions, default_statistics_key)
+from zenoh_robot.tools.recorder import COLUMNS, StatisticsRecorder
+from zenoh_robot.topic_statistics import TopicStatisticsCollector, TopicStatisticsOptions, default_statistics_key
 
 from conftest import linked_configs, linked_nodes, wait_for
 

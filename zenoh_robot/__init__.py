@@ -1,54 +1,74 @@
-"""zenoh-robot: ROS 2-style nodes, typed messages and QoS over Zenoh."""
+"""zenoh-robot: ROS 2-style nodes, typed messages and QoS over Zenoh.
+
+This package is the library a robot developer imports: nodes and their entities, executors,
+QoS (profiles, compatibility, the Zenoh mapping), events, the graph, services, parameters,
+messages and the ``.msg`` loader, session configuration and topic statistics. It loads no tool:
+the CLI, launch, bench, experiments and recorders live in ``zenoh_robot.tools`` and are imported
+only on purpose. The layers are described in docs/architecture.md.
+"""
 from __future__ import annotations
 
+import warnings
+from typing import Any
+
 from . import msgs, qos
+from .events import (IncompatibleTypeInfo, MatchedInfo, PublisherEventCallbacks, QoSLivelinessChangedInfo,
+                     QoSLivelinessLostInfo, QoSMessageLostInfo, QoSOfferedDeadlineMissedInfo,
+                     QoSOfferedIncompatibleQoSInfo, QoSRequestedDeadlineMissedInfo, QoSRequestedIncompatibleQoSInfo,
+                     SubscriptionEventCallbacks)
 from .executor import Executor, MultiThreadedExecutor, Timer
+from .graph import EndpointType, NodeInfo, TopicEndpointInfo
 from .message import Message, array, message, ros_field
 from .msg_loader import load_msg
 from .names import InvalidNameError
 from .node import Node
+from .parameters import (Parameter, ParameterDescriptor, ParameterType, SetParametersResult, parse_param_args,
+                         qos_from_parameters)
 from .publisher import Publisher
-from .qos import (Durability, DurabilityPolicy, History, HistoryPolicy, Liveliness, LivelinessPolicy,
-                  Priority, QoSError, QoSProfile, Reliability, ReliabilityPolicy)
+from .qos import (Durability, DurabilityPolicy, History, HistoryPolicy, Liveliness, LivelinessPolicy, Priority,
+                  QoSError, QoSProfile, Reliability, ReliabilityPolicy)
+from .qos_compat import Compatibility, PolicyKind, check_compatibility
+from .services import Client, Service, ServiceCallError, ServiceError, ServiceTimeout, ServiceUnavailable
 from .session_config import SessionConfig, SessionConfigError
 from .subscription import MessageInfo, Subscription
+from .topic_statistics import TopicStatisticsOptions
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
+
 __all__ = [
+    # nodes, entities, executors
     "Node", "Publisher", "Subscription", "MessageInfo", "Timer", "Executor", "MultiThreadedExecutor",
-    "Message", "message", "array", "ros_field", "load_msg", "msgs", "qos", "QoSProfile", "QoSError",
-    "Reliability", "ReliabilityPolicy", "Durability", "DurabilityPolicy", "History", "HistoryPolicy",
-    "Liveliness", "LivelinessPolicy", "Priority", "SessionConfig", "SessionConfigError", "InvalidNameError",
-]
-
-# Services, parameters and launch (appended; imported after the core names above).
-from .launch import LaunchError, LaunchRunner  # noqa: E402
-from .parameters import (Parameter, ParameterDescriptor, ParameterType, SetParametersResult,  # noqa: E402
-                         parse_param_args, qos_from_parameters)
-from .services import (Client, Service, ServiceCallError, ServiceError, ServiceTimeout,  # noqa: E402
-                       ServiceUnavailable)
-
-__all__ += [
-    "Parameter", "ParameterType", "ParameterDescriptor", "SetParametersResult", "parse_param_args",
-    "qos_from_parameters", "Service", "Client", "ServiceCallError", "ServiceError", "ServiceTimeout",
-    "ServiceUnavailable", "LaunchRunner", "LaunchError",
-]
-
-# QoS events, compatibility and the graph.
-from .events import (IncompatibleTypeInfo, MatchedInfo, PublisherEventCallbacks,  # noqa: E402
-                     QoSLivelinessChangedInfo, QoSLivelinessLostInfo, QoSMessageLostInfo,
-                     QoSOfferedDeadlineMissedInfo, QoSOfferedIncompatibleQoSInfo,
-                     QoSRequestedDeadlineMissedInfo, QoSRequestedIncompatibleQoSInfo, SubscriptionEventCallbacks)
-from .graph import EndpointType, NodeInfo, TopicEndpointInfo  # noqa: E402
-from .qos_compat import Compatibility, PolicyKind, check_compatibility  # noqa: E402
-
-__all__ += [
+    "Service", "Client", "ServiceCallError", "ServiceError", "ServiceTimeout", "ServiceUnavailable",
+    # messages
+    "Message", "message", "array", "ros_field", "load_msg", "msgs",
+    # QoS
+    "qos", "QoSProfile", "QoSError", "Reliability", "ReliabilityPolicy", "Durability", "DurabilityPolicy",
+    "History", "HistoryPolicy", "Liveliness", "LivelinessPolicy", "Priority",
+    "Compatibility", "PolicyKind", "check_compatibility",
+    # events
     "PublisherEventCallbacks", "SubscriptionEventCallbacks", "QoSRequestedDeadlineMissedInfo",
     "QoSOfferedDeadlineMissedInfo", "QoSLivelinessChangedInfo", "QoSLivelinessLostInfo",
     "QoSRequestedIncompatibleQoSInfo", "QoSOfferedIncompatibleQoSInfo", "QoSMessageLostInfo",
-    "IncompatibleTypeInfo", "MatchedInfo", "EndpointType", "NodeInfo", "TopicEndpointInfo",
-    "Compatibility", "PolicyKind", "check_compatibility",
+    "IncompatibleTypeInfo", "MatchedInfo",
+    # graph, parameters, sessions, statistics
+    "EndpointType", "NodeInfo", "TopicEndpointInfo",
+    "Parameter", "ParameterType", "ParameterDescriptor", "SetParametersResult", "parse_param_args",
+    "qos_from_parameters", "SessionConfig", "SessionConfigError", "InvalidNameError", "TopicStatisticsOptions",
 ]
-from .topic_statistics import StatisticsRecorder, TopicStatisticsOptions  # noqa: E402
 
-__all__ += ["StatisticsRecorder", "TopicStatisticsOptions"]
+# Tools once exported here; they load subprocess/csv, so they now live in zenoh_robot.tools and
+# are reached through this shim, with a warning, for one release.
+_MOVED = {
+    "LaunchRunner": "zenoh_robot.tools.launch",
+    "LaunchError": "zenoh_robot.tools.launch",
+    "StatisticsRecorder": "zenoh_robot.tools.recorder",
+}
+
+
+def __getattr__(name: str) -> Any:
+    where = _MOVED.get(name)
+    if where is None:
+        raise AttributeError(f"module 'zenoh_robot' has no attribute {name!r}")
+    warnings.warn(f"zenoh_robot.{name} moved to {where}.{name}", DeprecationWarning, stacklevel=2)
+    import importlib
+    return getattr(importlib.import_module(where), name)

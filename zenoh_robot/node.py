@@ -16,7 +16,7 @@ from .services import ServicesMixin
 from .message import Message
 from .publisher import Publisher
 from .qos_monitor import QoSMonitor
-from .repeater import Repeater
+from ._wire.repeater import Repeater
 from .qos import QoSProfile, SYSTEM_DEFAULT
 from .session_config import SessionConfig, open_session
 from .subscription import Subscription

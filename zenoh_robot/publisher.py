@@ -6,13 +6,13 @@ import threading
 import time
 from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
-from . import envelope
+from ._wire import envelope
 from .message import Message, require_message_type
 from .graph import PUBLISHER, TopicEndpointInfo
 from .qos import QoSProfile
 from .qos_events import PublisherEvents
 from .qos_mapping import declare_publisher
-from .redundancy import REPEAT_KEY, RedundantHistory
+from ._wire.redundancy import REPEAT_KEY, RedundantHistory
 
 if TYPE_CHECKING:
     from .node import Node

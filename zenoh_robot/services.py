@@ -35,7 +35,8 @@ from typing import TYPE_CHECKING, Any, Callable, Generic, TypeVar
 import msgpack
 import zenoh
 
-from . import envelope, names
+from . import names
+from ._wire import envelope
 from .message import Message, require_message_type
 
 if TYPE_CHECKING:

@@ -15,13 +15,13 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable, Generic, TypeVar
 
-from . import envelope
+from ._wire import envelope
 from .message import Message, require_message_type
 from .graph import SUBSCRIPTION, TopicEndpointInfo
 from .qos import HistoryPolicy, QoSProfile
 from .qos_events import SubscriptionEvents
 from .qos_mapping import declare_subscriber
-from .redundancy import Deduplicator
+from ._wire.redundancy import Deduplicator
 
 if TYPE_CHECKING:
     from .node import Node

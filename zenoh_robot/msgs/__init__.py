@@ -189,7 +189,3 @@ class TopicStatistics(Message):
         if self.message_period_ms is None:
             self.message_period_ms = StatisticsEntry()
 
-
-from .drone import Command, CommandResult, FailsafeEvent, VehicleState  # noqa: E402
-
-__all__ += ["VehicleState", "Command", "CommandResult", "FailsafeEvent"]

@@ -11,7 +11,7 @@ import time
 
 import yaml
 
-from ..services import SERVICE_PREFIX, ServiceCallError, call_dict, describe_services, service_key
+from zenoh_robot.services import SERVICE_PREFIX, ServiceCallError, call_dict, describe_services, service_key
 from .main import CliError
 
 
@@ -31,7 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..node import Node
+    from zenoh_robot.node import Node
 
     with Node(f"_zr_service_{secrets.token_hex(3)}", config=args.config) as node:
         if args.op == "list":

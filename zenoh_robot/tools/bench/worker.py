@@ -1,4 +1,4 @@
-"""One side of a benchmark cell, in its own process: ``python -m zenoh_robot.bench.worker``.
+"""One side of a benchmark cell, in its own process: ``python -m zenoh_robot.tools.bench.worker``.
 
 ``framework``: a Node publisher/subscription with the message type.
 ``raw``: zenoh-python declare_publisher/put of msgpack bytes of the same fields plus a
@@ -18,7 +18,7 @@ from typing import Any
 import msgpack
 import zenoh
 
-from .. import Node, QoSProfile, SessionConfig
+from zenoh_robot import Node, QoSProfile, SessionConfig
 from . import payloads
 
 KEY = "bench/data"

@@ -1,4 +1,4 @@
-"""``zenoh-robot launch FILE.yaml [NAME:=VALUE ...]``: run a launch file (see zenoh_robot.launch)."""
+"""``zenoh-robot launch FILE.yaml [NAME:=VALUE ...]``: run a launch file (see zenoh_robot.tools.launch)."""
 from __future__ import annotations
 
 import argparse

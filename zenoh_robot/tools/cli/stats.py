@@ -22,7 +22,7 @@ from .topic import add_config_arg, add_duration_arg, cli_node, deadline_of, quie
 if TYPE_CHECKING:
     from rich.table import Table
 
-    from ..msgs import TopicStatistics
+    from zenoh_robot.msgs import TopicStatistics
 
 STATS_KEY = "**/statistics/**"     # `**` also matches no chunk: "statistics/chatter" too
 REFRESH_PERIOD = 0.25              # seconds between table redraws
@@ -59,8 +59,8 @@ class StatsRow:
 
 def decode(data: bytes) -> "TopicStatistics | None":
     """The TopicStatistics in a sample, None for anything else on a statistics key."""
-    from .. import envelope
-    from ..msgs import TopicStatistics
+    from zenoh_robot._wire import envelope
+    from zenoh_robot.msgs import TopicStatistics
 
     try:
         env = envelope.unpack(data)

@@ -3,7 +3,7 @@
 Each subcommand lives in its own module with ``register(sub)``, which adds a parser
 and sets ``func(args) -> int``. Built-in ones are modules of this package; the
 applications (gcs, companion, the PX4 simulator) plug in through the
-``zenoh_robot.cli`` entry-point group, so this package never imports them (nor MAVLink).
+``zenoh_robot.tools.cli`` entry-point group, so this package never imports them (nor MAVLink).
 """
 from __future__ import annotations
 
@@ -28,9 +28,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in SUBCOMMANDS:
         try:
-            module = importlib.import_module(f"zenoh_robot.cli.{name}")
+            module = importlib.import_module(f"zenoh_robot.tools.cli.{name}")
         except ModuleNotFoundError as exc:
-            if exc.name == f"zenoh_robot.cli.{name}":
+            if exc.name == f"zenoh_robot.tools.cli.{name}":
                 continue
             raise
         module.register(sub)
@@ -60,9 +60,9 @@ def main(argv: list[str] | None = None, parser: argparse.ArgumentParser | None =
 
 
 if __name__ == "__main__":
-    # Run as `python -m zenoh_robot.cli.main`, this file is `__main__`, a second copy of the
-    # module: subcommands raise the CliError of `zenoh_robot.cli.main`, so call that copy's main.
-    from zenoh_robot.cli.main import main as _main
+    # Run as `python -m zenoh_robot.tools.cli.main`, this file is `__main__`, a second copy of the
+    # module: subcommands raise the CliError of `zenoh_robot.tools.cli.main`, so call that copy's main.
+    from zenoh_robot.tools.cli.main import main as _main
     sys.exit(_main())
 
 

@@ -3,9 +3,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..image_transport import encode_strip
-from ..message import Message
-from ..msgs import Header, Image, SensorCombined, Setpoint
+from zenoh_robot.image_transport import encode_strip
+from zenoh_robot.message import Message
+from zenoh_robot.msgs import Header, Image, SensorCombined, Setpoint
 
 PAYLOADS = ("setpoint", "sensor", "image", "jpeg")
 

@@ -48,7 +48,7 @@ from typing import Any, IO, Sequence
 
 import yaml
 
-from .parameters import format_param_value, parse_param_value
+from zenoh_robot.parameters import format_param_value, parse_param_value
 
 
 class LaunchError(ValueError):
@@ -58,9 +58,9 @@ class LaunchError(ValueError):
 PROCESS_KEYS = {"name", "cmd", "exec", "module", "args", "params", "env", "cwd", "delay", "required",
                 "respawn", "respawn_delay"}
 TOP_KEYS = {"args", "include", "processes"}
-# Not `-m zenoh_robot.cli.main`: that runs main.py as __main__, a second copy whose CliError
+# Not `-m zenoh_robot.tools.cli.main`: that runs main.py as __main__, a second copy whose CliError
 # the subcommands do not raise, so user errors would print tracebacks.
-_ZENOH_ROBOT = [sys.executable, "-c", "import sys; from zenoh_robot.cli.main import main; sys.exit(main())"]
+_ZENOH_ROBOT = [sys.executable, "-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())"]
 _SUBST = re.compile(r"\$\((\w+)(?:\s+([^)\s]+))?(?:\s+([^)]*))?\)")
 _NAME = re.compile(r"^[A-Za-z0-9_.\-]+$")
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from .qos import (RESILIENT, HistoryPolicy, Priority, QoSError, QoSProfile, ReliabilityPolicy)
+from zenoh_robot.qos import (RESILIENT, HistoryPolicy, Priority, QoSError, QoSProfile, ReliabilityPolicy)
 
 STREAMS = ("setpoint", "sensor", "state", "image", "events")
 # The GCS offers this deadline on setpoints: PX4 leaves OFFBOARD below 2 Hz, so a setpoint

@@ -1,8 +1,8 @@
 """Messages between a GCS and a drone's companion: vehicle state, commands, failsafe events."""
 from __future__ import annotations
 
-from ..message import Message, array, message, ros_field
-from . import Header
+from zenoh_robot.message import Message, array, message, ros_field
+from zenoh_robot.msgs import Header
 
 
 @message(name="zenoh_robot/VehicleState")

@@ -10,9 +10,9 @@ from typing import Any
 
 import yaml
 
-from ..parameters import (Parameter, ParameterClient, ParameterType,
+from zenoh_robot.parameters import (Parameter, ParameterClient, ParameterType,
                           InvalidParameterValueError, parse_param_value)
-from ..services import ServiceCallError, ServiceTimeout
+from zenoh_robot.services import ServiceCallError, ServiceTimeout
 from .main import CliError
 
 _LABEL = {ParameterType.BOOL: "Boolean", ParameterType.INTEGER: "Integer", ParameterType.DOUBLE: "Double",
@@ -52,7 +52,7 @@ def _node_name(text: str) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..node import Node   # imported late so `zenoh-robot --help` stays fast
+    from zenoh_robot.node import Node   # imported late so `zenoh-robot --help` stays fast
 
     target = _node_name(args.node)
     with Node(f"_zr_param_{secrets.token_hex(3)}", config=args.config) as node:

@@ -69,7 +69,7 @@ def run_pair(mode: str, cell: Cell, timeout: float, rss_every: float = 0.0) -> F
     common = [cell.payload, "--count", str(cell.count), "--port", str(port)]
     if cell.kind == "throughput":
         common.append("--throughput")
-    worker = [sys.executable, "-m", "zenoh_robot.bench.worker"]
+    worker = [sys.executable, "-m", "zenoh_robot.tools.bench.worker"]
     sub = subprocess.Popen(worker + ["sub", mode, *common, "--timeout", str(timeout), "--rss-every", str(rss_every)],
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:

@@ -26,9 +26,9 @@ import yaml
 from .main import CliError
 
 if TYPE_CHECKING:
-    from ..graph import TopicEndpointInfo
-    from ..node import Node
-    from ..qos import QoSProfile
+    from zenoh_robot.graph import TopicEndpointInfo
+    from zenoh_robot.node import Node
+    from zenoh_robot.qos import QoSProfile
 
 HIDDEN_PREFIX = "_zr_"        # the CLI's own nodes: left out of list/info unless --all
 READER_DEPTH = 100
@@ -73,8 +73,8 @@ def quiet_exit(fn: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Na
 @contextlib.contextmanager
 def cli_node(kind: str, args: argparse.Namespace) -> Iterator["Node"]:
     """A hidden node (``_zr_<kind>_<hex>``) on the configured session, always closed."""
-    from ..node import Node   # imported late so `zenoh-robot --help` stays fast
-    from ..session_config import SessionConfigError
+    from zenoh_robot.node import Node   # imported late so `zenoh-robot --help` stays fast
+    from zenoh_robot.session_config import SessionConfigError
 
     try:
         node = Node(f"{HIDDEN_PREFIX}{kind}_{secrets.token_hex(3)}", config=getattr(args, "config", None))
@@ -134,7 +134,7 @@ def spin_until(node: "Node", done: Callable[[], bool], deadline: float | None) -
 
 def topic_key(topic: str) -> str:
     """``/a/b`` or ``a/b`` -> the Zenoh key ``a/b`` (validated by ROS 2's name rules)."""
-    from ..names import InvalidNameError, resolve_topic
+    from zenoh_robot.names import InvalidNameError, resolve_topic
 
     try:
         return resolve_topic(topic if topic.startswith("/") else "/" + topic)
@@ -143,8 +143,8 @@ def topic_key(topic: str) -> str:
 
 
 def lookup_type(name: str) -> type:
-    from .. import msgs  # noqa: F401  registers the standard and drone types
-    from ..message import lookup
+    from zenoh_robot import msgs  # noqa: F401  registers the standard and drone types
+    from zenoh_robot.message import lookup
 
     try:
         return lookup(name)
@@ -314,7 +314,7 @@ def _who(e: "TopicEndpointInfo") -> str:
 
 
 def _verdict(pub: "TopicEndpointInfo", sub: "TopicEndpointInfo") -> str:
-    from ..qos_compat import Compatibility, check_compatibility
+    from zenoh_robot.qos_compat import Compatibility, check_compatibility
 
     if pub.topic_type_hash != sub.topic_type_hash:
         return (f"incompatible (TYPE): publisher sends {pub.topic_type} ({pub.topic_type_hash}), "
@@ -333,8 +333,8 @@ def endpoint_lines(e: "TopicEndpointInfo") -> list[str]:
 
 
 def qos_lines(q: "QoSProfile") -> list[str]:
-    from ..qos import HistoryPolicy
-    from ..qos_compat import format_duration as _seconds
+    from zenoh_robot.qos import HistoryPolicy
+    from zenoh_robot.qos_compat import format_duration as _seconds
 
     history = f"{q.history.name} ({q.depth})" if q.history is HistoryPolicy.KEEP_LAST else q.history.name
     lines = [f"Reliability: {q.reliability.name}", f"Durability: {q.durability.name}",
@@ -360,7 +360,7 @@ Deliver = Callable[[Any, int], None]     # (Message or RawSample, received ns), 
 
 def adapted_qos(publishers: list["TopicEndpointInfo"]) -> "QoSProfile":
     """A request every publisher can serve (ros2 topic echo's choice), so nothing is blocked."""
-    from ..qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from zenoh_robot.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
     keeps = bool(publishers) and all(p.qos_profile.durability is DurabilityPolicy.TRANSIENT_LOCAL
                                      for p in publishers)
@@ -418,8 +418,8 @@ class RawReader:
     """Samples of an unknown type: envelope unpacked, repeats dropped, handed to the executor."""
 
     def __init__(self, node: "Node", key: str, qos: "QoSProfile", deliver: Deliver) -> None:
-        from ..qos_mapping import declare_subscriber
-        from ..redundancy import Deduplicator
+        from zenoh_robot.qos_mapping import declare_subscriber
+        from zenoh_robot._wire.redundancy import Deduplicator
 
         self._executor = node.executor
         self._deliver = deliver
@@ -432,7 +432,7 @@ class RawReader:
         self._executor.call_soon(lambda: self._handle(data, now))
 
     def _handle(self, data: bytes, received_ns: int) -> None:
-        from .. import envelope
+        from zenoh_robot._wire import envelope
 
         try:
             env = envelope.unpack(data)
@@ -656,7 +656,7 @@ def _pub_plan(args: argparse.Namespace) -> PubPlan:
 
 
 def _pub(args: argparse.Namespace) -> int:
-    from ..qos import QoSError, preset
+    from zenoh_robot.qos import QoSError, preset
 
     key = topic_key(args.topic)
     plan = _pub_plan(args)
@@ -690,7 +690,7 @@ def _flow(msg: Any) -> str:
 
 def _publish_loop(node: "Node", pub: Any, msg: Any, auto_header: bool, plan: PubPlan,
                   deadline: float | None) -> None:
-    from ..msgs import Header
+    from zenoh_robot.msgs import Header
 
     start = time.monotonic()
     sent = 0

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ..session_config import SessionConfig
+from zenoh_robot.session_config import SessionConfig
 from ..stream_metrics import StreamRecorder, analyse
 from ..stream_profiles import stream_profile
 from .netns import LossyLink
