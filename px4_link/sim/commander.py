@@ -2,14 +2,23 @@
 
 Behaviour copied from PX4 (src/modules/commander, checked against Commander.cpp and
 failsafe/failsafe.cpp):
-- Boots disarmed in AUTO.LOITER (Hold), PX4's initial user-intended mode.
+- Boots disarmed in AUTO.LOITER (Hold), PX4's initial user-intended mode. After disarming
+  it returns to the last mode the user selected that does not prevent arming
+  (UserModeIntention's nav_state_after_disarming): OFFBOARD after an offboard mission, so
+  a vehicle landed from OFFBOARD sits disarmed in OFFBOARD (real SITL trace: 50.8 s).
 - Mode changes and arming that PX4 would refuse are answered TEMPORARILY_REJECTED
   (PX4 maps every TRANSITION_DENIED of DO_SET_MODE, NAV_TAKEOFF, NAV_RTL and
   COMPONENT_ARM_DISARM to that result); LAND is always allowed ("emergency mode").
 - OFFBOARD can only be entered after ~1 s of setpoints at > 2 Hz, and in OFFBOARD a gap
-  longer than COM_OF_LOSS_T triggers the COM_OBL_RC_ACT failsafe. PX4's default (0) is
-  Position mode: with no RC sticks the vehicle holds where it is, in POSCTL. 3 (Return)
-  and 4 (Land) first hold for COM_FAIL_ACT_T, as PX4's failsafe delay does.
+  longer than COM_OF_LOSS_T (plus PX4's detection latency, ~0.4 s) triggers the
+  COM_OBL_RC_ACT failsafe. PX4's default (0) is Position mode, which needs RC: without RC
+  the failsafe framework falls back to Return (AUTO.RTL), status CRITICAL. COM_FAIL_ACT_T's
+  hold only applies when a user could take over with RC, so never here.
+- Takeoff: motors spool up for COM_SPOOLUP_TIME, then the climb-rate limit ramps over
+  MPC_TKO_RAMP_T (SITL: arm -> 4 m in ~5.5-6 s). Land detection takes ~3 s of ground
+  contact, then COM_DISARM_LAND.
+- When AUTO.LAND starts, the navigator asks the gimbal manager to point neutral: three
+  COMMAND_LONGs to component 0 of our own system, the first resent up to 3x unanswered.
 - Manual modes are refused: the simulator has no RC / joystick input.
 - Disarming in the air needs the force magic (param2 = 21196); auto-disarm after
   COM_DISARM_PRFLT without takeoff and COM_DISARM_LAND after landing.
@@ -41,12 +50,35 @@ ON_GROUND, IN_AIR, TAKING_OFF, LANDING = 1, 2, 3, 4
 
 OFFBOARD_MIN_RATE_GAP_S = 0.5     # "> 2 Hz": a gap above 0.5 s restarts the proof of life
 OFFBOARD_WARMUP_S = 1.0           # PX4 docs: the signal must be present for > 1 s
+# COM_OF_LOSS_T is checked against the offboard_control_mode timestamp, and the failsafe
+# state machine reacts a few cycles later: PX4 SITL switches ~1.4 s after the last setpoint.
+OFFBOARD_LOSS_LATENCY_S = 0.4
+# Land detector chain (ground contact -> maybe landed -> landed) with the thrust wind-down
+# of a landing multicopter; SITL traces show 2.9-3.9 s from touchdown to ON_GROUND.
+LAND_DETECT_S = 3.5
+# PX4's takeoff ramp starts from a negative velocity so the vehicle stays on the ground
+# until thrust builds up; this is the part of the ramp spent below zero.
+TAKEOFF_RAMP_DEAD_S = 1.2
 MANUAL_MODES = {"MANUAL", "ALTCTL", "POSCTL", "POSCTL.ORBIT", "POSCTL.SLOW", "ACRO",
                 "STABILIZED", "RATTITUDE"}
 HOLDING_MODES = {"AUTO.LOITER", "POSCTL", "ALTCTL", "STABILIZED"}
 NO_ARM_MODES = {"AUTO.LAND", "AUTO.RTL", "TERMINATION"}
 OBL_ACTIONS = {0: "POSCTL", 1: "ALTCTL", 2: "STABILIZED", 3: "AUTO.RTL", 4: "AUTO.LAND",
                5: "AUTO.LOITER", 6: "TERMINATION", 7: "DISARM"}
+# Every mode PX4's failsafe framework may put the vehicle in (incl. fallbacks).
+FAILSAFE_MODES = frozenset({"POSCTL", "ALTCTL", "STABILIZED", "AUTO.RTL", "AUTO.LAND",
+                            "AUTO.LOITER", "TERMINATION", "AUTO.PRECLAND"})
+USER_REASONS = ("command", "takeoff complete")   # what changes PX4's user mode intention
+CMD_DO_GIMBAL_MANAGER_PITCHYAW = 1000
+CMD_DO_GIMBAL_MANAGER_CONFIGURE = 1001
+GIMBAL_RESEND_S = 0.5
+GIMBAL_RESENDS = 3
+GIMBAL_DELAY_S = 0.27             # LAND start -> first gimbal command in the SITL traces
+
+
+def int_param(v: float, default: int = 0) -> int:
+    """A COMMAND_LONG param as an integer; NaN (MAVSDK's "unused") reads as ``default``."""
+    return int(round(v)) if math.isfinite(v) else default
 
 
 @dataclass(frozen=True, slots=True)
@@ -69,6 +101,24 @@ class ModeChange:
     reason: str
 
 
+@dataclass(frozen=True, slots=True)
+class FailsafeEvent:
+    time: float
+    cause: str
+    action: str
+
+
+@dataclass(slots=True)
+class OutgoingCommand:
+    """A COMMAND_LONG PX4 itself sends (to the gimbal manager, ...)."""
+    due: float
+    command: int
+    params: tuple[float, ...]
+    target_component: int = 0
+    confirmation: int = 0
+    resends_left: int = 0
+
+
 @dataclass(slots=True)
 class CommandResult:
     result: int
@@ -89,6 +139,10 @@ class Commander:
     last_setpoint: ReceivedSetpoint | None = None
     statustexts: list[tuple[int, str]] = field(default_factory=list)  # (severity, text) to send
     home_alt: float = 488.0  # AMSL altitude of home, for NAV_TAKEOFF's AMSL param7
+    failsafe_log: list[FailsafeEvent] = field(default_factory=list)
+    outgoing: list[OutgoingCommand] = field(default_factory=list)
+    landed_at: float | None = None           # last auto/commanded disarm on the ground
+    setpoints_since_landed: int = 0
 
     def __post_init__(self) -> None:
         self._lock = threading.RLock()
@@ -102,6 +156,8 @@ class Commander:
         self._takeoff_alt = 0.0
         self._rtl_phase = ""
         self._pending: tuple[float, str] | None = None   # delayed failsafe action (at, mode)
+        self._mode_after_disarm = self.mode
+        self._ramp_from: float | None = None     # arming time while the takeoff ramp runs
 
     # ------------------------------------------------------------ helpers
     def _say(self, text: str, severity: int = 4) -> None:
@@ -113,6 +169,8 @@ class Commander:
         self.mode_log.append(ModeChange(self.now, self.mode, new, reason))
         self.mode = new
         self._pending = None  # any mode change supersedes a delayed failsafe action
+        if reason in USER_REASONS and new not in NO_ARM_MODES:
+            self._mode_after_disarm = new
         self._enter(new)
 
     def _enter(self, mode: str) -> None:
@@ -125,7 +183,40 @@ class Commander:
             self._hold_yaw = v.yaw
         elif mode == "AUTO.RTL":
             self._rtl_phase = "climb"
+        elif mode == "AUTO.LAND" and self.armed:
+            self._queue_gimbal_neutral()
 
+    def _queue_gimbal_neutral(self) -> None:
+        # What navigator's land does through the gimbal manager (trace: 36.45 s, 59.50 s):
+        # take control as primary, point neutral, release; only the first is resent.
+        at = self.now + GIMBAL_DELAY_S
+        sysid = int(self.params["MAV_SYS_ID"])
+        nan = math.nan
+        self.outgoing += [
+            OutgoingCommand(at, CMD_DO_GIMBAL_MANAGER_CONFIGURE, (sysid, 1, -1, -1, 0, 0, 0),
+                            resends_left=GIMBAL_RESENDS),
+            OutgoingCommand(at, CMD_DO_GIMBAL_MANAGER_PITCHYAW, (nan, nan, nan, nan, 2, 0, 0)),
+            OutgoingCommand(at, CMD_DO_GIMBAL_MANAGER_CONFIGURE, (-3, -3, -1, -1, 0, 0, 0)),
+        ]
+
+    def take_outgoing(self) -> list[OutgoingCommand]:
+        """Commands due now; resendable ones stay queued until acked or out of resends."""
+        with self._lock:
+            due = [c for c in self.outgoing if c.due <= self.now]
+            out = [OutgoingCommand(c.due, c.command, c.params, c.target_component, c.confirmation)
+                   for c in due]
+            for c in due:
+                if c.resends_left > 0:
+                    c.resends_left -= 1
+                    c.confirmation += 1
+                    c.due = self.now + GIMBAL_RESEND_S
+                else:
+                    self.outgoing.remove(c)
+            return out
+
+    def on_command_ack(self, command: int) -> None:
+        with self._lock:
+            self.outgoing = [c for c in self.outgoing if c.command != command or c.confirmation == 0]
     def offboard_signal_ok(self) -> bool:
         """PX4's offboard availability: a fresh setpoint, streamed for > 1 s."""
         if self._sp_last is None or self._sp_stream_start is None:
@@ -150,10 +241,17 @@ class Commander:
     def on_setpoint(self, sp: ReceivedSetpoint) -> None:
         with self._lock:
             self.setpoints_received += 1
+            if self.landed_at is not None and not self.armed:
+                self.setpoints_since_landed += 1
             self.last_setpoint = sp
             if self._sp_last is None or sp.time - self._sp_last > OFFBOARD_MIN_RATE_GAP_S:
                 self._sp_stream_start = sp.time
             self._sp_last = sp.time
+
+    def armable(self) -> bool:
+        """What PX4's pre-arm checks would say now (SYS_STATUS PREARM_CHECK health)."""
+        with self._lock:
+            return self.armed or (self.landed_state == ON_GROUND and self.mode not in NO_ARM_MODES)
 
     def handle_command(self, command: int, p: list[float], now: float | None = None) -> CommandResult:
         with self._lock:
@@ -194,7 +292,7 @@ class Commander:
         return CommandResult(ACCEPTED)
 
     def _do_set_mode(self, p: list[float]) -> CommandResult:
-        base_mode, main, sub = int(p[0]), int(round(p[1])), int(round(p[2]))
+        base_mode, main, sub = int_param(p[0]), int_param(p[1]), int_param(p[2])
         if not base_mode & 1:   # not MAV_MODE_FLAG_CUSTOM_MODE_ENABLED: standard flags
             if base_mode & 64:  # MANUAL_INPUT_ENABLED -> a stick mode
                 return CommandResult(TEMPORARILY_REJECTED, "No manual control input")
@@ -211,8 +309,8 @@ class Commander:
         return self._request_mode(name, "command")
 
     def _arm_disarm(self, p: list[float]) -> CommandResult:
-        action = int(round(p[0]))
-        forced = int(round(p[1])) == 21196
+        action = int_param(p[0], -1)
+        forced = int_param(p[1]) == 21196
         if action == 1:
             if self.armed:
                 return CommandResult(ACCEPTED)
@@ -227,6 +325,9 @@ class Commander:
             self.armed = True
             self._armed_at = self.now
             self._took_off = False
+            self._ramp_from = self.now if self.landed_state == ON_GROUND else None
+            self.landed_at = None
+            self.setpoints_since_landed = 0
             if self.mode in HOLDING_MODES:
                 self._enter(self.mode)
             return CommandResult(ACCEPTED, "Armed by external command")
@@ -243,8 +344,17 @@ class Commander:
         self.armed = False
         self._armed_at = None
         self.failsafe = False
-        if self.mode in ("AUTO.LAND", "AUTO.RTL", "AUTO.TAKEOFF") and reason != "termination":
-            self._set_mode("AUTO.LOITER", f"disarmed ({reason})")
+        self.outgoing = [c for c in self.outgoing if c.resends_left == 0]
+        if self.landed_state == ON_GROUND:
+            self.landed_at = self.now
+            self.setpoints_since_landed = 0
+        if reason == "termination":
+            return
+        after = self._mode_after_disarm
+        if after == "AUTO.TAKEOFF":   # a finished or aborted takeoff leaves nothing to resume
+            after = "AUTO.LOITER"
+        if self.mode != after:
+            self._set_mode(after, f"disarmed ({reason})")
 
     # ------------------------------------------------------------ periodic
     def update(self, now: float) -> Target | None:
@@ -256,7 +366,7 @@ class Commander:
             if self._pending is not None and now >= self._pending[0]:
                 mode = self._pending[1]
                 self._pending = None
-                self._set_mode(mode, "failsafe")
+                self._set_mode(mode, "failsafe: delayed action")
             self._auto_disarm()
             return self._target() if self.armed else None
 
@@ -265,8 +375,10 @@ class Commander:
         if v.on_ground and abs(v.vel[2]) < 0.1:
             if self._landed_since is None:
                 self._landed_since = self.now
-            # PX4's land detector needs a moment of ground contact.
-            if self.now - self._landed_since >= 0.3 or not self.armed:
+            detect = LAND_DETECT_S if self._took_off else 0.3
+            if self.now - self._landed_since >= detect or not self.armed:
+                if self.landed_state != ON_GROUND:
+                    self._landed_since = self.now   # COM_DISARM_LAND counts from detection
                 self.landed_state = ON_GROUND
         else:
             self._landed_since = None
@@ -284,26 +396,26 @@ class Commander:
         if self.mode != "OFFBOARD":
             return
         silent = math.inf if self._sp_last is None else self.now - self._sp_last
-        if silent <= float(self.params["COM_OF_LOSS_T"]):
+        if silent <= float(self.params["COM_OF_LOSS_T"]) + OFFBOARD_LOSS_LATENCY_S:
+            return
+        if not self.armed:
+            # Disarmed, PX4 only falls back to a mode that can run; no failsafe action.
+            self._set_mode("AUTO.LOITER", "mode fallback: no offboard signal")
             return
         action = OBL_ACTIONS.get(int(self.params["COM_OBL_RC_ACT"]), "POSCTL")
-        self._say(f"Failsafe activated: no offboard signal for {silent:.1f} s, "
-                  f"action {action}", severity=2)
-        self.failsafe = self.armed
-        if action == "DISARM" or action == "TERMINATION":
-            if action == "TERMINATION":
-                self._set_mode("TERMINATION", "offboard loss")
-            else:
-                self._set_mode("AUTO.LOITER", "offboard loss")
-            if self.armed:
-                self._disarm("offboard loss")
-            return
-        delay = float(self.params["COM_FAIL_ACT_T"])
-        if action in ("AUTO.RTL", "AUTO.LAND") and delay > 0 and self.armed:
-            self._set_mode("AUTO.LOITER", "offboard loss")
-            self._pending = (self.now + delay, action)
+        if action in MANUAL_MODES:   # needs RC sticks, and the simulator has no RC
+            action = "AUTO.RTL"
+        self._say(f"Failsafe: no offboard signal, action {action}", severity=2)
+        self.failsafe = True
+        self.failsafe_log.append(FailsafeEvent(self.now, "offboard loss", action))
+        if action == "TERMINATION":
+            self._set_mode("TERMINATION", "failsafe: offboard loss")
+            self._disarm("termination")
+        elif action == "DISARM":
+            self._set_mode("AUTO.LOITER", "failsafe: offboard loss")
+            self._disarm("failsafe")
         else:
-            self._set_mode(action, "offboard loss")
+            self._set_mode(action, "failsafe: offboard loss")
 
     def _auto_disarm(self) -> None:
         if not self.armed or self.landed_state != ON_GROUND or self._landed_since is None:
@@ -321,6 +433,25 @@ class Commander:
                 self._disarm("auto landed")
 
     def _target(self) -> Target | None:
+        t = self._mode_target()
+        if t is None or self._ramp_from is None:
+            return t
+        ramp = self._climb_limit(self.now - self._ramp_from)
+        if ramp >= float(self.params["MPC_Z_VEL_MAX_UP"]):
+            self._ramp_from = None
+        t.max_up = ramp if t.max_up is None else min(t.max_up, ramp)
+        return t
+
+    def _climb_limit(self, since_arming: float) -> float:
+        """PX4's spool-up then takeoff ramp, as a climb-rate limit (m/s)."""
+        up = float(self.params["MPC_Z_VEL_MAX_UP"])
+        ramp_t = float(self.params["MPC_TKO_RAMP_T"])
+        t = since_arming - float(self.params["COM_SPOOLUP_TIME"]) - TAKEOFF_RAMP_DEAD_S
+        if t <= 0:
+            return 0.0
+        return up if ramp_t <= 0 else min(up, up * t / ramp_t)
+
+    def _mode_target(self) -> Target | None:
         v = self.vehicle
         mode = self.mode
         if mode in HOLDING_MODES:

@@ -2,7 +2,8 @@
 
 Defaults checked against PX4-Autopilot (commander_params.yaml, mc_pos_control params):
 COM_OF_LOSS_T 1.0 s, COM_OBL_RC_ACT 0 (Position mode), COM_DISARM_PRFLT 10 s,
-COM_DISARM_LAND 2 s, COM_FAIL_ACT_T 5 s, MIS_TAKEOFF_ALT 2.5 m.
+COM_DISARM_LAND 2 s, COM_FAIL_ACT_T 5 s, MIS_TAKEOFF_ALT 2.5 m, COM_SPOOLUP_TIME 1 s,
+MPC_TKO_RAMP_T 3 s.
 """
 from __future__ import annotations
 
@@ -29,6 +30,8 @@ PX4_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("COM_DISARM_LAND", 2.0, REAL32, "auto-disarm after landing (s), <=0 off"),
     ParamSpec("COM_FAIL_ACT_T", 5.0, REAL32, "hold before RTL/land failsafe actions (s)"),
     ParamSpec("MIS_TAKEOFF_ALT", 2.5, REAL32, "default takeoff altitude (m)"),
+    ParamSpec("COM_SPOOLUP_TIME", 1.0, REAL32, "motor spool-up time after arming (s)"),
+    ParamSpec("MPC_TKO_RAMP_T", 3.0, REAL32, "takeoff climb-rate ramp time (s)"),
     ParamSpec("MPC_XY_VEL_MAX", 12.0, REAL32, "max horizontal speed (m/s)"),
     ParamSpec("MPC_XY_CRUISE", 5.0, REAL32, "horizontal speed in auto modes (m/s)"),
     ParamSpec("MPC_Z_VEL_MAX_UP", 3.0, REAL32, "max climb rate (m/s)"),

@@ -15,7 +15,7 @@ from typing import Any, Callable
 
 from ..modes import encode_custom_mode
 from ..wire import Encoder, Parser, float_bits_to_int, int_to_float_bits, mavlink2
-from .commander import Commander, ReceivedSetpoint, ON_GROUND, ACCEPTED, FAILED
+from .commander import ACCEPTED, FAILED, ON_GROUND, Commander, ReceivedSetpoint, int_param
 from .params import INT32, ParamStore
 from .physics import PointMassQuad
 
@@ -33,6 +33,18 @@ DEFAULT_RATES_HZ: dict[str, float] = {
     "GPS_RAW_INT": 5.0,
 }
 MAX_RATE_HZ = 400.0  # the loop cannot honour more; PX4 also caps by link bandwidth
+# PX4 sends a stream only when its uORB source has a new sample, at the first sample after
+# the interval: a stream is delivered at source_rate / ceil(source_rate / asked). SITL's
+# sensor_combined arrives at ~247 Hz, so 200 Hz asked gives ~123 Hz (trace: 123.5 Hz).
+SOURCE_RATES_HZ: dict[str, float] = {"HIGHRES_IMU": 247.0, "ATTITUDE": 247.0}
+
+# SYS_STATUS bitmasks PX4 SITL (SIH) reports once its estimator is up (trace, 3.9 s on):
+# gyro, accel, mag, baro, GPS, XY position control, RC receiver (enabled, not present),
+# logging, battery; health adds attitude stabilisation, motor outputs, AHRS.
+SENSORS_PRESENT = 0x0300402F
+SENSORS_ENABLED = 0x0301402F
+SENSORS_HEALTH = 0x0320C83F
+PREARM_CHECK = 0x10000000   # MAV_SYS_STATUS_PREARM_CHECK: healthy = the vehicle can arm
 
 MAV_MODE_FLAG_SAFETY_ARMED = 128
 MAV_MODE_FLAG_MANUAL_INPUT_ENABLED = 64
@@ -66,9 +78,9 @@ class StreamTable:
     def __init__(self, rates: dict[str, float] | None = None) -> None:
         self.defaults = dict(DEFAULT_RATES_HZ)
         self.rates: dict[str, float] = dict(self.defaults)
+        self._next: dict[str, float] = {}
         for name, hz in (rates or {}).items():
             self.set_rate(name, hz)
-        self._next: dict[str, float] = {}
 
     def set_rate(self, name: str, hz: float) -> None:
         name = name.upper()
@@ -92,9 +104,18 @@ class StreamTable:
         self.set_rate(name, hz)
         return True
 
+    def delivered_hz(self, name: str) -> float:
+        """The rate PX4 actually sends ``name`` at, given its source's sample rate."""
+        hz = self.rates.get(name.upper(), 0.0)
+        source = SOURCE_RATES_HZ.get(name.upper())
+        if hz <= 0 or source is None or hz >= source:
+            return min(hz, source) if source is not None else hz
+        return source / math.ceil(source / hz - 1e-9)
+
     def due(self, now: float) -> list[str]:
         out = []
-        for name, hz in self.rates.items():
+        for name in self.rates:
+            hz = self.delivered_hz(name)
             if hz <= 0:
                 continue
             nxt = self._next.get(name)
@@ -205,6 +226,9 @@ class SimProtocol:
         elif t == "PARAM_SET":
             if self._for_us(m.target_system, m.target_component):
                 self._on_param_set(m)
+        elif t == "COMMAND_ACK":
+            if m.target_system in (0, self.sysid):
+                self.commander.on_command_ack(m.command)
         elif t == "TIMESYNC" and m.tc1 == 0:
             self.send(self.enc.timesync_encode(int(time.monotonic() * 1e9), m.ts1))
 
@@ -224,13 +248,22 @@ class SimProtocol:
                                                     m.get_srcSystem()))
 
     def _on_command(self, m: Any, now: float) -> None:
+        try:
+            self._run_command(m, now)
+        except Exception as e:  # PX4 always answers; a request we cannot parse is FAILED
+            self._on_log(f"command {m.command} failed: {e!r}")
+            self._ack(m, m.command, FAILED)
+            self.stats.commands.append((now, m.command, FAILED))
+
+    def _run_command(self, m: Any, now: float) -> None:
         p = [m.param1, m.param2, m.param3, m.param4, m.param5, m.param6, m.param7]
         cmd = m.command
         if cmd == mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL:
-            ok = self.streams.set_interval(int(round(p[0])), p[1])
-            result, text = (ACCEPTED, None) if ok else (FAILED, f"stream {int(p[0])} not available")
+            wanted_id = int_param(p[0], -1)
+            ok = math.isfinite(p[1]) and self.streams.set_interval(wanted_id, p[1])
+            result, text = (ACCEPTED, None) if ok else (FAILED, f"stream {wanted_id} not available")
         elif cmd in (mavlink2.MAV_CMD_REQUEST_MESSAGE, mavlink2.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES):
-            wanted = 148 if cmd == mavlink2.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES else int(round(p[0]))
+            wanted = 148 if cmd == mavlink2.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES else int_param(p[0], -1)
             msg = self.build(wanted, now)
             result, text = (ACCEPTED, None) if msg is not None else (FAILED, None)
             if msg is not None:
@@ -245,6 +278,9 @@ class SimProtocol:
             sev = mavlink2.MAV_SEVERITY_INFO if result == ACCEPTED else mavlink2.MAV_SEVERITY_CRITICAL
             self.statustext(sev, text)
         self._ack(m, cmd, result)
+        if cmd == mavlink2.MAV_CMD_DO_SET_MODE:
+            # Commander and the mode manager both answer DO_SET_MODE: two ACKs, 0-9 ms apart.
+            self._ack(m, cmd, result)
         self.stats.commands.append((now, cmd, result))
 
     def _ack(self, m: Any, cmd: int, result: int) -> None:
@@ -287,6 +323,12 @@ class SimProtocol:
         self.send(self.enc.heartbeat_encode(mavlink2.MAV_TYPE_QUADROTOR, mavlink2.MAV_AUTOPILOT_PX4,
                                             base_mode_for(c.mode, c.armed),
                                             encode_custom_mode(c.mode), status))
+
+    def send_commands(self) -> None:
+        """COMMAND_LONGs PX4 itself originates (gimbal manager on LAND)."""
+        for c in self.commander.take_outgoing():
+            self.send(self.enc.command_long_encode(self.sysid, c.target_component, c.command,
+                                                   c.confirmation, *c.params))
 
     def send_streams(self, now: float) -> None:
         for name in self.streams.due(now):
@@ -352,8 +394,12 @@ class SimProtocol:
 
     def _build_sys_status(self, now: float) -> Any:
         volts, amps, remaining = self._battery(now)
-        sensors = 0x0020002F  # gyro, accel, mag, baro, GPS, AHRS: present, enabled, healthy
-        return self.enc.sys_status_encode(sensors, sensors, sensors, 150, int(volts * 1000),
+        # Real PX4 sets PREARM_CHECK only in health; MAVSDK and QGC-alikes read it from
+        # present/enabled first, so it is set in all three while the vehicle can arm.
+        prearm = PREARM_CHECK if self.commander.armable() else 0
+        present, enabled = SENSORS_PRESENT | PREARM_CHECK, SENSORS_ENABLED | PREARM_CHECK
+        return self.enc.sys_status_encode(present, enabled, SENSORS_HEALTH | prearm, 150,
+                                          int(volts * 1000),
                                           int(amps * 100), remaining, 0, 0, 0, 0, 0, 0)
 
     def _build_extended_sys_state(self, now: float) -> Any:

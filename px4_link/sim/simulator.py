@@ -15,7 +15,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .commander import Commander, ModeChange, ReceivedSetpoint, ON_GROUND
+from .commander import ON_GROUND, Commander, FailsafeEvent, ModeChange, ReceivedSetpoint
 from .params import ParamStore
 from .physics import PointMassQuad
 from .protocol import SimProtocol, StreamTable
@@ -123,6 +123,7 @@ class Simulator:
                     if now >= next_hb:
                         proto.heartbeat()
                         next_hb = now + 1.0
+                    proto.send_commands()
                     proto.send_streams(now)
                 except Exception:
                     log.exception("simulator loop error")
@@ -181,6 +182,28 @@ class Simulator:
         return self.commander.last_setpoint
 
     @property
+    def failsafe_log(self) -> list[FailsafeEvent]:
+        """Every failsafe PX4's own logic triggered (cause, action)."""
+        with self._lock:
+            return list(self.commander.failsafe_log)
+
+    @property
+    def landed_at(self) -> float | None:
+        """Monotonic time of the last disarm on the ground (None while flying / never)."""
+        return self.commander.landed_at
+
+    @property
+    def setpoints_since_landed(self) -> int:
+        """Setpoints received while disarmed after landing (a companion still streaming)."""
+        return self.commander.setpoints_since_landed
+
+    @property
+    def system_status(self) -> int:
+        """HEARTBEAT system_status: 5 (CRITICAL) while a failsafe is active."""
+        c = self.commander
+        return 8 if c.mode == "TERMINATION" else 5 if c.failsafe else 4 if c.armed else 3
+
+    @property
     def mode_log(self) -> list[ModeChange]:
         with self._lock:
             return list(self.commander.mode_log)
@@ -193,7 +216,13 @@ class Simulator:
 
     @property
     def message_rates(self) -> dict[str, float]:
+        """Rates requested (or default), Hz."""
         return dict(self.streams.rates)
+
+    @property
+    def delivered_rates(self) -> dict[str, float]:
+        """Rates actually sent, Hz (sensor-sample quantised, as PX4 does)."""
+        return {n: self.streams.delivered_hz(n) for n in self.streams.rates}
 
     @property
     def messages_sent(self) -> dict[str, int]:
