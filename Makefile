@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 DURATION ?= 60
 ARGS ?=
 
-.PHONY: install sysdeps demo test bench experiment clean
+.PHONY: install sysdeps demo test lint bench experiment clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -25,7 +25,12 @@ sysdeps:
 demo: install
 	$(BIN)/zenoh-robot demo --duration $(DURATION) $(ARGS)
 
-test: install sysdeps
+# ruff over the whole tree; mypy strict on the library layer (configured in pyproject.toml).
+lint: install
+	$(BIN)/python -m ruff check zenoh_robot px4_link companion gcs tests examples
+	$(BIN)/python -m mypy
+
+test: install sysdeps lint
 	$(BIN)/python -m pytest $(ARGS)
 
 bench: install

@@ -4,27 +4,36 @@ Run `python examples/talker.py` beside it, then stop or kill the talker: the dea
 liveliness events say so. `zenoh-robot stats` in a third terminal shows this node's
 statistics for the stream.
 """
+from __future__ import annotations
+
 import argparse
 
+from common import add_config_arguments, config_from_args
+
 from zenoh_robot import Node, SubscriptionEventCallbacks, TopicStatisticsOptions, qos
-from zenoh_robot.msgs import Setpoint
 
-parser = argparse.ArgumentParser(description=__doc__)
-parser.add_argument("--ns", default="demo")
-parser.add_argument("--deadline", type=float, default=1.0,
-                    help="seconds without a setpoint before an event (>= the talker's offered 0.5, or incompatible)")
-args = parser.parse_args()
 
-events = SubscriptionEventCallbacks(
-    deadline=lambda s: print(f"deadline missed: {s.total_count} in all (+{s.total_count_change})"),
-    liveliness=lambda s: print(f"publishers alive: {s.alive_count}, not alive: {s.not_alive_count}"),
-    incompatible_qos=lambda s: print(f"a publisher was refused: {s.reason}"),
-    message_lost=lambda s: print(f"lost {s.total_count_change} setpoints ({s.total_count} in all)"),
-    matched=lambda s: print(f"matched publishers: {s.current_count}"),
-)
+def main(conf: object, ns: str, deadline: float) -> None:
+    from zenoh_robot.msgs import Setpoint
 
-with Node("watchdog", namespace=args.ns) as node:
-    requested = qos.SETPOINT.replace(depth=10, deadline=args.deadline, liveliness_lease_duration=2.0)
-    node.create_subscription(Setpoint, "setpoint", lambda msg: None, requested,
-                             event_callbacks=events, topic_statistics=TopicStatisticsOptions(window=1.0))
-    node.spin()
+    events = SubscriptionEventCallbacks(
+        deadline=lambda s: print(f"deadline missed: {s.total_count} in all (+{s.total_count_change})"),
+        liveliness=lambda s: print(f"publishers alive: {s.alive_count}, not alive: {s.not_alive_count}"),
+        incompatible_qos=lambda s: print(f"a publisher was refused: {s.reason}"),
+        message_lost=lambda s: print(f"lost {s.total_count_change} setpoints ({s.total_count} in all)"),
+        matched=lambda s: print(f"matched publishers: {s.current_count}"),
+    )
+    with Node("watchdog", namespace=ns, config=conf) as node:  # type: ignore[arg-type]
+        requested = qos.SETPOINT.replace(depth=10, deadline=deadline, liveliness_lease_duration=2.0)
+        node.create_subscription(Setpoint, "setpoint", lambda msg: None, requested,
+                                 event_callbacks=events, topic_statistics=TopicStatisticsOptions(window=1.0))
+        node.spin()
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(prog="watchdog", description=__doc__)
+    add_config_arguments(parser)
+    parser.add_argument("--deadline", type=float, default=1.0,
+                        help="seconds without a setpoint before an event (>= the talker's offered 0.5, or incompatible)")
+    args = parser.parse_args()
+    main(config_from_args(args), args.ns, args.deadline)

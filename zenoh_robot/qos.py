@@ -69,7 +69,7 @@ class Priority(_Policy):
     BACKGROUND = 7
 
 
-# rclpy-style short aliases, as DESIGN.md's API shows them.
+# rclpy-style short aliases, as the public API in docs/architecture.md uses them.
 Reliability = ReliabilityPolicy
 Durability = DurabilityPolicy
 History = HistoryPolicy

@@ -1,4 +1,4 @@
-"""How a QoSProfile becomes Zenoh publisher options (DESIGN.md's table)."""
+"""How a QoSProfile becomes Zenoh publisher options (the table in docs/architecture.md)."""
 from __future__ import annotations
 
 from typing import Any

@@ -1,6 +1,6 @@
 """Zenoh session configuration: our defaults, validated endpoints, JSON5 files.
 
-Defaults follow DESIGN.md's verified Zenoh 1.10 facts: ``max_links`` 2 so a peer can
+Defaults follow the verified Zenoh 1.10 facts in docs/architecture.md: ``max_links`` 2 so a peer can
 hold a TCP link (reliable samples) *and* a UDP link (best-effort samples); shared
 memory only when every endpoint is loopback, because across hosts or namespaces it
 would silently bypass the network under test.
