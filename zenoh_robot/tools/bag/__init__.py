@@ -1,0 +1,1 @@
+"""Flight logs in MCAP: record, inspect and replay zenoh-robot topics (``zenoh-robot bag``)."""

@@ -1,0 +1,144 @@
+"""Replay a flight log onto the network (``zenoh-robot bag play``).
+
+The raw channels hold each sample's wire bytes, so replay puts exactly those bytes on
+the topic's key, with the original spacing (scaled by ``rate``), from a Zenoh publisher
+declared with the QoS the original publisher announced, and announces each original
+publisher in the graph (same type, hash, QoS and publisher id): typed subscriptions
+match and decode as if the flight were live. ``restamp`` rewrites the source stamp to
+now (for consumers that check age or lifespan); sequence numbers are kept.
+"""
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from zenoh_robot._wire import envelope
+from zenoh_robot.graph import PUBLISHER, decode_qos, endpoint_token_key
+from zenoh_robot.qos import SYSTEM_DEFAULT, QoSProfile
+from zenoh_robot.qos_mapping import declare_publisher
+
+from . import schemas
+from .info import Record, iter_records
+
+if TYPE_CHECKING:
+    from zenoh_robot.node import Node
+
+log = logging.getLogger("zenoh_robot.bag")
+MAX_PUBLISHERS = 1024
+
+
+@dataclass
+class PlayCounters:
+    published: int = 0
+    skipped: int = 0            # not a raw channel we can replay, or filtered out
+    malformed: int = 0
+    loops: int = 0
+    per_topic: dict[str, int] = field(default_factory=dict)
+
+
+class BagPlayer:
+    def __init__(self, node: "Node", path: str | Path, topics: list[str] | None = None, *, rate: float = 1.0,
+                 loop: bool = False, restamp: bool = False) -> None:
+        if not rate > 0:
+            raise ValueError(f"rate must be > 0, got {rate}")
+        self.node = node
+        self.path = Path(path)
+        self.topics = {"/" + t.strip("/") for t in topics} if topics else None
+        self.rate = rate
+        self.loop = loop
+        self.restamp = restamp
+        self.counters = PlayCounters()
+        self._pubs: dict[tuple[str, str], Any] = {}
+        self._tokens: dict[tuple[str, int], Any] = {}
+        self._stop = threading.Event()
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def _publisher(self, rec: Record) -> tuple[Any, QoSProfile, str] | None:
+        meta = rec.channel.metadata
+        topic, type_name = meta.get("zr.topic", ""), meta.get("zr.type", "")
+        if not topic.startswith("/") or not type_name:
+            return None
+        key = (topic, type_name)
+        entry = self._pubs.get(key)
+        if entry is None:
+            if len(self._pubs) >= MAX_PUBLISHERS:
+                return None
+            try:
+                qos = decode_qos(meta["zr.qos"]) if "zr.qos" in meta else SYSTEM_DEFAULT
+            except (ValueError, KeyError):
+                qos = SYSTEM_DEFAULT
+            entry = self._pubs[key] = (declare_publisher(self.node.session, topic[1:], qos), qos, meta.get("zr.hash", ""))
+        return entry   # type: ignore[no-any-return]
+
+    def _announce(self, topic: str, type_name: str, type_hash: str, qos: QoSProfile, publisher_id: int) -> None:
+        tkey = (topic, publisher_id)
+        if tkey in self._tokens or len(self._tokens) >= MAX_PUBLISHERS:
+            return
+        n = self.node
+        self._tokens[tkey] = n.session.liveliness().declare_token(endpoint_token_key(
+            PUBLISHER, n.zid, publisher_id, n.namespace, n.name, topic[1:], type_name, type_hash, qos))
+
+    def play(self, duration: float | None = None) -> PlayCounters:
+        """Publish until the file ends (or forever with ``loop``); returns the counters."""
+        end = None if duration is None else time.monotonic() + duration
+        while not self._stop.is_set():
+            self._play_once(end)
+            if not self.loop or self._stop.is_set() or (end is not None and time.monotonic() >= end):
+                break
+            self.counters.loops += 1
+        return self.counters
+
+    def _play_once(self, end: float | None) -> None:
+        t0_wall: float | None = None
+        t0_log = 0
+        for rec in iter_records(self.path):
+            if self._stop.is_set() or (end is not None and time.monotonic() >= end):
+                return
+            if not isinstance(rec, Record) or rec.channel.message_encoding != schemas.RAW_ENCODING:
+                continue
+            topic = rec.channel.metadata.get("zr.topic", "")
+            if self.topics is not None and topic not in self.topics:
+                self.counters.skipped += 1
+                continue
+            entry = self._publisher(rec)
+            if entry is None:
+                self.counters.skipped += 1
+                continue
+            zpub, qos, type_hash = entry
+            data = rec.message.data
+            try:
+                env = envelope.unpack(data)
+            except envelope.MalformedSample:
+                self.counters.malformed += 1
+                continue
+            self._announce(topic, env.type_name, env.type_hash or type_hash, qos, env.publisher_id)
+            if t0_wall is None:
+                t0_wall, t0_log = time.monotonic(), rec.message.log_time
+                # Give subscriptions a moment to see the graph announcement before the first sample.
+                time.sleep(0.2)
+                t0_wall += 0.2
+            due = t0_wall + (rec.message.log_time - t0_log) / 1e9 / self.rate
+            wait = due - time.monotonic()
+            if wait > 0 and self._stop.wait(wait):
+                return
+            if self.restamp:
+                data = envelope.pack(env.type_name, env.type_hash, env.publisher_id, env.seq, time.time_ns(),
+                                     env.body, env.extra)
+            zpub.put(data)
+            self.counters.published += 1
+            self.counters.per_topic[topic] = self.counters.per_topic.get(topic, 0) + 1
+
+    def close(self) -> None:
+        for handle in [*self._tokens.values(), *(p for p, _, _ in self._pubs.values())]:
+            try:
+                handle.undeclare()
+            except Exception:
+                pass
+        self._tokens.clear()
+        self._pubs.clear()

@@ -1,0 +1,173 @@
+"""Record zenoh-robot topics into an MCAP flight log that Foxglove / Lichtblick open as they are.
+
+Per topic (and message type) the file holds:
+
+- ``<topic>``: every sample as JSON, schema = JSON schema of the message fields
+  (``raw_fields`` when the type is not known here), deduplicated like a subscription;
+- ``/_zr/raw<topic>``: the wire bytes exactly as they arrived (encoding
+  ``x-zenoh-robot-envelope``), with the type, hash and publisher QoS in the channel
+  metadata, so ``bag play`` republishes them bit-exact;
+- foxglove.* views (``<topic>/fix``, ``<topic>/pose``, ``/tf``, ``<topic>/image``), see schemas.py.
+
+``log_time`` is when the sample reached the recorder, ``publish_time`` its source stamp.
+Zenoh's thread only appends bytes to a bounded queue (overflow is dropped and counted);
+one writer thread decodes and writes. Chunks are closed at least every ``flush_period``
+so a recorder killed mid-flight loses at most that much: the file still reads up to its
+last chunk (see ``info.iter_records``).
+"""
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from mcap.writer import CompressionType, Writer
+
+from zenoh_robot._wire import envelope
+from zenoh_robot._wire.redundancy import Deduplicator
+from zenoh_robot.graph import EndpointType, encode_qos
+
+from . import schemas
+from .tap import MAX_QUEUE_BYTES, Tap
+
+if TYPE_CHECKING:
+    from zenoh_robot.node import Node
+
+log = logging.getLogger("zenoh_robot.bag")
+
+PROFILE = "zenoh-robot"
+MAX_CHANNELS = 4096
+MAX_DEDUP_TOPICS = 4096
+SUMMARY_NAME = "zenoh_robot.recording"
+
+
+@dataclass
+class RecorderCounters:
+    written: int = 0             # JSON messages written (after deduplication)
+    raw_written: int = 0
+    views_written: int = 0
+    malformed: int = 0           # bytes that are no envelope
+    duplicates: int = 0          # repeated or redundant copies (kept in the raw channel only)
+    channels_refused: int = 0    # beyond MAX_CHANNELS
+    per_topic: dict[str, int] = field(default_factory=dict)
+
+
+class BagRecorder(Tap):
+    """``with BagRecorder(node, "flight.mcap", topics=None): node.spin(...)`` (None: every topic)."""
+
+    def __init__(self, node: "Node", path: str | Path, topics: list[str] | None = None, *,
+                 views: bool = True, raw: bool = True, chunk_size: int = 1 << 20, flush_period: float = 1.0,
+                 max_queue_bytes: int = MAX_QUEUE_BYTES, compression: str = "zstd") -> None:
+        super().__init__(node, topics, max_queue_bytes=max_queue_bytes, name="bag-writer")
+        self.path = Path(path)
+        self.views = views
+        self.raw = raw
+        self.tick_period = flush_period
+        self.counters = RecorderCounters()
+        self._dedup: dict[str, Deduplicator] = {}
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[tuple[str, str, str], int] = {}
+        self._view_maker = schemas.ViewMaker()
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._file = open(self.path, "wb")
+        self._writer = Writer(self._file, chunk_size=chunk_size,
+                              compression=CompressionType.ZSTD if compression == "zstd" else CompressionType.NONE)
+        self._writer.start(profile=PROFILE, library="zenoh-robot bag")
+        self.first_log_ns: int | None = None
+        self.last_log_ns: int | None = None
+
+    def __enter__(self) -> "BagRecorder":
+        self.start()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def tick(self) -> None:
+        self._writer.flush()      # close the chunk: a recorder killed mid-flight loses at most this period
+
+    def finish(self) -> None:
+        """Summary metadata, index and footer (on the worker thread, after the last sample)."""
+        c = self.counters
+        summary = {k: str(v) for k, v in vars(c).items() if k != "per_topic"}
+        summary.update({k: str(v) for k, v in vars(self.tap_counters).items()})
+        summary["topics"] = json.dumps(c.per_topic)
+        self._writer.add_metadata(SUMMARY_NAME, summary)
+        self._writer.finish()
+        self._file.close()
+
+    def _schema_id(self, name: str, encoding: str, data: bytes) -> int:
+        sid = self._schemas.get(name)
+        if sid is None:
+            sid = self._schemas[name] = self._writer.register_schema(name, encoding, data)
+        return sid
+
+    def _channel(self, topic: str, kind: str, type_name: str, make: Any) -> int | None:
+        key = (topic, kind, type_name)
+        cid = self._channels.get(key)
+        if cid is None:
+            if len(self._channels) >= MAX_CHANNELS:
+                self.counters.channels_refused += 1
+                return None
+            cid = self._channels[key] = make()
+        return cid
+
+    def handle(self, topic: str, data: bytes, received_ns: int) -> None:
+        try:
+            env = envelope.unpack(data)
+        except envelope.MalformedSample:
+            self.counters.malformed += 1
+            return
+        self.first_log_ns = received_ns if self.first_log_ns is None else self.first_log_ns
+        self.last_log_ns = received_ns
+        if self.raw:
+            cid = self._channel(topic, "raw", env.type_name, lambda: self._raw_channel(topic, env))
+            if cid is not None:
+                self._writer.add_message(cid, received_ns, data, env.stamp_ns, env.seq & 0xFFFFFFFF)
+                self.counters.raw_written += 1
+        cls = schemas.local_type(env.type_name, env.type_hash)
+        cid = self._channel(topic, "json", env.type_name, lambda: self._json_channel(topic, env, cls))
+        dedup = self._dedup.get(topic)
+        if dedup is None and len(self._dedup) < MAX_DEDUP_TOPICS:
+            dedup = self._dedup[topic] = Deduplicator()
+        fresh = dedup.fresh(env.publisher_id, env.seq, env.stamp_ns, env.body, env.extra) if dedup else \
+            [(env.seq, env.stamp_ns, env.body)]
+        if not fresh:
+            self.counters.duplicates += 1
+        for seq, stamp, body in fresh:
+            decoded = schemas.decode_body(cls, body)
+            if cid is not None:
+                self._writer.add_message(cid, received_ns, schemas.encode_json(decoded.data), stamp,
+                                         seq & 0xFFFFFFFF)
+                self.counters.written += 1
+                self.counters.per_topic[topic] = self.counters.per_topic.get(topic, 0) + 1
+            if self.views:
+                for view in self._view_maker.views(topic, env.type_name, decoded, stamp):
+                    self._write_view(view, received_ns, stamp)
+
+    def _write_view(self, view: schemas.View, received_ns: int, stamp_ns: int) -> None:
+        schema = view.message.get_schema()
+        name = schema.name
+        cid = self._channel(view.topic, "view", name, lambda: self._writer.register_channel(
+            view.topic, "protobuf", self._schema_id(name, schema.encoding, bytes(schema.data))))
+        if cid is not None:
+            self._writer.add_message(cid, received_ns, bytes(view.message.encode()), stamp_ns)
+            self.counters.views_written += 1
+
+    def _json_channel(self, topic: str, env: envelope.Envelope, cls: Any) -> int:
+        schema = schemas.object_schema(cls) if cls is not None else schemas.RAW_FIELDS_SCHEMA
+        name = env.type_name if cls is not None else f"{env.type_name}#raw"
+        sid = self._schema_id(name, schemas.JSON_SCHEMA, json.dumps(schema).encode())
+        return self._writer.register_channel(topic, "json", sid, {"zr.type": env.type_name,
+                                                                  "zr.hash": env.type_hash})
+
+    def _raw_channel(self, topic: str, env: envelope.Envelope) -> int:
+        pubs = [p for p in self.node.graph.endpoints(topic[1:], EndpointType.PUBLISHER)
+                if p.topic_type == env.type_name]
+        meta = {"zr.topic": topic, "zr.type": env.type_name, "zr.hash": env.type_hash}
+        if pubs:
+            meta["zr.qos"] = encode_qos(pubs[0].qos_profile)
+        return self._writer.register_channel(schemas.raw_topic(topic), schemas.RAW_ENCODING, 0, meta)

@@ -1,0 +1,194 @@
+"""Listen to topics as raw wire bytes, found through the graph as they appear (recorder and bridge).
+
+Zenoh's thread only appends ``(topic, bytes, receive time)`` to a bounded queue
+(overflow is dropped and counted, never blocks the network); one worker thread
+subscribes to newly announced topics and hands each sample to ``handle``. No decoding
+happens here, so any type, known or not, is carried.
+"""
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from zenoh_robot.graph import EndpointType, TopicEndpointInfo
+from zenoh_robot.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from zenoh_robot.qos_mapping import declare_subscriber
+
+if TYPE_CHECKING:
+    from zenoh_robot.node import Node
+
+log = logging.getLogger("zenoh_robot.bag")
+
+MAX_TOPICS = 512                 # a peer inventing topics cannot grow a tap without limit
+MAX_QUEUE_BYTES = 64 << 20       # samples waiting for the worker thread
+
+
+@dataclass
+class TapCounters:
+    received: int = 0            # samples off the wire
+    dropped: int = 0             # queue full: the worker (disk, CPU, clients) could not keep up
+    handle_errors: int = 0       # samples the worker failed on (counted, never fatal)
+    topics_refused: int = 0      # beyond MAX_TOPICS
+
+
+def reader_qos(publishers: list[TopicEndpointInfo]) -> QoSProfile:
+    """A request every publisher serves (as ``ros2 bag`` does): best effort, transient local only
+    when all of them keep samples, deep enough for bursts of image slices."""
+    keeps = bool(publishers) and all(p.qos_profile.durability is DurabilityPolicy.TRANSIENT_LOCAL
+                                     for p in publishers)
+    return QoSProfile(ReliabilityPolicy.BEST_EFFORT,
+                      DurabilityPolicy.TRANSIENT_LOCAL if keeps else DurabilityPolicy.VOLATILE,
+                      HistoryPolicy.KEEP_LAST, 1000)
+
+
+def normalize_topic(topic: str) -> str:
+    return "/" + topic.strip("/")
+
+
+class Tap:
+    """Base: ``start()``, then ``handle(topic, data, received_ns)`` on the worker; ``tick()`` every
+    ``tick_period`` s there too; ``close()`` drains the queue and calls ``finish()`` on the worker."""
+
+    tick_period = 1.0
+
+    def __init__(self, node: "Node", topics: list[str] | None = None, *,
+                 max_queue_bytes: int = MAX_QUEUE_BYTES, name: str = "tap") -> None:
+        self.node = node
+        self.all_topics = topics is None
+        self.wanted = {normalize_topic(t) for t in topics or []}
+        self.max_queue_bytes = max_queue_bytes
+        self.tap_counters = TapCounters()
+        self.subscribed: dict[str, Any] = {}
+        self._queue: deque[tuple[str, bytes, int]] = deque()
+        self._queue_bytes = 0
+        self._pending_topics: deque[str] = deque()
+        self._announced: set[str] = set()
+        self._cond = threading.Condition()
+        self._stop = False
+        self._closed = False
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+
+    # -- lifetime -------------------------------------------------------------------------
+    def start(self) -> "Tap":
+        self.node.graph.listeners.append(self._on_graph)
+        self._thread.start()
+        self.node.refresh_graph(1.0)
+        for info in self.node.graph.endpoints(kind=EndpointType.PUBLISHER):
+            self._on_graph(True, info)
+        return self
+
+    def close(self) -> None:
+        """Stop listening, handle what is queued, then ``finish()``; idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self.node.graph.listeners.remove(self._on_graph)
+        except ValueError:
+            pass
+        for sub in list(self.subscribed.values()):
+            try:
+                sub.undeclare()
+            except Exception:
+                pass
+        with self._cond:
+            self._stop = True
+            self._cond.notify_all()
+        if self._thread.is_alive():
+            self._thread.join()
+        else:
+            self._drain()
+            self.finish()
+
+    # -- hooks ----------------------------------------------------------------------------
+    def handle(self, topic: str, data: bytes, received_ns: int) -> None:
+        raise NotImplementedError
+
+    def tick(self) -> None:
+        pass
+
+    def finish(self) -> None:
+        pass
+
+    # -- discovery (Zenoh's thread: hand on only) ------------------------------------------
+    def _on_graph(self, appeared: bool, info: TopicEndpointInfo) -> None:
+        if not appeared or info.endpoint_type is not EndpointType.PUBLISHER:
+            return
+        topic = info.topic_name
+        if topic.startswith("/_zr") or (not self.all_topics and topic not in self.wanted):
+            return
+        with self._cond:
+            if topic in self._announced:
+                return
+            if len(self._announced) >= MAX_TOPICS:
+                self.tap_counters.topics_refused += 1
+                return
+            self._announced.add(topic)
+            self._pending_topics.append(topic)
+            self._cond.notify()
+
+    def _subscribe(self, topic: str) -> None:
+        key = topic[1:]
+        pubs = self.node.graph.endpoints(key, EndpointType.PUBLISHER)
+        self.subscribed[topic] = declare_subscriber(self.node.session, key, reader_qos(pubs),
+                                                    lambda sample, t=topic: self._on_sample(t, sample))
+        log.info("listening to %s", topic)
+
+    def _on_sample(self, topic: str, sample: Any) -> None:
+        data = sample.payload.to_bytes()
+        now = time.time_ns()
+        with self._cond:
+            self.tap_counters.received += 1
+            if self._queue_bytes + len(data) > self.max_queue_bytes:
+                self.tap_counters.dropped += 1
+                return
+            self._queue.append((topic, data, now))
+            self._queue_bytes += len(data)
+            self._cond.notify()
+
+    # -- worker thread --------------------------------------------------------------------
+    def _run(self) -> None:
+        next_tick = time.monotonic() + self.tick_period
+        while True:
+            with self._cond:
+                if not self._queue and not self._pending_topics and not self._stop:
+                    self._cond.wait(max(0.0, next_tick - time.monotonic()))
+                stop = self._stop
+            self._drain()
+            if time.monotonic() >= next_tick:
+                self._safe(self.tick)
+                next_tick = time.monotonic() + self.tick_period
+            if stop:
+                self._drain()
+                self._safe(self.finish)
+                return
+
+    def _safe(self, fn: Any, *args: Any) -> None:
+        try:
+            fn(*args)
+        except Exception:   # one bad sample or a full disk must not kill the worker silently
+            self.tap_counters.handle_errors += 1
+            n = self.tap_counters.handle_errors
+            if n & (n - 1):     # logged at 1, 2, 4, 8...: a stream of failures cannot flood the log
+                return
+            log.warning("%s failed (%d errors so far)", getattr(fn, "__name__", fn), self.tap_counters.handle_errors,
+                        exc_info=self.tap_counters.handle_errors == 1)
+
+    def _drain(self) -> None:
+        while True:
+            with self._cond:
+                topics = list(self._pending_topics)
+                self._pending_topics.clear()
+                item = self._queue.popleft() if self._queue else None
+                if item is not None:
+                    self._queue_bytes -= len(item[1])
+            for topic in topics:
+                if not self._stop:
+                    self._safe(self._subscribe, topic)
+            if item is None:
+                return
+            self._safe(self.handle, *item)

@@ -1,0 +1,125 @@
+"""``zenoh-robot bag record|info|play``: flight logs in MCAP (ros2 bag's shape; needs the ``logs`` extra)."""
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+import time
+
+from .main import CliError
+from .common import add_config_arg, cli_node, quiet_exit
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("bag", help="record, inspect and replay flight logs (MCAP, opens in Foxglove)")
+    add_config_arg(p)
+    ops = p.add_subparsers(dest="op", metavar="OP", required=True)
+
+    r = ops.add_parser("record", help="record topics to an MCAP file")
+    add_config_arg(r)
+    r.add_argument("topics", nargs="*", metavar="TOPIC", help="topics to record (absolute names)")
+    r.add_argument("-a", "--all", action="store_true", help="every topic, including ones that appear later")
+    r.add_argument("-o", "--output", required=True, help="the .mcap file to write")
+    r.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    r.add_argument("--no-views", action="store_true", help="no foxglove.* views (poses, fixes, images)")
+    r.add_argument("--no-raw", action="store_true", help="no raw wire bytes (the file cannot be replayed)")
+    r.set_defaults(func=_record)
+
+    i = ops.add_parser("info", help="topics, types, counts and rates of a recording")
+    i.add_argument("file")
+    i.add_argument("--raw", action="store_true", help="also list the raw wire channels")
+    i.add_argument("--json", action="store_true", help="print JSON")
+    i.set_defaults(func=_info)
+
+    pl = ops.add_parser("play", help="republish a recording with its timing, types and QoS")
+    add_config_arg(pl)
+    pl.add_argument("file")
+    pl.add_argument("topics", nargs="*", metavar="TOPIC", help="only these topics")
+    pl.add_argument("--rate", type=float, default=1.0, help="speed factor (2 = twice as fast)")
+    pl.add_argument("--loop", action="store_true", help="start again at the end")
+    pl.add_argument("--restamp", action="store_true",
+                    help="source stamps = now (for consumers checking age/lifespan); default: bit-exact")
+    pl.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    pl.set_defaults(func=_play)
+
+
+def _need_logs_extra() -> None:
+    try:
+        import mcap  # noqa: F401
+    except ImportError:
+        raise CliError("needs the mcap package: pip install 'zenoh-robot[logs]'") from None
+
+
+def _stop_on_sigterm(stop: threading.Event) -> None:
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, lambda *_: stop.set())
+
+
+@quiet_exit
+def _record(args: argparse.Namespace) -> int:
+    _need_logs_extra()
+    from zenoh_robot.tools.bag.record import BagRecorder
+
+    if not args.all and not args.topics:
+        raise CliError("name topics to record, or -a for all")
+    if args.duration is not None and not args.duration > 0:
+        raise CliError(f"--duration must be > 0 seconds, got {args.duration:g}")
+    stop = threading.Event()
+    _stop_on_sigterm(stop)
+    with cli_node("bag", args) as node:
+        rec = BagRecorder(node, args.output, None if args.all else args.topics, views=not args.no_views,
+                          raw=not args.no_raw)
+        try:
+            rec.start()
+            print(f"recording to {args.output} (Ctrl-C to stop)", file=sys.stderr, flush=True)
+            end = None if args.duration is None else time.monotonic() + args.duration
+            while not stop.is_set():
+                left = 0.5 if end is None else min(0.5, end - time.monotonic())
+                if left <= 0:
+                    break
+                stop.wait(left)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            rec.close()
+    c = rec.counters
+    print(f"wrote {args.output}: {c.written} messages on {len(c.per_topic)} topics "
+          f"({c.raw_written} raw, {c.views_written} views, {c.dropped} dropped, {c.malformed} malformed)",
+          file=sys.stderr, flush=True)
+    return 0
+
+
+def _info(args: argparse.Namespace) -> int:
+    _need_logs_extra()
+    from zenoh_robot.tools.bag.info import dumps, format_info, read_info
+
+    try:
+        info = read_info(args.file)
+    except OSError as exc:
+        raise CliError(str(exc)) from None
+    print(dumps(info) if args.json else format_info(info, show_raw=args.raw))
+    return 0
+
+
+@quiet_exit
+def _play(args: argparse.Namespace) -> int:
+    _need_logs_extra()
+    from zenoh_robot.tools.bag.play import BagPlayer
+
+    if not args.rate > 0:
+        raise CliError(f"--rate must be > 0, got {args.rate:g}")
+    with cli_node("bag_play", args) as node:
+        player = BagPlayer(node, args.file, args.topics or None, rate=args.rate, loop=args.loop,
+                           restamp=args.restamp)
+        stop = threading.Event()
+        _stop_on_sigterm(stop)
+        threading.Thread(target=lambda: (stop.wait(), player.stop()), daemon=True).start()
+        try:
+            c = player.play(args.duration)
+        except OSError as exc:
+            raise CliError(str(exc)) from None
+        finally:
+            player.close()
+    print(f"published {c.published} samples on {len(c.per_topic)} topics ({c.loops} loops)", file=sys.stderr)
+    return 0

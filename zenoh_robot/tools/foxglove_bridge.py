@@ -1,0 +1,124 @@
+"""A live view of every topic in Foxglove / Lichtblick: the Foxglove WebSocket protocol, served by foxglove-sdk.
+
+``zenoh-robot foxglove --port 8765``, then open ``ws://127.0.0.1:8765`` in Foxglove
+("Open connection" -> Foxglove WebSocket). Every topic found through the graph is
+advertised as it appears: as JSON with a JSON schema from its message fields (plots,
+raw messages), plus the foxglove.* views of tools/bag/schemas.py (map fix, 3D pose and
+``/tf`` of each vehicle, setpoint poses, camera frames as CompressedImage/RawImage).
+The same mapping writes the MCAP flight logs, so a recording looks like the live view.
+
+The server binds 127.0.0.1 unless told otherwise: a bridge exposes every topic, so
+reaching it from another machine is a decision (``--host``), not a default.
+"""
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from zenoh_robot._wire import envelope
+from zenoh_robot._wire.redundancy import Deduplicator
+
+from .bag import schemas
+from .bag.tap import MAX_QUEUE_BYTES, Tap
+
+if TYPE_CHECKING:
+    from zenoh_robot.node import Node
+
+log = logging.getLogger("zenoh_robot.foxglove")
+MAX_CHANNELS = 4096
+MAX_DEDUP_TOPICS = 4096
+
+
+@dataclass
+class BridgeCounters:
+    forwarded: int = 0           # JSON messages logged
+    views: int = 0               # foxglove.* messages logged
+    malformed: int = 0
+    channels_refused: int = 0
+
+
+class FoxgloveBridge(Tap):
+    """``FoxgloveBridge(node, port=8765).start()``; ``close()`` stops the server too."""
+
+    def __init__(self, node: "Node", topics: list[str] | None = None, *, host: str = "127.0.0.1",
+                 port: int = 8765, max_queue_bytes: int = MAX_QUEUE_BYTES) -> None:
+        super().__init__(node, topics, max_queue_bytes=max_queue_bytes, name="foxglove-bridge")
+        import foxglove
+
+        self._foxglove = foxglove
+        # Its own context: channels made here reach this server only, not other foxglove sinks.
+        self.context = foxglove.Context()
+        self.server = foxglove.start_server(name="zenoh-robot", host=host, port=port, context=self.context)
+        self.host, self.port = host, self.server.port
+        self.counters = BridgeCounters()
+        self._channels: dict[tuple[str, str], Any] = {}
+        self._dedup: dict[str, Deduplicator] = {}
+        self._view_maker = schemas.ViewMaker()
+
+    @property
+    def url(self) -> str:
+        return f"ws://{self.host}:{self.port}"
+
+    def app_url(self) -> str:
+        """Foxglove's web app opening this bridge directly."""
+        return f"https://app.foxglove.dev/~/view?ds=foxglove-websocket&ds.url={self.url}"
+
+    def finish(self) -> None:
+        for ch in self._channels.values():
+            try:
+                ch.close()
+            except Exception:
+                pass
+        self.server.stop()
+
+    def _channel(self, topic: str, schema_name: str, make: Any) -> Any | None:
+        key = (topic, schema_name)
+        ch = self._channels.get(key)
+        if ch is None:
+            if len(self._channels) >= MAX_CHANNELS:
+                self.counters.channels_refused += 1
+                return None
+            ch = self._channels[key] = make()
+        return ch
+
+    def handle(self, topic: str, data: bytes, received_ns: int) -> None:
+        try:
+            env = envelope.unpack(data)
+        except envelope.MalformedSample:
+            self.counters.malformed += 1
+            return
+        cls = schemas.local_type(env.type_name, env.type_hash)
+        fx = self._foxglove
+
+        def json_channel() -> Any:
+            schema = schemas.object_schema(cls) if cls is not None else schemas.RAW_FIELDS_SCHEMA
+            name = env.type_name if cls is not None else f"{env.type_name}#raw"
+            return fx.Channel(topic, schema=fx.Schema(name=name, encoding=schemas.JSON_SCHEMA,
+                                                      data=json.dumps(schema).encode()),
+                              message_encoding="json", context=self.context,
+                              metadata={"zr.type": env.type_name, "zr.hash": env.type_hash})
+
+        ch = self._channel(topic, env.type_name, json_channel)
+        dedup = self._dedup.get(topic)
+        if dedup is None and len(self._dedup) < MAX_DEDUP_TOPICS:
+            dedup = self._dedup[topic] = Deduplicator()
+        fresh = dedup.fresh(env.publisher_id, env.seq, env.stamp_ns, env.body, env.extra) if dedup else \
+            [(env.seq, env.stamp_ns, env.body)]
+        for _seq, stamp, body in fresh:
+            decoded = schemas.decode_body(cls, body)
+            if ch is not None:
+                ch.log(schemas.encode_json(decoded.data), log_time=received_ns)
+                self.counters.forwarded += 1
+            for view in self._view_maker.views(topic, env.type_name, decoded, stamp):
+                self._log_view(view, received_ns)
+
+    def _log_view(self, view: schemas.View, received_ns: int) -> None:
+        schema = view.message.get_schema()
+        fx = self._foxglove
+        ch = self._channel(view.topic, schema.name, lambda: fx.Channel(
+            view.topic, schema=schema, message_encoding="protobuf", context=self.context))
+        if ch is not None:
+            ch.log(bytes(view.message.encode()), log_time=received_ns)
+            self.counters.views += 1
