@@ -4,11 +4,23 @@ Defaults follow the verified Zenoh 1.10 facts in docs/architecture.md: ``max_lin
 hold a TCP link (reliable samples) *and* a UDP link (best-effort samples); shared
 memory only when every endpoint is loopback, because across hosts or namespaces it
 would silently bypass the network under test.
+
+Two options keep systems apart (docs/security.md):
+- ``domain`` (or env ``ZR_DOMAIN``), like ROS_DOMAIN_ID: domain N > 0 sets Zenoh's session
+  ``namespace`` to ``zr<N>``, so every key this session uses (topics, ``@srv`` services, ``@zr``
+  graph tokens) is prefixed on the wire, in one place, and systems in other domains neither see
+  nor reach it. Domain 0 keeps the historic keys.
+- ``secure`` (a keys directory made by ``zenoh-robot keys``) with ``name``: TLS/QUIC only, mutual
+  authentication against the directory's CA, this node's certificate, and an access-control
+  list generated from the directory's ``roles.yaml`` (:mod:`zenoh_robot._acl`), deny by default.
 """
 from __future__ import annotations
 
+import argparse
+import dataclasses
 import ipaddress
 import json
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,8 +28,12 @@ from typing import Any
 
 import zenoh
 
+from zenoh_robot import _acl
+
 MODES = ("peer", "client", "router")
 PROTOCOLS = ("tcp", "udp", "quic", "tls", "ws", "unixsock-stream", "serial", "unixpipe", "vsock")
+SECURE_PROTOCOLS = ("tls", "quic")
+MAX_DOMAIN = 232            # ROS_DOMAIN_ID's range: one number means the same thing to both worlds
 _ENDPOINT = re.compile(r"^(?P<proto>[a-z-]+)/(?P<addr>[^?#]+)(?:\?(?P<meta>[^#]*))?(?:#(?P<cfg>.*))?$")
 
 
@@ -72,8 +88,15 @@ class SessionConfig:
     accept_timeout_s: float = 2.0
     extra: dict[str, Any] = field(default_factory=dict)   # raw zenoh keys -> JSON values
     source: str | None = None              # JSON5 file this was loaded from, if any
+    domain: int | None = None              # None: env ZR_DOMAIN, else 0
+    secure: str | None = None              # keys directory: TLS + mTLS + ACL (see the module doc)
+    name: str | None = None                # this node's certificate name in ``secure``
+    verify_name: bool = True               # check the dialled host against the peer's certificate SAN
 
     def __post_init__(self) -> None:
+        self.domain = resolve_domain(self.domain)
+        if self.secure is not None:
+            self._init_secure()
         if self.mode not in MODES:
             raise SessionConfigError(f"mode {self.mode!r}: choose one of {', '.join(MODES)}")
         if isinstance(self.listen, str) or isinstance(self.connect, str):
@@ -84,6 +107,32 @@ class SessionConfig:
             raise SessionConfigError("max_links must be >= 1")
         if self.batch_size is not None and not 64 <= self.batch_size <= 65535:
             raise SessionConfigError(f"batch_size {self.batch_size}: must be 64..65535 bytes")
+
+    def _init_secure(self) -> None:
+        keys = Path(self.secure or "")
+        if not self.name:
+            raise SessionConfigError("secure session needs the node's certificate name (name=...)")
+        for f in ("ca.pem", f"{self.name}.pem", f"{self.name}.key"):
+            if not (keys / f).is_file():
+                raise SessionConfigError(f"secure: {keys / f} missing (zenoh-robot keys init/issue {self.name})")
+        if self.listen == ["tcp/0.0.0.0:0", "udp/0.0.0.0:0"]:    # the plain default, never meant here
+            self.listen = ["tls/0.0.0.0:0"]
+        plain = [e for e in self.listen + self.connect if e.split("/", 1)[0] not in SECURE_PROTOCOLS]
+        if plain:
+            raise SessionConfigError(f"secure session: {plain} not tls/ or quic/ (plain links are refused)")
+        try:
+            nodes = _acl.load_roles(keys)
+        except (_acl.KeysError, OSError) as exc:
+            raise SessionConfigError(f"secure: {exc}") from None
+        if self.name not in nodes:
+            raise SessionConfigError(f"secure: {self.name!r} has no role in {keys / 'roles.yaml'}")
+        # Shared memory would hand payloads to any local process, certificate or not.
+        self.shared_memory = False
+
+    @classmethod
+    def secured(cls, keys_dir: str | Path, name: str, **kw: Any) -> SessionConfig:
+        """A secure session as node ``name`` with the keys in ``keys_dir`` (``SessionConfig(secure=...)``)."""
+        return cls(secure=str(keys_dir), name=name, **kw)
 
     @classmethod
     def localhost(cls, **kw: Any) -> "SessionConfig":
@@ -159,8 +208,26 @@ class SessionConfig:
             values["transport/link/tx/lease"] = int(self.lease_s * 1000)
         if self.keep_alive is not None:
             values["transport/link/tx/keep_alive"] = self.keep_alive
+        if self.domain:
+            values["namespace"] = f"zr{self.domain}"
+        if self.secure is not None:
+            values.update(self._secure_values())
         values.update(self.extra)
         return values
+
+    def _secure_values(self) -> dict[str, Any]:
+        keys = Path(self.secure or "").resolve()
+        cert, key = str(keys / f"{self.name}.pem"), str(keys / f"{self.name}.key")
+        tls = "transport/link/tls/"
+        return {
+            "transport/link/protocols": list(SECURE_PROTOCOLS),
+            tls + "root_ca_certificate": str(keys / "ca.pem"),
+            tls + "listen_certificate": cert, tls + "listen_private_key": key,
+            tls + "connect_certificate": cert, tls + "connect_private_key": key,
+            tls + "enable_mtls": True,
+            tls + "verify_name_on_connect": self.verify_name,
+            "access_control": _acl.acl_config(_acl.load_roles(keys), self.domain or 0),
+        }
 
     @classmethod
     def from_file(cls, path: str | Path) -> "SessionConfig":
@@ -198,6 +265,64 @@ class SessionConfig:
             max_links=int(get("transport/unicast/max_links", 2)) if "max_links" in text else 2,
             source=str(path),
         )
+
+
+def add_session_arguments(parser: argparse.ArgumentParser) -> None:
+    """The flags that put an application on a secure and/or separate network (``--secure``, ``--domain``)."""
+    group = parser.add_argument_group("secure and isolated sessions (docs/security.md)")
+    group.add_argument("--secure", metavar="DIR", default=None,
+                       help="keys directory from `zenoh-robot keys`: TLS/QUIC only, mutual auth, ACL by role")
+    group.add_argument("--cert-name", metavar="NAME", default=None,
+                       help="this node's certificate in --secure DIR (default: the node's id)")
+    group.add_argument("--domain", metavar="N", default=None,
+                       help=f"domain id 0..{MAX_DOMAIN} (env ZR_DOMAIN): systems in other domains never meet")
+    group.add_argument("--connect", dest="session_connect", action="append", default=[], metavar="ENDPOINT",
+                       help="also connect to ENDPOINT (e.g. tls/10.0.0.1:7447, a router); repeatable")
+
+
+def apply_session_arguments(config: SessionConfig, args: argparse.Namespace, name: str) -> SessionConfig:
+    """``config`` with the flags of :func:`add_session_arguments` applied; ``name`` is the default cert name.
+
+    Under ``--secure`` a profile's plain endpoints become their secure twins (tcp -> tls, unicast
+    udp -> quic); a UDP multicast endpoint has no secure twin and is dropped (docs/security.md).
+    """
+    changes: dict[str, Any] = {"domain": resolve_domain(getattr(args, "domain", None))}
+    connect = list(config.connect) + list(getattr(args, "session_connect", None) or [])
+    listen = list(config.listen)
+    secure = getattr(args, "secure", None)
+    if secure:
+        listen = [e for e in (_secure_twin(x) for x in listen) if e] or ["tls/0.0.0.0:0"]
+        connect = [e for e in (_secure_twin(x) for x in connect) if e]
+        changes.update(secure=secure, name=getattr(args, "cert_name", None) or name, shared_memory=False)
+    changes.update(listen=listen, connect=connect)
+    return dataclasses.replace(config, **changes)
+
+
+def _secure_twin(endpoint: str) -> str | None:
+    proto, _, rest = endpoint.partition("/")
+    if proto in SECURE_PROTOCOLS:
+        return endpoint
+    host = rest.split("#", 1)[0].rpartition(":")[0].strip("[]")
+    if proto == "udp":
+        try:
+            if ipaddress.ip_address(host).is_multicast:
+                return None
+        except ValueError:
+            pass
+        return "quic/" + rest.split("#", 1)[0]
+    return "tls/" + rest if proto == "tcp" else None
+
+
+def resolve_domain(domain: int | str | None) -> int:
+    """``domain`` or env ``ZR_DOMAIN`` or 0, checked: 0..232."""
+    raw: Any = os.environ.get("ZR_DOMAIN", "0") if domain is None else domain
+    try:
+        value = int(str(raw).strip() or "0")
+    except ValueError:
+        raise SessionConfigError(f"domain {raw!r}: an integer 0..{MAX_DOMAIN} (ZR_DOMAIN)") from None
+    if not 0 <= value <= MAX_DOMAIN:
+        raise SessionConfigError(f"domain {value}: must be 0..{MAX_DOMAIN}")
+    return value
 
 
 def open_session(config: SessionConfig | str | Path | None = None) -> zenoh.Session:

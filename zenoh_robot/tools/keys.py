@@ -1,0 +1,172 @@
+"""A small certificate authority for a zenoh-robot system, and the access rules it implies.
+
+``init`` makes a CA in a keys directory; ``issue`` makes a node's key and certificate, signed
+by that CA, with CN = node name (Zenoh's ACL matches subjects by ``cert_common_names``) and
+OU = role; ``roles.yaml`` in the same directory records who is what (and which drones a GCS
+controls), because an ACL is generated from it (:func:`acl_config`) when a session opens.
+Private keys are written 0600 and never leave the directory.
+
+Layout of DIR::
+
+    ca.pem ca.key            the CA (ca.key signs; keep it off the vehicles)
+    <name>.pem <name>.key    a node's certificate and key
+    roles.yaml               {nodes: {<name>: {role: gcs|drone|router, drones: [...]}}}
+
+Needs the ``secure`` extra (``cryptography``); importing this module without it raises an
+ImportError that says so.
+"""
+from __future__ import annotations
+
+import datetime as dt
+import ipaddress
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from zenoh_robot._acl import (  # noqa: F401 - acl_config, domain_prefix re-exported for the CLI
+    ROLES,
+    KeysError,
+    NodeEntry,
+    _check_name,
+    acl_config,
+    domain_prefix,
+    load_roles,
+    save_roles,
+)
+
+try:
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+except ImportError as exc:   # pragma: no cover - depends on the install
+    raise ImportError("zenoh-robot keys needs the 'secure' extra: pip install 'zenoh-robot[secure]'") from exc
+
+CA_DAYS = 5 * 365           # the CA outlives a fleet's certificates; rotating it means re-issuing all
+NODE_DAYS = 365             # a year: a lost vehicle's certificate stops working on its own
+
+
+def _write_private(path: Path, data: bytes) -> None:
+    # Created 0600 from the start: a chmod after writing leaves a window where others can read it.
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "wb") as f:
+        f.write(data)
+    os.chmod(path, 0o600)
+
+
+def _key_pem(key: ec.EllipticCurvePrivateKey) -> bytes:
+    return key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
+                             serialization.NoEncryption())
+
+
+def _now() -> dt.datetime:
+    return dt.datetime.now(dt.UTC)
+
+
+def init_ca(keys_dir: str | Path, name: str = "zenoh-robot CA", days: int = CA_DAYS, force: bool = False) -> Path:
+    """Create the CA in ``keys_dir``; refuses to overwrite one unless ``force``."""
+    d = Path(keys_dir)
+    d.mkdir(parents=True, exist_ok=True)
+    os.chmod(d, 0o700)
+    if (d / "ca.pem").exists() and not force:
+        raise KeysError(f"{d}/ca.pem exists: a new CA would orphan every issued certificate (use --force)")
+    key = ec.generate_private_key(ec.SECP256R1())
+    subject = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, name),
+                         x509.NameAttribute(NameOID.ORGANIZATION_NAME, "zenoh-robot")])
+    now = _now()
+    cert = (x509.CertificateBuilder().subject_name(subject).issuer_name(subject)
+            .public_key(key.public_key()).serial_number(x509.random_serial_number())
+            .not_valid_before(now - dt.timedelta(minutes=5)).not_valid_after(now + dt.timedelta(days=days))
+            .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
+            .add_extension(x509.KeyUsage(digital_signature=True, key_cert_sign=True, crl_sign=True,
+                                         content_commitment=False, key_encipherment=False, data_encipherment=False,
+                                         key_agreement=False, encipher_only=False, decipher_only=False), critical=True)
+            .add_extension(x509.SubjectKeyIdentifier.from_public_key(key.public_key()), critical=False)
+            .sign(key, hashes.SHA256()))
+    _write_private(d / "ca.key", _key_pem(key))
+    (d / "ca.pem").write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+    if not (d / "roles.yaml").exists():
+        save_roles(d, {})
+    return d / "ca.pem"
+
+
+def _load_ca(d: Path) -> tuple[x509.Certificate, Any]:
+    if not (d / "ca.pem").is_file() or not (d / "ca.key").is_file():
+        raise KeysError(f"no CA in {d}: run `zenoh-robot keys init {d}` first")
+    cert = x509.load_pem_x509_certificate((d / "ca.pem").read_bytes())
+    key = serialization.load_pem_private_key((d / "ca.key").read_bytes(), password=None)
+    return cert, key
+
+
+def issue(keys_dir: str | Path, name: str, role: str, drones: list[str] | None = None,
+          sans: list[str] | None = None, days: int = NODE_DAYS) -> Path:
+    """Issue ``name``'s key and certificate (CN=name, OU=role) and record its role; returns the cert path.
+
+    SANs: the node name, ``localhost`` and ``127.0.0.1`` always, plus ``sans`` (the host names or
+    addresses others dial to reach it, needed where names are verified on connect).
+    """
+    d = Path(keys_dir)
+    _check_name(name)
+    if role not in ROLES:
+        raise KeysError(f"role {role!r}: choose one of {', '.join(ROLES)}")
+    drones = [_check_name(x, "drone name") for x in (drones or [])]
+    if drones and role != "gcs":
+        raise KeysError("--drones is for a gcs: the drones it may command")
+    ca_cert, ca_key = _load_ca(d)
+    key = ec.generate_private_key(ec.SECP256R1())
+    alt: list[x509.GeneralName] = [x509.DNSName(name), x509.DNSName("localhost"),
+                                   x509.IPAddress(ipaddress.ip_address("127.0.0.1"))]
+    for san in sans or []:
+        try:
+            alt.append(x509.IPAddress(ipaddress.ip_address(san)))
+        except ValueError:
+            alt.append(x509.DNSName(san))
+    now = _now()
+    cert = (x509.CertificateBuilder()
+            .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, name),
+                                     x509.NameAttribute(NameOID.ORGANIZATIONAL_UNIT_NAME, role),
+                                     x509.NameAttribute(NameOID.ORGANIZATION_NAME, "zenoh-robot")]))
+            .issuer_name(ca_cert.subject).public_key(key.public_key()).serial_number(x509.random_serial_number())
+            .not_valid_before(now - dt.timedelta(minutes=5))
+            .not_valid_after(min(now + dt.timedelta(days=days), ca_cert.not_valid_after_utc))
+            .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
+            .add_extension(x509.SubjectAlternativeName(alt), critical=False)
+            # Every node both listens (server) and dials (client): peers, and routers linking routers.
+            .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]),
+                           critical=False)
+            .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(ca_key.public_key()), critical=False)
+            .sign(ca_key, hashes.SHA256()))
+    _write_private(d / f"{name}.key", _key_pem(key))
+    (d / f"{name}.pem").write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+    nodes = load_roles(d)
+    nodes[name] = NodeEntry(name, role, drones)
+    save_roles(d, nodes)
+    return d / f"{name}.pem"
+
+
+@dataclass
+class CertInfo:
+    name: str
+    role: str
+    not_after: dt.datetime
+    issuer: str
+    key_mode: int | None
+
+
+def list_certs(keys_dir: str | Path) -> list[CertInfo]:
+    d = Path(keys_dir)
+    out = []
+    for pem in sorted(d.glob("*.pem")):
+        if pem.name == "ca.pem":
+            continue
+        cert = x509.load_pem_x509_certificate(pem.read_bytes())
+        cn = cert.subject.get_attributes_for_oid(NameOID.COMMON_NAME)
+        ou = cert.subject.get_attributes_for_oid(NameOID.ORGANIZATIONAL_UNIT_NAME)
+        key = pem.with_suffix(".key")
+        out.append(CertInfo(str(cn[0].value) if cn else pem.stem, str(ou[0].value) if ou else "?",
+                            cert.not_valid_after_utc, cert.issuer.rfc4514_string(),
+                            key.stat().st_mode & 0o777 if key.exists() else None))
+    return out
+
+
