@@ -45,8 +45,13 @@ def test_publishers_are_independent_and_a_restart_is_accepted() -> None:
     dedup = Deduplicator()
     assert [s for s, _, _ in dedup.fresh(1, 5000, 0, "a", {})] == [5000]
     assert [s for s, _, _ in dedup.fresh(2, 1, 0, "b", {})] == [1]
-    assert dedup.fresh(1, 4999, 0, "a", {}) == []          # late duplicate
+    # Late but never delivered: delivered now (dropping it is what would let a forged high
+    # seq silence a stream); its repeat is a duplicate.
+    assert [s for s, _, _ in dedup.fresh(1, 4999, 0, "a", {})] == [4999]
+    assert dedup.fresh(1, 4999, 0, "a", {}) == []
+    assert dedup.fresh(1, 5000, 0, "a", {}) == []
     assert [s for s, _, _ in dedup.fresh(1, 1, 0, "a", {})] == [1]   # publisher restarted from 1
+    assert dedup.fresh(1, 1, 0, "a", {}) == []
 
 
 def test_garbage_history_is_ignored() -> None:
@@ -54,3 +59,48 @@ def test_garbage_history_is_ignored() -> None:
     dedup.fresh(1, 1, 0, "a", {})
     out = dedup.fresh(1, 3, 0, "c", {"r": [["x"], [2, "notint", "b"], 7, None]})
     assert [s for s, _, _ in out] == [3]
+
+
+def _real_stream(dedup: Deduplicator, seqs, pub: int = 9):
+    return [s for seq in seqs for s, _, _ in dedup.fresh(pub, seq, seq, f"real{seq}", {})]
+
+
+def test_a_forged_seq_ahead_costs_the_real_stream_at_most_the_seq_it_took() -> None:
+    # Defect 2: one sample with the real publisher's id and seq + 999 used to drop the next 999.
+    dedup = Deduplicator()
+    assert _real_stream(dedup, range(1, 11)) == list(range(1, 11))
+    for forged in (10 + 999, 10 + 5, 10 + 10**9, 2**64 - 1):
+        assert [s for s, _, _ in dedup.fresh(9, forged, 0, "forged", {})] == [forged]
+    got = _real_stream(dedup, range(11, 2011))
+    assert got == [s for s in range(11, 2011) if s not in (15, 1009)]   # only the two seqs it took
+
+
+def test_flooding_new_epochs_never_silences_the_real_stream() -> None:
+    rng = random.Random(3)
+    dedup = Deduplicator()
+    delivered = []
+    for seq in range(1, 3001):
+        for _ in range(rng.randrange(0, 12)):          # spoofed samples: random far seqs, same id
+            dedup.fresh(9, rng.randrange(10**6, 2**64), 0, "forged", {})
+        delivered += _real_stream(dedup, [seq])
+        if rng.random() < 0.5:                         # a repeated copy of the real packet
+            delivered += _real_stream(dedup, [seq])
+    assert delivered == list(range(1, 3001))             # every real sample, once, in order
+    assert len(dedup) == 1 and len(dedup._pubs[9]) <= 4  # bounded epochs
+
+
+def test_history_is_capped_and_deduplicated() -> None:
+    dedup = Deduplicator()
+    dedup.fresh(1, 1, 0, "a", {})
+    huge = {"r": [[s, 0, "h"] for s in range(2, 1002)]}
+    assert [s for s, _, _ in dedup.fresh(1, 1002, 0, "x", huge)] == [1002]    # over 64 entries: ignored
+    assert dedup.history_rejected == 1
+    twice = {"r": [[1003, 0, "h"], [1003, 0, "h"], [1004, 0, "h"]]}
+    assert [s for s, _, _ in dedup.fresh(1, 1005, 0, "x", twice)] == [1003, 1004, 1005]
+
+
+def test_publisher_table_is_bounded() -> None:
+    dedup = Deduplicator()
+    for pub in range(30_000):
+        dedup.fresh(pub, 1, 0, "x", {})
+    assert len(dedup) == Deduplicator.MAX_PUBLISHERS

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Callable
 
 from .msgs import StatisticsEntry, TopicStatistics
+from .node import register_subscription_hook
 from .qos import QoSProfile, ReliabilityPolicy
 
 if TYPE_CHECKING:
@@ -104,18 +105,30 @@ def _has_header(msg_type: type) -> bool:
     return any(s.name == "header" and s.is_message and s.array is None for s in msg_type._fields_spec)
 
 
+_MAX_STAMP_NS = 1 << 63      # beyond int64 ns (year 2262) a stamp is garbage, not a time
+
+
 def _header_stamp_ns(msg: Any) -> int:
     """The header's stamp in ns, 0 if absent; also takes a ROS ``Time`` (sec, nanosec)
-    so types loaded from .msg files with builtin_interfaces/Time work."""
-    stamp = getattr(getattr(msg, "header", None), "stamp", 0)
-    if isinstance(stamp, int):
-        return stamp
-    if isinstance(stamp, float):
-        return int(stamp)
-    sec = getattr(stamp, "sec", None)
-    if sec is not None:
-        return int(sec) * 1_000_000_000 + int(getattr(stamp, "nanosec", 0))
-    return 0
+    so types loaded from .msg files with builtin_interfaces/Time work.
+
+    Whatever a peer put there, this returns an int and never raises: a NaN, an infinity,
+    a negative or absurdly large stamp, or a stamp of the wrong type is "no stamp" (0).
+    """
+    try:
+        stamp = getattr(getattr(msg, "header", None), "stamp", 0)
+        if type(stamp) is float:
+            if not math.isfinite(stamp):
+                return 0
+            stamp = int(stamp)
+        elif type(stamp) is not int:
+            sec, nanosec = getattr(stamp, "sec", None), getattr(stamp, "nanosec", 0)
+            if type(sec) is not int or type(nanosec) is not int:
+                return 0
+            stamp = sec * 1_000_000_000 + nanosec
+        return stamp if 0 < stamp < _MAX_STAMP_NS else 0
+    except Exception:   # a hostile object's attributes: no stamp, never a dead subscription
+        return 0
 
 
 def default_statistics_key(namespace: str, sub_key: str) -> str:
@@ -169,6 +182,8 @@ class TopicStatisticsCollector:
     def _on_sample(self, msg: Any, info: "MessageInfo") -> None:
         received = info.received_stamp_ns
         stamp = _header_stamp_ns(msg) if self._use_header else info.source_stamp_ns
+        if not 0 < stamp < _MAX_STAMP_NS:
+            stamp = 0
         with self._lock:
             if stamp:
                 self._age.add((received - stamp) / 1e6)
@@ -249,5 +264,11 @@ def attach(node: "Node", sub: "Subscription[Any]",
                         f"got {options!r}")
     return TopicStatisticsCollector(node, sub, options)
 
+
+def _on_new_subscription(node: "Node", sub: "Subscription[Any]", setting: Any) -> None:
+    sub.statistics = attach(node, sub, None if setting is True else setting)
+
+
+register_subscription_hook(_on_new_subscription)
 
 __all__ = ["TopicStatisticsOptions", "TopicStatisticsCollector", "attach", "default_statistics_key"]

@@ -53,15 +53,25 @@ def pack(type_name: str, type_hash: str, publisher_id: int, seq: int, stamp_ns: 
                          default=_default, use_bin_type=True)
 
 
+MAX_NAME_LEN = 256      # type names and hashes: bounded, they end up in logs
+_U64 = 1 << 64
+
+
 def unpack(data: bytes | memoryview) -> Envelope:
+    """The envelope of ``data``; MalformedSample for anything else (never another exception)."""
     try:
         obj = msgpack.unpackb(data, raw=False, strict_map_key=False)
     except Exception as exc:  # msgpack raises several unrelated types on garbage
-        raise MalformedSample(f"not msgpack: {exc}") from None
+        raise MalformedSample(f"not msgpack: {type(exc).__name__}") from None
     if type(obj) is not list or len(obj) != 8 or obj[0] != MAGIC:
         raise MalformedSample("not a zenoh-robot envelope")
     _, type_name, type_hash, pub_id, seq, stamp, body, extra = obj
-    if not (isinstance(type_name, str) and isinstance(type_hash, str) and isinstance(pub_id, int)
-            and isinstance(seq, int) and isinstance(stamp, int) and isinstance(extra, dict)):
+    # type() is, not isinstance: True is an int to isinstance, and a bool is no sequence number.
+    if not (type(type_name) is str and type(type_hash) is str and type(pub_id) is int
+            and type(seq) is int and type(stamp) is int and type(extra) is dict):
         raise MalformedSample("envelope header has wrong field types")
+    if len(type_name) > MAX_NAME_LEN or len(type_hash) > MAX_NAME_LEN:
+        raise MalformedSample("envelope type name or hash too long")
+    if not (0 <= pub_id < _U64 and 0 <= seq < _U64):
+        raise MalformedSample("envelope publisher id or sequence number out of range")
     return Envelope(type_name, type_hash, pub_id, seq, stamp, body, extra)

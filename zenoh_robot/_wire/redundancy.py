@@ -4,22 +4,58 @@ On a best-effort link a lost packet is gone; if the next packet carries the lost
 sample too, the subscriber recovers it with no round trip and no waiting (unlike
 reliable retransmission, whose queue makes everything behind a loss old). The
 subscriber delivers in sequence order and drops what it has already delivered.
+
+Deduplication that a forged sample cannot turn against the real publisher
+--------------------------------------------------------------------------
+Every sample shows its publisher id and sequence number, so anyone on the network can
+send a sample that claims to be the real publisher's seq + 999. A deduplicator that only
+remembers "the highest seq delivered" then drops the next 999 real samples as
+duplicates: one forged packet silences a stream. Zenoh does not tell us who really sent
+a sample (in zenoh-python 1.10 ``sample.source_info`` is None unless the *sender* sets
+it, so it proves nothing; ``sample.timestamp``'s id likewise comes from the sender's
+session), so the defence is in the protocol state instead:
+
+* A sample is a duplicate only if its exact seq was delivered before. Each publisher id
+  keeps *epochs*: an epoch remembers the highest seq it has seen (``top``) and, as a bit
+  set, which of the :data:`WINDOW` seqs below ``top`` were delivered. A seq below ``top``
+  that was never delivered is delivered late (out of order) instead of being dropped:
+  dropping it is exactly what lets a forged high seq silence the stream.
+* A seq more than :data:`AHEAD` above every epoch's ``top``, or below every epoch's
+  window, opens a new epoch (a restart of the publisher, or a forgery); it never moves
+  an existing epoch. A publisher keeps at most :data:`EPOCHS` epochs, least recently used
+  forgotten first, so the real stream's epoch, used by every real sample, stays.
+* So a forged sample costs the real stream at most the one sample whose seq it took, and
+  a real sample is never dropped unless a sample with its exact seq came first. (Whoever
+  can send every next seq before the publisher can impersonate it fully: that needs
+  authentication, which is the transport's job, not the deduplicator's.) Forcing
+  evictions (more than EPOCHS new epochs between two real samples) makes the next
+  real sample start a new epoch, which delivers it: the worst case is a repeated copy
+  delivered twice, never a silenced stream.
+* Every table is bounded: :data:`MAX_PUBLISHERS` publisher ids (least recently seen
+  forgotten), EPOCHS epochs each, a WINDOW-bit set per epoch, and a carried history is
+  used only if it holds at most :data:`MAX_HISTORY` entries (what a publisher can send).
 """
 from __future__ import annotations
 
-from collections import deque
+from collections import OrderedDict, deque
 from typing import Any
 
 HISTORY_KEY = "r"   # envelope.extra key: [[seq, stamp_ns, body], ...], oldest first
 REPEAT_KEY = "n"    # envelope.extra key: how many delayed copies of this packet follow
+MAX_HISTORY = 64    # the protocol's cap on both (QoSProfile.redundancy / repeat are 0..64)
+
+WINDOW = 1024       # seqs below an epoch's top whose delivery is remembered
+AHEAD = 1024        # a seq at most this far above an epoch's top continues that epoch
+EPOCHS = 4          # epochs remembered per publisher id
+_MASK = (1 << WINDOW) - 1
 
 
 class RedundantHistory:
     """Publisher side: the last ``k`` (seq, stamp, body) sent, to attach to the next sample."""
 
     def __init__(self, k: int) -> None:
-        if k < 1:
-            raise ValueError("redundancy needs k >= 1")
+        if not 1 <= k <= MAX_HISTORY:
+            raise ValueError(f"redundancy needs 1 <= k <= {MAX_HISTORY}")
         self._past: deque[list[Any]] = deque(maxlen=k)
 
     def extra(self) -> dict[str, Any] | None:
@@ -29,42 +65,97 @@ class RedundantHistory:
         self._past.append([seq, stamp_ns, body])
 
 
+def check_extra(extra: dict[str, Any]) -> str | None:
+    """Why a received envelope's redundancy fields break the protocol, or None if they do not."""
+    history = extra.get(HISTORY_KEY)
+    if history is not None and (type(history) is not list or len(history) > MAX_HISTORY):
+        return f"redundancy history is not a list of at most {MAX_HISTORY} entries"
+    repeats = extra.get(REPEAT_KEY)
+    if repeats is not None and not (type(repeats) is int and 0 <= repeats <= MAX_HISTORY):
+        return f"repeat count is not an integer 0..{MAX_HISTORY}"
+    return None
+
+
+class _Epoch:
+    __slots__ = ("top", "seen")
+
+    def __init__(self, seq: int) -> None:
+        self.top = seq
+        self.seen = 1          # bit i: seq top - i was delivered
+
+    def covers(self, seq: int) -> bool:
+        return self.top - WINDOW < seq <= self.top + AHEAD
+
+
 class Deduplicator:
     """Subscriber side, one per subscription: what each publisher has had delivered.
 
     ``fresh(pub_id, seq, stamp, body, extra)`` returns the samples to deliver, oldest
     first: recovered ones from the carried history, then this one; duplicates (repeats
-    of a packet, or history already delivered) yield nothing.
+    of a packet, or history already delivered) yield nothing. See the module doc for
+    why a forged sequence number cannot silence the real publisher.
     """
 
     MAX_PUBLISHERS = 1024   # bounded: forget the least recently seen publisher beyond this
 
     def __init__(self) -> None:
-        self._last: dict[int, int] = {}
+        self._pubs: OrderedDict[int, list[_Epoch]] = OrderedDict()
         self.duplicates = 0
         self.recovered = 0
+        self.late = 0               # delivered after a higher seq of the same epoch
+        self.epochs_started = 0     # a publisher id seen again with a seq no epoch covers
+        self.history_rejected = 0   # carried histories over MAX_HISTORY entries, ignored
+
+    def __len__(self) -> int:
+        return len(self._pubs)
 
     def fresh(self, pub_id: int, seq: int, stamp_ns: int, body: Any,
               extra: dict[str, Any]) -> list[tuple[int, int, Any]]:
-        last = self._last.get(pub_id)
-        if last is not None and seq <= last:
-            if seq < last - 1000:      # far behind: the publisher restarted its sequence
-                last = None
-            else:
+        epochs = self._pubs.get(pub_id)
+        if epochs is None:
+            if len(self._pubs) >= self.MAX_PUBLISHERS:
+                self._pubs.popitem(last=False)
+            self._pubs[pub_id] = [_Epoch(seq)]
+            return [(seq, stamp_ns, body)]
+        self._pubs.move_to_end(pub_id)
+        for i, ep in enumerate(epochs):
+            if ep.covers(seq):
+                if i:
+                    epochs.insert(0, epochs.pop(i))   # most recently used first
+                break
+        else:
+            self.epochs_started += 1
+            epochs.insert(0, _Epoch(seq))
+            del epochs[EPOCHS:]
+            return [(seq, stamp_ns, body)]
+        if seq <= ep.top:
+            bit = 1 << (ep.top - seq)
+            if ep.seen & bit:
                 self.duplicates += 1
                 return []
-        out: list[tuple[int, int, Any]] = []
-        history = extra.get(HISTORY_KEY)
-        if isinstance(history, list) and last is not None:
-            for item in history:
-                if (isinstance(item, list) and len(item) == 3 and isinstance(item[0], int)
-                        and last < item[0] < seq and isinstance(item[1], int)):
-                    out.append((item[0], item[1], item[2]))
-            out.sort(key=lambda t: t[0])
-            self.recovered += len(out)
+            ep.seen |= bit
+            self.late += 1
+            return [(seq, stamp_ns, body)]
+        out = self._recovered(ep.top, seq, extra)
+        ep.seen = ((ep.seen << (seq - ep.top)) | 1) & _MASK
+        ep.top = seq
+        for s, _, _ in out:
+            ep.seen |= 1 << (seq - s)
         out.append((seq, stamp_ns, body))
-        if pub_id not in self._last and len(self._last) >= self.MAX_PUBLISHERS:
-            self._last.pop(next(iter(self._last)))
-        self._last.pop(pub_id, None)
-        self._last[pub_id] = seq
+        return out
+
+    def _recovered(self, top: int, seq: int, extra: dict[str, Any]) -> list[tuple[int, int, Any]]:
+        history = extra.get(HISTORY_KEY)
+        if type(history) is not list or not history:
+            return []
+        if len(history) > MAX_HISTORY:
+            self.history_rejected += 1
+            return []
+        found: dict[int, tuple[int, int, Any]] = {}
+        for item in history:
+            if (type(item) is list and len(item) == 3 and type(item[0]) is int and top < item[0] < seq
+                    and type(item[1]) is int):
+                found.setdefault(item[0], (item[0], item[1], item[2]))   # a seq twice counts once
+        out = sorted(found.values(), key=lambda t: t[0])
+        self.recovered += len(out)
         return out
