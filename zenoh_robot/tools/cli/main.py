@@ -15,7 +15,7 @@ from typing import Callable
 
 from importlib.metadata import entry_points
 
-SUBCOMMANDS = ["topic", "stats", "param", "service", "launch", "bench", "experiment", "demo", "bag", "foxglove"]
+SUBCOMMANDS = ["topic", "stats", "param", "service", "launch", "bench", "experiment", "demo", "keys", "router", "bag", "foxglove"]
 
 
 class CliError(Exception):
