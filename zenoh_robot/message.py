@@ -17,6 +17,8 @@ from dataclasses import dataclass, field
 from operator import attrgetter
 from typing import Any, Callable, ClassVar
 
+from ._wire.validate import ValidationError, build_body_check  # noqa: F401  (ValidationError: re-exported)
+
 PRIMITIVES: dict[str, type] = {
     "bool": bool,
     "byte": int, "char": int,
@@ -216,21 +218,12 @@ def _build_codec(cls: type) -> tuple[Callable[[Any], Any], Callable[[Any], Any]]
                         out[i] = [spec.base._to_wire(x) for x in v]
             return out
 
-    nested = [(i, s) for i, s in enumerate(specs) if s.is_message]
-    n_fields = len(specs)
+    # Every field is checked against the schema (types, ranges, lengths, nested types): a body from
+    # the network must not hand a callback a str where it expects a float (see _wire/validate.py).
+    check_body = build_body_check(type_name, specs)
 
     def from_wire(values: Any) -> Any:
-        if type(values) not in (list, tuple) or len(values) != n_fields:
-            raise ValueError(f"{type_name}: expected {n_fields} field values")
-        if nested:
-            values = list(values)
-            for i, spec in nested:
-                v = values[i]
-                if spec.array is None:
-                    values[i] = spec.base._from_wire(v)
-                else:
-                    values[i] = [spec.base._from_wire(x) for x in v]
-        return cls(*values)
+        return cls(*check_body(values))
 
     return to_wire, from_wire
 
@@ -275,3 +268,12 @@ def require_message_type(t: Any, context: str) -> None:
     """A clear TypeError when ``t`` is not a message type (``context`` says where it was given)."""
     if not (isinstance(t, type) and issubclass(t, Message)):
         raise TypeError(f"{context}: {t!r} is not a message type (an @message class)")
+
+def validated(msg: Any) -> Any:
+    """A copy of ``msg`` whose every field passed the wire checks (ValidationError otherwise).
+
+    For messages built from a mapping (``from_dict``, a service's dict form), which bypass
+    ``_from_wire``: the same rules then hold whichever way a request arrived.
+    """
+    cls = type(msg)
+    return cls._from_wire(list(cls._to_wire(msg)))
