@@ -2,20 +2,27 @@
 
 Knows nothing of Zenoh: the companion process bridges the two.
 """
+from .action import Action, ActionError
 from .commands import (CommandAck, CommandDenied, CommandError, CommandFailed,
                        CommandTemporarilyRejected, CommandTimeout, CommandUnsupported, NotConnected)
-from .link import Px4Link
+from .link import DEFAULT_CONNECTION, Px4Link
 from .modes import decode_custom_mode, encode_custom_mode, mode_to_main_sub, normalize_mode_name
-from .setpoints import Geofence, PositionSetpoint, SetpointRejected, VelocitySetpoint
+from .offboard import Offboard, OffboardError
+from .param import Param, ParamError
+from .setpoints import (Geofence, OffboardSetpoint, PositionSetpoint, Setpoint, SetpointRejected,
+                        VelocitySetpoint)
 from .stats import LinkStats
 from .telemetry import (Attitude, Battery, ExtendedSysState, GlobalPosition, Imu, LocalPosition,
-                        SysStatus, VehicleState)
+                        Px4State, SysStatus, VehicleState)
+from .telemetry_service import Telemetry
 
 __all__ = [
-    "Px4Link", "LinkStats", "VehicleState",
+    "Px4Link", "DEFAULT_CONNECTION", "LinkStats", "Px4State", "VehicleState",
+    "Action", "ActionError", "Offboard", "OffboardError", "Param", "ParamError", "Telemetry",
     "Imu", "Attitude", "LocalPosition", "GlobalPosition", "Battery", "SysStatus",
     "ExtendedSysState",
-    "PositionSetpoint", "VelocitySetpoint", "Geofence", "SetpointRejected",
+    "OffboardSetpoint", "Setpoint", "PositionSetpoint", "VelocitySetpoint", "Geofence",
+    "SetpointRejected",
     "CommandAck", "CommandError", "CommandDenied", "CommandTemporarilyRejected",
     "CommandUnsupported", "CommandFailed", "CommandTimeout", "NotConnected",
     "decode_custom_mode", "encode_custom_mode", "mode_to_main_sub", "normalize_mode_name",

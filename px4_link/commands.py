@@ -105,15 +105,26 @@ class CommandSender:
         self._cond = threading.Condition()
         self._waiting_for: int | None = None
         self._ack: tuple[int, int, int] | None = None  # (result, progress, result_param2)
+        self._answered = False
         self.sent = 0
         self.retried = 0
 
     def handle_ack(self, command: int, result: int, progress: int = 0,
-                   result_param2: int = 0) -> None:
+                   result_param2: int = 0) -> str:
+        """Deliver an ACK; returns "used", "duplicate" or "unsolicited".
+
+        The first ACK of an attempt wins: a later one (PX4 ACKs DO_SET_MODE twice, and a
+        flood of forged ACKs would otherwise overwrite a refusal) never turns it around.
+        """
         with self._cond:
-            if self._waiting_for == command:
-                self._ack = (result, progress, result_param2)
-                self._cond.notify_all()
+            if self._waiting_for != command:
+                return "unsolicited"
+            if self._ack is not None or self._answered:
+                return "duplicate"
+            self._ack = (result, progress, result_param2)
+            self._answered = result != MAV_RESULT_IN_PROGRESS
+            self._cond.notify_all()
+            return "used"
 
     def run(self, command: int, params: Sequence[float] = (), *, timeout: float | None = None,
             retries: int | None = None) -> CommandAck:
@@ -129,6 +140,7 @@ class CommandSender:
             with self._cond:
                 self._waiting_for = command
                 self._ack = None
+                self._answered = False
             try:
                 attempts = 0
                 while attempts <= retries:

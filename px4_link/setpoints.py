@@ -74,10 +74,11 @@ class VelocitySetpoint:
         return (self.vx, self.vy, self.vz) + (() if self.yaw is None else (self.yaw,))
 
 
-Setpoint = PositionSetpoint | VelocitySetpoint
+OffboardSetpoint = PositionSetpoint | VelocitySetpoint
+Setpoint = OffboardSetpoint  # deprecated alias: collides with zenoh_robot.msgs.Setpoint
 
 
-def mavlink_fields(sp: Setpoint) -> dict[str, float | int]:
+def mavlink_fields(sp: OffboardSetpoint) -> dict[str, float | int]:
     """Keyword arguments for set_position_target_local_ned_encode (minus ids and time)."""
     f: dict[str, float | int] = dict(coordinate_frame=MAV_FRAME_LOCAL_NED, type_mask=sp.type_mask,
                                      x=0.0, y=0.0, z=0.0, vx=0.0, vy=0.0, vz=0.0,
@@ -105,6 +106,8 @@ class Geofence:
 
     def violation(self, x: float, y: float, z: float) -> str | None:
         """Why (x, y, z) is outside the fence, or None when inside."""
+        if not all(math.isfinite(v) for v in (x, y, z)):
+            return f"non-finite position ({x}, {y}, {z})"   # NaN compares False: refuse
         alt = -z
         dist = math.hypot(x, y)
         if self.max_distance_m is not None and dist > self.max_distance_m:
@@ -141,7 +144,7 @@ class SetpointValidator:
         self._last_pos: tuple[float, float, float] | None = None
         self._last_time: float | None = None
 
-    def check(self, sp: Setpoint, now: float,
+    def check(self, sp: OffboardSetpoint, now: float,
               vehicle_position: tuple[float, float, float] | None = None) -> None:
         """Raise SetpointRejected if ``sp`` must not be sent; records nothing."""
         if not isinstance(sp, (PositionSetpoint, VelocitySetpoint)):
@@ -171,14 +174,18 @@ class SetpointValidator:
             ref = self._last_pos
         if ref is None:
             return
+        if not all(math.isfinite(v) for v in ref):
+            # NaN > allowed is False: a spoofed NaN position would disable the jump check.
+            raise SetpointRejected("no_reference", f"setpoint {sp} rejected: the reference "
+                                                   f"position {ref} is not finite")
         jump = math.dist((sp.x, sp.y, sp.z), ref)
         allowed = self.max_speed * dt
-        if jump > allowed:
+        if not jump <= allowed:
             raise SetpointRejected(
                 "too_fast", f"setpoint {sp} jumps {jump:.1f} m in {dt:.2f} s "
                             f"({jump / dt:.1f} m/s > max_speed {self.max_speed:g} m/s)")
 
-    def accept(self, sp: Setpoint, now: float) -> None:
+    def accept(self, sp: OffboardSetpoint, now: float) -> None:
         """Record an accepted setpoint as the reference for the next jump check."""
         if isinstance(sp, PositionSetpoint):
             self._last_pos = (sp.x, sp.y, sp.z)

@@ -24,3 +24,11 @@ class LinkStats:
     reconnects: int = 0
     disconnects: int = 0
     callback_errors: int = 0
+    spoofed_frames: int = 0        # our vehicle's ids from an address that is not the vehicle
+    nonfinite_telemetry: int = 0   # samples with NaN/inf dropped before listeners
+    duplicate_acks: int = 0        # a second ACK for an already answered command
+    unsolicited_acks: int = 0      # ACKs for nothing we wait for, or addressed to others
+    bad_signatures: int = 0        # unsigned / wrongly signed frames when signing is on
+    vehicle_commands_ignored: int = 0  # COMMAND_LONGs PX4 sends to other components
+    reboots: int = 0               # boot clock went backwards
+    interval_rerequests: int = 0   # message intervals asked again after reconnect/reboot

@@ -186,7 +186,7 @@ class ExtendedSysState:
 
 
 @dataclass(frozen=True, slots=True)
-class VehicleState:
+class Px4State:
     """What the link knows about the vehicle, mostly from its HEARTBEAT."""
     connected: bool = False
     system_id: int | None = None
@@ -220,6 +220,8 @@ class VehicleState:
         return SYSTEM_STATUS_NAMES.get(self.system_status, f"UNKNOWN({self.system_status})")
 
 
+VehicleState = Px4State  # deprecated alias: collides with the companion's Zenoh VehicleState
+
 Telemetry = Imu | Attitude | LocalPosition | GlobalPosition | Battery | SysStatus | ExtendedSysState
 
 # MAVLink message name -> decoder. The link dispatches on this table only.
@@ -235,3 +237,24 @@ DECODERS: dict[str, Callable[[Any], Any]] = {
 
 TELEMETRY_TYPES: tuple[type, ...] = (Imu, Attitude, LocalPosition, GlobalPosition, Battery,
                                      SysStatus, ExtendedSysState)
+
+
+# Fields that must be finite for a sample to reach listeners. Battery/SysStatus use NaN
+# for "unknown" on purpose, so only their scalar ids are checked implicitly (ints).
+_FINITE_FIELDS: dict[type, tuple[str, ...]] = {
+    Imu: ("gyro_rad", "accelerometer_m_s2", "magnetometer_ga", "baro_alt_meter",
+          "abs_pressure_hpa"),
+    Attitude: ("roll", "pitch", "yaw", "rollspeed", "pitchspeed", "yawspeed"),
+    LocalPosition: ("x", "y", "z", "vx", "vy", "vz"),
+    GlobalPosition: ("lat_deg", "lon_deg", "alt_m", "relative_alt_m", "vx", "vy", "vz"),
+}
+
+
+def is_finite_sample(sample: Any) -> bool:
+    """False when a field a consumer would act on is NaN/inf (never sensor data)."""
+    for name in _FINITE_FIELDS.get(type(sample), ()):
+        v = getattr(sample, name)
+        values = v if isinstance(v, tuple) else (v,)
+        if not all(math.isfinite(x) for x in values):
+            return False
+    return True

@@ -60,6 +60,11 @@ class Parser:
         self.bad_frames = 0
         self.crc_errors = 0
         self.unknown_messages = 0
+        self.bad_signatures = 0
+
+    @property
+    def mav(self) -> MAVLink:
+        return self._mav
 
     def feed(self, data: bytes, datagram: bool = False) -> list[MAVLinkMessage]:
         if not data:
@@ -78,8 +83,11 @@ class Parser:
             if mtype == "BAD_DATA":
                 self.bad_frames += 1
                 self.bad_bytes += len(m.data)
-                if "CRC" in str(getattr(m, "reason", "")).upper():
+                reason = str(getattr(m, "reason", "")).upper()
+                if "CRC" in reason:
                     self.crc_errors += 1
+                if "SIGNATURE" in reason:
+                    self.bad_signatures += 1
                 continue
             if mtype.startswith("UNKNOWN"):
                 self.unknown_messages += 1
@@ -122,3 +130,36 @@ def int_to_float_bits(v: int) -> float:
 
 def float_bits_to_int(f: float) -> int:
     return struct.unpack("<i", struct.pack("<f", f))[0]
+
+
+SIGNING_EPOCH = 1420070400  # 2015-01-01, MAVLink 2 signing timestamps count from here
+
+
+def load_signing_key(path: str) -> bytes:
+    """A 32-byte MAVLink 2 secret from a key file: 64 hex characters, or else a passphrase
+    hashed with SHA-256 (MAVProxy's ``signing setup <passphrase>`` convention)."""
+    import hashlib
+    from pathlib import Path
+
+    text = Path(path).read_bytes().strip()
+    try:
+        key = bytes.fromhex(text.decode("ascii"))
+        if len(key) == 32:
+            return key
+    except (UnicodeDecodeError, ValueError):
+        pass
+    return hashlib.sha256(text).digest()
+
+
+def setup_signing(mav: Any, key: bytes, sign_outgoing: bool = True, link_id: int = 0) -> None:
+    """pymavlink's MAVLink 2 signing on a bare MAVLink object: sign what we send and reject
+    unsigned or wrongly signed frames (they reach the parser as BAD_DATA)."""
+    import time
+
+    if len(key) != 32:
+        raise ValueError("a MAVLink 2 signing key is 32 bytes")
+    mav.signing.secret_key = key
+    mav.signing.sign_outgoing = sign_outgoing
+    mav.signing.link_id = link_id
+    mav.signing.timestamp = int((time.time() - SIGNING_EPOCH) * 100_000)
+    mav.signing.allow_unsigned_callback = lambda _mav, _msg_id: False

@@ -24,7 +24,7 @@ def test_simulator_killed_and_restarted_link_reconnects() -> None:
         try:
             assert link.wait_connected(15), first.stdout.read() if first.poll() is not None else ""
             assert link.system_id == 7
-            link.arm()
+            link.action.arm()
             assert link.wait_until(lambda: link.state.armed, 3)
         finally:
             _kill(first)
@@ -36,7 +36,7 @@ def test_simulator_killed_and_restarted_link_reconnects() -> None:
             assert link.stats.reconnects == 1 and events.count("connected") == 2
             # A restarted PX4 is disarmed; and our commands reach the NEW process.
             assert link.wait_until(lambda: not link.state.armed, 3)
-            link.arm()
+            link.action.arm()
             assert link.wait_until(lambda: link.state.armed, 3)
         finally:
             _kill(second)
