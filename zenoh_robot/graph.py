@@ -21,12 +21,15 @@ from typing import Any, Callable
 
 import zenoh
 
+from .context import Endpoint
 from .qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, Priority, QoSProfile, ReliabilityPolicy
 
 log = logging.getLogger("zenoh_robot.graph")
 
 GRAPH_PREFIX = "@zr/lv"
 NODE, PUBLISHER, SUBSCRIPTION = "NN", "MP", "MS"
+# The type hash a raw subscription of any type announces: it matches every publisher's type.
+ANY_TYPE_HASH = "any"
 
 
 class EndpointType(enum.Enum):
@@ -191,70 +194,94 @@ class GraphCache:
             pass
 
 
-class GraphMixin:
-    """Node methods about the graph (rclpy's names); they see every process on the network."""
+class Graph:
+    """One node's part in the graph: its node token, its endpoints' tokens, and the network's view.
 
-    def _init_graph(self: Any) -> None:
-        self.zid = str(self.session.info.zid())
-        self.graph = GraphCache(self.session)
-        self.graph.listeners.append(self._on_graph_change)
-        self._node_token = self.session.liveliness().declare_token(
-            node_token_key(self.zid, self.namespace, self.name))
+    The node owns one and delegates rclpy's graph methods to it. Local endpoints register
+    here so the graph tells them about peers on their key (on Zenoh's thread: they only
+    hand work on).
+    """
 
-    def _declare_endpoint_token(self: Any, kind: str, entity: Any) -> Any:
-        key = endpoint_token_key(kind, self.zid, entity.gid, self.namespace, self.name, entity.key,
-                                 entity.msg_type._type_name, entity.msg_type._type_hash, entity.qos)
-        return self.session.liveliness().declare_token(key)
+    def __init__(self, session: zenoh.Session, namespace: str, node_name: str) -> None:
+        self._session = session
+        self._namespace = namespace
+        self._node_name = node_name
+        self._lock = threading.Lock()
+        self._local: list[tuple[EndpointType, Endpoint]] = []
+        self.zid = str(session.info.zid())
+        self.cache = GraphCache(session)
+        self.cache.listeners.append(self._on_graph_change)
+        self._node_token: Any = None
+        try:
+            self._node_token = session.liveliness().declare_token(node_token_key(self.zid, namespace, node_name))
+        except BaseException:
+            self.cache.close()
+            raise
 
-    def _on_graph_change(self: Any, appeared: bool, info: TopicEndpointInfo) -> None:
-        # Zenoh's thread: tell the local entities on that topic; they hand it to the executor.
+    # -- local endpoints ---------------------------------------------------------------
+    def declare_endpoint(self, kind: str, entity: Endpoint) -> Any:
+        """Announce ``entity`` (a token) and tell it about the peers already known."""
+        key = endpoint_token_key(kind, self.zid, entity.gid, self._namespace, self._node_name, entity.key,
+                                 entity.type_name, entity.type_hash, entity.qos)
+        token = self._session.liveliness().declare_token(key)
+        peers = EndpointType.SUBSCRIPTION if kind == PUBLISHER else EndpointType.PUBLISHER
+        entry = (peers, entity)
+        with self._lock:    # listen first, then read what is known: a peer may be reported twice, never missed
+            self._local.append(entry)
+        for info in self.cache.endpoints(entity.key, peers):
+            entity.on_peer(True, info)
+        return _EndpointToken(token, lambda: self._forget(entry))
+
+    def _forget(self, entry: tuple[EndpointType, Endpoint]) -> None:
         with self._lock:
-            entities = list(self.subscriptions if info.endpoint_type is EndpointType.PUBLISHER else self.publishers)
-        for entity in entities:
-            if entity.key == info.key:
+            if entry in self._local:
+                self._local.remove(entry)
+
+    def _on_graph_change(self, appeared: bool, info: TopicEndpointInfo) -> None:
+        # Zenoh's thread: tell the local entities that want that kind of peer on that key.
+        with self._lock:
+            entries = list(self._local)
+        for peers, entity in entries:
+            if peers is info.endpoint_type and entity.key == info.key:
                 entity.on_peer(appeared, info)
 
-    def _match_existing(self: Any, entity: Any, kind: EndpointType) -> None:
-        """A new entity meets the peers already known (later ones arrive as graph changes)."""
-        for info in self.graph.endpoints(entity.key, kind):
-            entity.on_peer(True, info)
-
-    def refresh_graph(self: Any, timeout: float = 1.0) -> None:
-        """Query the network for the whole graph now (CLI tools call this before answering)."""
-        self.graph.refresh(timeout)
-
     # -- rclpy's graph API ------------------------------------------------------------
-    def get_node_names(self: Any) -> list[str]:
-        return sorted({n.name for n in self.graph.nodes()})
+    def refresh(self, timeout: float = 1.0) -> None:
+        self.cache.refresh(timeout)
 
-    def get_node_names_and_namespaces(self: Any) -> list[tuple[str, str]]:
-        return sorted({(n.name, n.namespace) for n in self.graph.nodes()})
+    def get_node_names(self) -> list[str]:
+        return sorted({n.name for n in self.cache.nodes()})
 
-    def get_topic_names_and_types(self: Any) -> list[tuple[str, list[str]]]:
+    def get_node_names_and_namespaces(self) -> list[tuple[str, str]]:
+        return sorted({(n.name, n.namespace) for n in self.cache.nodes()})
+
+    def get_topic_names_and_types(self) -> list[tuple[str, list[str]]]:
         topics: dict[str, set[str]] = {}
-        for e in self.graph.endpoints():
-            topics.setdefault(e.topic_name, set()).add(e.topic_type)
+        for e in self.cache.endpoints():
+            types = topics.setdefault(e.topic_name, set())
+            if e.topic_type:      # a raw subscription of any type names none
+                types.add(e.topic_type)
         return [(name, sorted(types)) for name, types in sorted(topics.items())]
 
-    def get_publishers_info_by_topic(self: Any, topic: str) -> list[TopicEndpointInfo]:
-        return self.graph.endpoints(self.resolve_topic_name(topic), EndpointType.PUBLISHER)
+    def endpoints_by_key(self, key: str, kind: EndpointType) -> list[TopicEndpointInfo]:
+        return self.cache.endpoints(key, kind)
 
-    def get_subscriptions_info_by_topic(self: Any, topic: str) -> list[TopicEndpointInfo]:
-        return self.graph.endpoints(self.resolve_topic_name(topic), EndpointType.SUBSCRIPTION)
-
-    def count_publishers(self: Any, topic: str) -> int:
-        return len(self.get_publishers_info_by_topic(topic))
-
-    def count_subscribers(self: Any, topic: str) -> int:
-        return len(self.get_subscriptions_info_by_topic(topic))
-
-    def _close_graph(self: Any) -> None:
-        graph = getattr(self, "graph", None)
-        if graph is not None:
-            graph.close()
-        token = getattr(self, "_node_token", None)
-        if token is not None:
+    def close(self) -> None:
+        self.cache.close()
+        if self._node_token is not None:
             try:
-                token.undeclare()
+                self._node_token.undeclare()
             except Exception:
                 pass
+
+
+class _EndpointToken:
+    """An endpoint's liveliness token; undeclaring it also stops the graph's peer reports."""
+
+    def __init__(self, token: Any, forget: Callable[[], None]) -> None:
+        self._token = token
+        self._forget = forget
+
+    def undeclare(self) -> None:
+        self._forget()
+        self._token.undeclare()

@@ -108,6 +108,8 @@ class Message:
     _fields_spec: ClassVar[tuple[FieldSpec, ...]]
     _to_wire: ClassVar[Callable[[Any], Any]]
     _from_wire: ClassVar[Callable[[Any], Any]]
+    # True on message types that topic statistics never watch (the statistics themselves).
+    __zr_no_statistics__: ClassVar[bool] = False
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {}
@@ -264,10 +266,36 @@ def lookup(type_name: str) -> type:
         raise KeyError(f"unknown message type {type_name!r}; known: {', '.join(known)}") from None
 
 
+@dataclass(frozen=True, slots=True)
+class TypeSupport:
+    """What the wire needs of a message type: its name and hash, and its body codec.
+
+    The one way code outside this module reaches a type's wire form (rclpy's type support).
+    """
+    name: str
+    hash: str
+    encode: Callable[[Any], Any]     # message -> msgpack-ready body
+    decode: Callable[[Any], Any]     # body -> message; ValueError/TypeError for a body that does not fit
+    msg_type: type
+
+
+def type_support(msg_type: Any) -> TypeSupport:
+    """The :class:`TypeSupport` of an @message class; TypeError for anything else."""
+    if not (isinstance(msg_type, type) and issubclass(msg_type, Message) and hasattr(msg_type, "_type_hash")):
+        raise TypeError(f"{msg_type!r} is not a message type (an @message class)")
+    cached = msg_type.__dict__.get("_zr_type_support")
+    if cached is None:
+        cached = TypeSupport(msg_type._type_name, msg_type._type_hash, msg_type._to_wire, msg_type._from_wire,
+                             msg_type)
+        type.__setattr__(msg_type, "_zr_type_support", cached)
+    return cached   # type: ignore[no-any-return]
+
+
 def require_message_type(t: Any, context: str) -> None:
     """A clear TypeError when ``t`` is not a message type (``context`` says where it was given)."""
     if not (isinstance(t, type) and issubclass(t, Message)):
         raise TypeError(f"{context}: {t!r} is not a message type (an @message class)")
+
 
 def validated(msg: Any) -> Any:
     """A copy of ``msg`` whose every field passed the wire checks (ValidationError otherwise).

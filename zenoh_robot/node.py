@@ -1,30 +1,46 @@
-"""The rclpy-shaped Node: owns one Zenoh session and the entities declared on it."""
+"""The rclpy-shaped Node: owns one Zenoh session and the entities declared on it.
+
+A Node owns its parts, as rclpy's does, and delegates to them with rclpy's method names:
+the graph (:class:`~zenoh_robot.graph.Graph`), its services and clients
+(:class:`~zenoh_robot.services.Services`), its parameters
+(:class:`~zenoh_robot.parameters.ParameterStore`, served by a
+:class:`~zenoh_robot.parameters.ParameterService`). Entities get an
+:class:`~zenoh_robot.context.EntityContext`, never the node itself.
+"""
 from __future__ import annotations
 
 import logging
 import threading
 from pathlib import Path
-from typing import Any, Callable, TypeVar
+from typing import Any, Callable, Iterable, TypeVar, overload
 
 import zenoh
 
 from . import names
-from .executor import Executor, Timer
-from .graph import EndpointType, GraphMixin
-from .parameters import ParametersMixin
-from .services import ServicesMixin
-from .message import Message
-from .publisher import Publisher
-from .qos_monitor import QoSMonitor
 from ._wire.repeater import Repeater
-from .qos import QoSProfile, SYSTEM_DEFAULT
+from .context import EntityContext, Endpoint
+from .executor import Executor, Timer
+from .graph import Graph, GraphCache, TopicEndpointInfo, EndpointType
+from .message import Message
+from .parameters import (Parameter, ParameterDescriptor, ParameterService, ParameterStore, ParameterType,
+                         SetCallback, SetParametersResult)
+from .publisher import Publisher
+from .qos import SYSTEM_DEFAULT, QoSProfile
+from .qos_monitor import QoSMonitor
+from .services import Client, Services, Service
 from .session_config import SessionConfig, open_session
-from .subscription import Subscription
+from .subscription import RawMessage, Subscription
 
 M = TypeVar("M", bound=Message)
+Req = TypeVar("Req", bound=Message)
+Resp = TypeVar("Resp", bound=Message)
 
 _zenoh_log_once = threading.Lock()
 _zenoh_log_done = False
+
+# Hooks run on every new subscription (``hook(node, subscription, setting)``), registered by add-ons:
+# topic statistics registers itself here when first used, so this module never names it.
+SubscriptionHook = Callable[["Node", "Subscription[Any]", Any], None]
 
 
 def _init_zenoh_logging() -> None:
@@ -36,12 +52,8 @@ def _init_zenoh_logging() -> None:
             _zenoh_log_done = True
 
 
-class Node(GraphMixin, ServicesMixin, ParametersMixin):
-    """``with Node("gcs", namespace="uav1") as node: ...`` - always closes its session.
-
-    Graph, services and parameters live in their own mixin modules; each has an
-    ``_init_*`` hook called at the end of ``__init__``.
-    """
+class Node:
+    """``with Node("gcs", namespace="uav1") as node: ...`` - always closes its session."""
 
     def __init__(self, name: str, namespace: str | None = None,
                  config: SessionConfig | str | Path | None = None, *,
@@ -54,19 +66,20 @@ class Node(GraphMixin, ServicesMixin, ParametersMixin):
         self._logger = logging.getLogger(f"zenoh_robot.{self.fully_qualified_name.strip('/').replace('/', '.')}")
         _init_zenoh_logging()
         self.session = open_session(config)
-        self._closed = False
         self._lock = threading.Lock()
         self.publishers: list[Publisher[Any]] = []
         self.subscriptions: list[Subscription[Any]] = []
         self.timers: list[Timer] = []
         self._on_close: list[Callable[[], None]] = []
         self.enable_topic_statistics = enable_topic_statistics
-        self._repeater: Repeater | None = None
-        self._qos_monitor: QoSMonitor | None = None
+        self._graph: Graph | None = None
+        self._context = EntityContext(self.session, self.executor, self._logger, self.namespace, self.name,
+                                      self._declare_endpoint)
+        self._services = Services(self._context)
+        self._parameters = ParameterStore(parameter_overrides)
         try:
-            self._init_graph()
-            self._init_services()
-            self._init_parameters(parameter_overrides or {})
+            self._graph = Graph(self.session, self.namespace, self.name)
+            self._parameter_service = ParameterService(self._parameters, self._services.create_service)
         except BaseException:
             self.close()
             raise
@@ -82,50 +95,73 @@ class Node(GraphMixin, ServicesMixin, ParametersMixin):
     def get_namespace(self) -> str:
         return "/" + self.namespace
 
+    def get_fully_qualified_name(self) -> str:
+        return self.fully_qualified_name
+
     def get_logger(self) -> logging.Logger:
         return self._logger
 
     def resolve_topic_name(self, topic: str) -> str:
         return names.resolve_topic(topic, self.namespace, self.name)
 
+    @property
+    def entity_context(self) -> EntityContext:
+        """What this node's entities use of it (for library code that makes entities itself)."""
+        return self._context
+
     # -- entities ------------------------------------------------------------------
     def create_publisher(self, msg_type: type[M], topic: str, qos: QoSProfile | int = SYSTEM_DEFAULT,
                          *, event_callbacks: Any = None) -> Publisher[M]:
-        self._check_open()
+        self._context.check_open()
         key = self.resolve_topic_name(topic)
-        pub = Publisher(self, msg_type, topic, key, _qos(qos), event_callbacks)
+        pub = Publisher(self._context, msg_type, topic, key, _qos(qos), event_callbacks)
         with self._lock:
             self.publishers.append(pub)
-        self._match_existing(pub, EndpointType.SUBSCRIPTION)
         return pub
 
+    @overload
     def create_subscription(self, msg_type: type[M], topic: str, callback: Callable[..., Any],
+                            qos: QoSProfile | int = ..., *, event_callbacks: Any = ...,
+                            topic_statistics: Any = ..., raw: bool = ...) -> Subscription[M]: ...
+
+    @overload
+    def create_subscription(self, msg_type: None, topic: str, callback: Callable[..., Any],
+                            qos: QoSProfile | int = ..., *, event_callbacks: Any = ...,
+                            topic_statistics: Any = ..., raw: bool = ...) -> Subscription[RawMessage]: ...
+
+    def create_subscription(self, msg_type: type[Any] | None, topic: str, callback: Callable[..., Any],
                             qos: QoSProfile | int = SYSTEM_DEFAULT, *,
-                            event_callbacks: Any = None, topic_statistics: Any = None) -> Subscription[M]:
+                            event_callbacks: Any = None, topic_statistics: Any = None,
+                            raw: bool = False) -> Subscription[Any]:
         """``callback(msg)`` or ``callback(msg, info)`` (info: MessageInfo with age, seq).
 
         ``topic_statistics``: True or a ``TopicStatisticsOptions`` to publish windowed
         age/period statistics for this subscription; None follows the node's
         ``enable_topic_statistics``.
+
+        ``raw=True`` (rclpy's name): deliver each sample undecoded, as a
+        :class:`~zenoh_robot.subscription.RawMessage` (type name and hash, the body's
+        field values, the envelope's bytes); ``msg_type`` None then takes every type.
+        See the subscription module's doc.
         """
-        self._check_open()
+        self._context.check_open()
         key = self.resolve_topic_name(topic)
-        sub = Subscription(self, msg_type, topic, key, callback, _qos(qos), event_callbacks)
+        sub: Subscription[Any] = Subscription(self._context, msg_type, topic, key, callback, _qos(qos),
+                                              event_callbacks, raw=raw)
         with self._lock:
             self.subscriptions.append(sub)
-        self._match_existing(sub, EndpointType.PUBLISHER)
         stats = self.enable_topic_statistics if topic_statistics is None else topic_statistics
-        if stats and msg_type._type_name != "zenoh_robot/TopicStatistics":
-            from .topic_statistics import attach   # lazy: most nodes never use it
+        if stats and msg_type is not None and not raw and not msg_type.__zr_no_statistics__:
             try:
-                sub.statistics = attach(self, sub, None if stats is True else stats)
+                for hook in _statistics_hooks():
+                    hook(self, sub, stats)
             except BaseException:
                 self.destroy_subscription(sub)
                 raise
         return sub
 
     def create_timer(self, period_s: float, callback: Callable[[], None]) -> Timer:
-        self._check_open()
+        self._context.check_open()
         timer = Timer(period_s, callback, self.executor)
         self.executor.add_timer(timer)
         with self._lock:
@@ -148,29 +184,139 @@ class Node(GraphMixin, ServicesMixin, ParametersMixin):
         timer.cancel()
 
     @property
-    def repeater(self) -> "Repeater":
+    def repeater(self) -> Repeater:
         """The thread that sends delayed copies for publishers with ``repeat`` (made on first use)."""
-        with self._lock:
-            if self._repeater is None:
-                self._repeater = Repeater()
-            return self._repeater
+        return self._context.repeater
 
     @property
     def qos_monitor(self) -> QoSMonitor:
         """The thread that checks deadlines and leases (made on first use)."""
-        with self._lock:
-            if self._qos_monitor is None:
-                self._qos_monitor = QoSMonitor()
-            return self._qos_monitor
+        return self._context.qos_monitor
 
     def qos_monitor_if_any(self, fn: Callable[[QoSMonitor], None]) -> None:
-        monitor = self._qos_monitor
-        if monitor is not None:
-            fn(monitor)
+        self._context.qos_monitor_if_any(fn)
 
     def add_on_close(self, fn: Callable[[], None]) -> None:
         """Run ``fn`` when the node closes, before its session does (for add-ons)."""
         self._on_close.append(fn)
+
+    # -- graph (rclpy's names; they see every process on the network) -----------------
+    def _declare_endpoint(self, kind: str, entity: Endpoint) -> Any:
+        return self._the_graph.declare_endpoint(kind, entity)
+
+    @property
+    def _the_graph(self) -> Graph:
+        if self._graph is None:
+            raise RuntimeError(f"node {self.fully_qualified_name} has no graph (closed while starting)")
+        return self._graph
+
+    @property
+    def graph(self) -> GraphCache:
+        """This process's view of the graph (``changes``, ``wait_for_change``, ``nodes``, ``endpoints``)."""
+        return self._the_graph.cache
+
+    @property
+    def zid(self) -> str:
+        return self._the_graph.zid
+
+    def refresh_graph(self, timeout: float = 1.0) -> None:
+        """Query the network for the whole graph now (CLI tools call this before answering)."""
+        self._the_graph.refresh(timeout)
+
+    def get_node_names(self) -> list[str]:
+        return self._the_graph.get_node_names()
+
+    def get_node_names_and_namespaces(self) -> list[tuple[str, str]]:
+        return self._the_graph.get_node_names_and_namespaces()
+
+    def get_topic_names_and_types(self) -> list[tuple[str, list[str]]]:
+        return self._the_graph.get_topic_names_and_types()
+
+    def get_publishers_info_by_topic(self, topic: str) -> list[TopicEndpointInfo]:
+        return self._the_graph.endpoints_by_key(self.resolve_topic_name(topic), EndpointType.PUBLISHER)
+
+    def get_subscriptions_info_by_topic(self, topic: str) -> list[TopicEndpointInfo]:
+        return self._the_graph.endpoints_by_key(self.resolve_topic_name(topic), EndpointType.SUBSCRIPTION)
+
+    def count_publishers(self, topic: str) -> int:
+        return len(self.get_publishers_info_by_topic(topic))
+
+    def count_subscribers(self, topic: str) -> int:
+        return len(self.get_subscriptions_info_by_topic(topic))
+
+    # -- services ------------------------------------------------------------------------
+    @property
+    def services(self) -> list[Service[Any, Any]]:
+        return self._services.services
+
+    @property
+    def clients(self) -> list[Client[Any, Any]]:
+        return self._services.clients
+
+    def resolve_service_name(self, name: str) -> str:
+        """The Zenoh key of service ``name``: ``arm`` in ``uav1`` -> ``@srv/uav1/arm``."""
+        return self._services.resolve_service_name(name)
+
+    def create_service(self, name: str, request_type: type[Req], response_type: type[Resp],
+                       handler: Callable[[Req], Resp]) -> Service[Req, Resp]:
+        return self._services.create_service(name, request_type, response_type, handler)
+
+    def create_client(self, name: str, request_type: type[Req], response_type: type[Resp]) -> Client[Req, Resp]:
+        return self._services.create_client(name, request_type, response_type)
+
+    def destroy_service(self, srv: Service[Any, Any]) -> None:
+        self._services.destroy_service(srv)
+
+    def destroy_client(self, client: Client[Any, Any]) -> None:
+        self._services.destroy_client(client)
+
+    # -- parameters ------------------------------------------------------------------------
+    def declare_parameter(self, name: str, default: Any = None, description: str = "",
+                          read_only: bool = False, *, type_: ParameterType | None = None) -> Parameter:
+        """Declare ``name``; an override given to the node wins over ``default`` (see parameters.store)."""
+        return self._parameters.declare_parameter(name, default, description, read_only, type_=type_)
+
+    def declare_parameters(self, namespace: str,
+                           parameters: Iterable[tuple[Any, ...]] | dict[str, Any]) -> list[Parameter]:
+        return self._parameters.declare_parameters(namespace, parameters)
+
+    def undeclare_parameter(self, name: str) -> None:
+        self._parameters.undeclare_parameter(name)
+
+    def has_parameter(self, name: str) -> bool:
+        return self._parameters.has_parameter(name)
+
+    def get_parameter(self, name: str) -> Parameter:
+        return self._parameters.get_parameter(name)
+
+    def get_parameters(self, names: Iterable[str]) -> list[Parameter]:
+        return self._parameters.get_parameters(names)
+
+    def get_parameter_value(self, name: str) -> Any:
+        return self._parameters.get_parameter_value(name)
+
+    def get_parameter_or(self, name: str, alternative: Any = None) -> Any:
+        return self._parameters.get_parameter_or(name, alternative)
+
+    def describe_parameter(self, name: str) -> ParameterDescriptor:
+        return self._parameters.describe_parameter(name)
+
+    def list_parameters(self, prefixes: Iterable[str] = ()) -> list[str]:
+        return self._parameters.list_parameters(prefixes)
+
+    def add_on_set_parameters_callback(self, callback: SetCallback) -> None:
+        self._parameters.add_on_set_parameters_callback(callback)
+
+    def remove_on_set_parameters_callback(self, callback: SetCallback) -> None:
+        self._parameters.remove_on_set_parameters_callback(callback)
+
+    def set_parameters(self, parameters: Iterable[Parameter]) -> list[SetParametersResult]:
+        """Set each parameter on its own; one result per parameter, in order."""
+        return self._parameters.set_parameters(parameters)
+
+    def set_parameters_atomically(self, parameters: Iterable[Parameter]) -> SetParametersResult:
+        """All or nothing: one result for the lot."""
+        return self._parameters.set_parameters_atomically(parameters)
 
     # -- spinning ------------------------------------------------------------------
     def spin(self, timeout: float | None = None) -> None:
@@ -193,51 +339,61 @@ class Node(GraphMixin, ServicesMixin, ParametersMixin):
         self.executor.shutdown()
 
     # -- lifetime ------------------------------------------------------------------
-    def _check_open(self) -> None:
-        if self._closed:
-            raise RuntimeError(f"node {self.fully_qualified_name} is closed")
-
     @property
     def closed(self) -> bool:
-        return self._closed
+        return self._context.closed
 
     def close(self) -> None:
-        with self._lock:
-            if self._closed:
-                return
-            self._closed = True
+        if not self._context.mark_closed():
+            return
         self.executor.shutdown()
         for fn in reversed(self._on_close):
             try:
                 fn()
             except Exception:
                 self._logger.exception("close hook failed")
+        self._services.close()
         for t in self.timers:
             t.cancel()
-        if self._repeater is not None:
-            self._repeater.close()
-        if self._qos_monitor is not None:
-            self._qos_monitor.close()
-        for entity in [*self.subscriptions, *self.publishers]:
+        self._context.close_helpers()
+        with self._lock:
+            entities: list[Subscription[Any] | Publisher[Any]] = [*self.subscriptions, *self.publishers]
+        for entity in entities:
             entity.destroy()
-        self._close_graph()
+        if self._graph is not None:
+            self._graph.close()
         self.session.close()
 
     destroy_node = close
 
-    def __enter__(self) -> "Node":
+    def __enter__(self) -> Node:
         return self
 
-    def __exit__(self, *exc: Any) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
     def __del__(self) -> None:
         # Last resort: an unclosed Zenoh session can hang interpreter exit.
         try:
-            if not self._closed:
+            if not self.closed:
                 self.close()
         except Exception:
             pass
+
+
+_SUBSCRIPTION_HOOKS: list[SubscriptionHook] = []
+
+
+def register_subscription_hook(hook: SubscriptionHook) -> None:
+    """Run ``hook(node, subscription, setting)`` for each new subscription whose statistics
+    setting (``topic_statistics`` or the node's ``enable_topic_statistics``) is on."""
+    if hook not in _SUBSCRIPTION_HOOKS:
+        _SUBSCRIPTION_HOOKS.append(hook)
+
+
+def _statistics_hooks() -> list[SubscriptionHook]:
+    # zenoh_robot.topic_statistics registers its collector here when the package loads.
+    return list(_SUBSCRIPTION_HOOKS)
 
 
 def _qos(qos: QoSProfile | int) -> QoSProfile:

@@ -4,20 +4,26 @@ from __future__ import annotations
 import secrets
 import threading
 import time
-from typing import TYPE_CHECKING, Any, Generic, TypeVar
+from dataclasses import dataclass
+from typing import Any, Generic, TypeVar
 
 from ._wire import envelope
-from .message import Message, require_message_type
+from ._wire.redundancy import REPEAT_KEY, RedundantHistory
+from .context import EntityContext
 from .graph import PUBLISHER, TopicEndpointInfo
+from .message import Message, require_message_type, type_support
 from .qos import QoSProfile
 from .qos_events import PublisherEvents
 from .qos_mapping import declare_publisher
-from ._wire.redundancy import REPEAT_KEY, RedundantHistory
-
-if TYPE_CHECKING:
-    from .node import Node
 
 M = TypeVar("M", bound=Message)
+
+
+@dataclass(frozen=True, slots=True)
+class PublishInfo:
+    """What ``publish()`` sent: the sample's sequence number and source stamp (its envelope's)."""
+    seq: int
+    stamp_ns: int
 
 
 class PublisherClosed(RuntimeError):
@@ -25,11 +31,18 @@ class PublisherClosed(RuntimeError):
 
 
 class Publisher(Generic[M]):
-    def __init__(self, node: "Node", msg_type: type[M], topic: str, key: str, qos: QoSProfile,
+    """Publishes one message type on one topic; made by ``Node.create_publisher``."""
+
+    endpoint_kind = PUBLISHER
+
+    def __init__(self, context: EntityContext, msg_type: type[M], topic: str, key: str, qos: QoSProfile,
                  event_callbacks: Any = None) -> None:
         require_message_type(msg_type, "create_publisher")
-        self.node = node
+        self.context = context
         self.msg_type = msg_type
+        self.type_support = ts = type_support(msg_type)
+        self.type_name = ts.name
+        self.type_hash = ts.hash
         self.topic = topic
         self.key = key
         self.qos = qos
@@ -38,18 +51,21 @@ class Publisher(Generic[M]):
         self.publisher_id = secrets.randbits(63)
         self._seq = 0
         self._lock = threading.Lock()
-        self._type_name = msg_type._type_name
-        self._type_hash = msg_type._type_hash
-        self._to_wire = msg_type._to_wire
+        self._encode = ts.encode
         self.published = 0
         self.last_publish_mono: float | None = None
         self.last_stamp_ns = 0      # source stamp of the last sample (its seq is `sequence`)
         self._closed = False
         self._history = RedundantHistory(qos.redundancy) if qos.redundancy else None
         self._repeats = qos.repeat
-        self.events = PublisherEvents(self, event_callbacks)
-        self._zpub = declare_publisher(node.session, key, qos)
-        self._token = node._declare_endpoint_token(PUBLISHER, self)
+        self.events = PublisherEvents(context, self, event_callbacks)
+        self._zpub = declare_publisher(context.session, key, qos)
+        try:
+            self._token = context.declare_endpoint(PUBLISHER, self)
+        except BaseException:
+            self.events.close()
+            self._zpub.undeclare()
+            raise
 
     @property
     def gid(self) -> int:
@@ -60,14 +76,15 @@ class Publisher(Generic[M]):
     def sequence(self) -> int:
         return self._seq
 
-    def publish(self, msg: M) -> None:
+    def publish(self, msg: M) -> PublishInfo:
+        """Send ``msg``; returns its sequence number and source stamp (for the caller's own records)."""
         if type(msg) is not self.msg_type and not isinstance(msg, self.msg_type):
-            raise TypeError(f"publisher on {self.topic!r} takes {self._type_name}, got {type(msg).__name__}")
-        body = self._to_wire(msg)   # raises ValueError for a fixed array of the wrong length
-        self.publish_raw_body(body)
+            raise TypeError(f"publisher on {self.topic!r} takes {self.type_name}, got {type(msg).__name__}")
+        body = self._encode(msg)   # raises ValueError for a fixed array of the wrong length
+        return self.publish_raw_body(body)
 
-    def publish_raw_body(self, body: Any, extra: dict[str, Any] | None = None) -> int:
-        """Send an already wire-encoded body; returns its sequence number."""
+    def publish_raw_body(self, body: Any, extra: dict[str, Any] | None = None) -> PublishInfo:
+        """Send an already wire-encoded body; returns its sequence number and source stamp."""
         with self._lock:
             if self._closed:
                 raise PublisherClosed(f"publisher on {self.topic!r} is closed")
@@ -81,14 +98,14 @@ class Publisher(Generic[M]):
             if self._repeats:
                 # Tells every subscriber, whatever its own QoS, that copies follow: deduplicate.
                 extra = {**(extra or {}), REPEAT_KEY: self._repeats}
-            payload = envelope.pack(self._type_name, self._type_hash, self.publisher_id, seq, stamp, body, extra)
+            payload = envelope.pack(self.type_name, self.type_hash, self.publisher_id, seq, stamp, body, extra)
             self._zpub.put(payload)
             if self._repeats:   # loss is per packet: each later copy is another chance
-                self.node.repeater.schedule(self._zpub.put, payload, self._repeats)
+                self.context.repeater.schedule(self._zpub.put, payload, self._repeats)
             self.published += 1
             self.last_stamp_ns = stamp
             self.last_publish_mono = time.monotonic()
-        return seq
+        return PublishInfo(seq, stamp)
 
     def assert_liveliness(self) -> None:
         """Tell subscriptions this publisher is alive (MANUAL_BY_TOPIC; publish() also does)."""

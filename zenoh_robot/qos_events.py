@@ -17,17 +17,15 @@ import logging
 import threading
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Callable
+from typing import Any, Protocol
 
 import msgpack
 
 from . import events as ev
-from .graph import TopicEndpointInfo
+from .context import EntityContext
+from .graph import ANY_TYPE_HASH, TopicEndpointInfo
 from .qos import LivelinessPolicy, QoSProfile
 from .qos_compat import check_compatibility
-
-if TYPE_CHECKING:
-    from .node import Node
 
 log = logging.getLogger("zenoh_robot.qos_events")
 
@@ -38,9 +36,32 @@ def heartbeat_key(topic_key: str) -> str:
     return f"{ALIVE_PREFIX}/{topic_key}"
 
 
+class WatchedEndpoint(Protocol):
+    """What the event state reads of its publisher or subscription (public attributes only)."""
+    topic: str
+    key: str
+    qos: QoSProfile
+    type_name: str
+    type_hash: str
+
+    @property
+    def gid(self) -> int: ...
+
+
+class WatchedPublisher(WatchedEndpoint, Protocol):
+    last_publish_mono: float | None
+
+
+class WatchedSubscription(WatchedEndpoint, Protocol):
+    last_sample_mono: float | None
+
+
 class _EntityEvents:
-    def __init__(self, node: "Node", topic: str, key: str, qos: QoSProfile, callbacks: Any) -> None:
-        self.node = node
+    def __init__(self, context: EntityContext, entity: WatchedEndpoint, callbacks: Any) -> None:
+        topic, key, qos = entity.topic, entity.key, entity.qos
+        self.context = context
+        self._type_name = entity.type_name
+        self._type_hash = entity.type_hash
         self.topic = topic
         self.key = key
         self.qos = qos
@@ -60,7 +81,7 @@ class _EntityEvents:
         cb = getattr(self.callbacks, name, None)
         if cb is None:
             return
-        if not self.node.executor.call_soon(lambda: cb(status)):
+        if not self.context.executor.call_soon(lambda: cb(status)):
             log.warning("event %s on %r dropped: executor queue full", name, self.topic)
 
     def _deadline_missed(self, last: float | None, now: float) -> int:
@@ -79,7 +100,7 @@ class _EntityEvents:
         return new
 
     def _match(self, appeared: bool, info: TopicEndpointInfo, offered: QoSProfile, requested: QoSProfile,
-               own_type_hash: str, own_type: str, incompatible_cls: type) -> bool | None:
+               incompatible_cls: type) -> bool | None:
         """Update matching; returns True (matched), False (incompatible) or None (gone/unchanged)."""
         if not appeared:
             with self._lock:
@@ -93,7 +114,8 @@ class _EntityEvents:
             if info.endpoint_gid in self._peers:
                 return None
             self._peers.add(info.endpoint_gid)
-        if info.topic_type_hash != own_type_hash:
+        own_type_hash, own_type = self._type_hash, self._type_name
+        if info.topic_type_hash != own_type_hash and ANY_TYPE_HASH not in (info.topic_type_hash, own_type_hash):
             with self._lock:
                 self.incompatible_type_total += 1
                 total = self.incompatible_type_total
@@ -133,8 +155,8 @@ class _EntityEvents:
 class PublisherEvents(_EntityEvents):
     """Offered side: matched subscriptions, offered deadline, liveliness lost, AUTOMATIC assertions."""
 
-    def __init__(self, pub: Any, callbacks: Any) -> None:
-        super().__init__(pub.node, pub.topic, pub.key, pub.qos, ev.check_callbacks(callbacks, ev.PublisherEventCallbacks))
+    def __init__(self, context: EntityContext, pub: WatchedPublisher, callbacks: Any) -> None:
+        super().__init__(context, pub, ev.check_callbacks(callbacks, ev.PublisherEventCallbacks))
         self.pub = pub
         self.liveliness_lost_total = 0
         self._asserted_at: float | None = None
@@ -145,11 +167,10 @@ class PublisherEvents(_EntityEvents):
         self._hb_key = heartbeat_key(pub.key)
         self._hb_payload = msgpack.packb(pub.gid)
         if pub.qos.deadline is not None or self._lease is not None:
-            pub.node.qos_monitor.register(self)
+            context.qos_monitor.register(self)
 
     def on_peer(self, appeared: bool, info: TopicEndpointInfo) -> None:
-        self._match(appeared, info, self.qos, info.qos_profile, self.pub.msg_type._type_hash,
-                    self.pub.msg_type._type_name, ev.QoSOfferedIncompatibleQoSInfo)
+        self._match(appeared, info, self.qos, info.qos_profile, ev.QoSOfferedIncompatibleQoSInfo)
 
     def assert_liveliness(self) -> None:
         self._asserted_at = time.monotonic()
@@ -158,7 +179,7 @@ class PublisherEvents(_EntityEvents):
     def _send_heartbeat(self, now: float) -> None:
         self._last_heartbeat = now
         try:
-            self.node.session.put(self._hb_key, self._hb_payload)
+            self.context.session.put(self._hb_key, self._hb_payload)
         except Exception as exc:   # session closing: nothing to assert to
             log.debug("heartbeat not sent: %s", exc)
 
@@ -185,7 +206,7 @@ class PublisherEvents(_EntityEvents):
         self._alive = alive
 
     def close(self) -> None:
-        self.node.qos_monitor_if_any(lambda m: m.unregister(self))
+        self.context.qos_monitor_if_any(lambda m: m.unregister(self))
 
 
 @dataclass
@@ -200,10 +221,11 @@ class _Writer:
 class SubscriptionEvents(_EntityEvents):
     """Requested side: matched publishers (the rest are blocked), deadline, liveliness, message lost."""
 
-    def __init__(self, sub: Any, callbacks: Any) -> None:
-        super().__init__(sub.node, sub.topic, sub.key, sub.qos,
-                         ev.check_callbacks(callbacks, ev.SubscriptionEventCallbacks))
+    def __init__(self, context: EntityContext, sub: WatchedSubscription, callbacks: Any) -> None:
+        super().__init__(context, sub, ev.check_callbacks(callbacks, ev.SubscriptionEventCallbacks))
         self.sub = sub
+        # Lifespan is the publisher's promise (ROS 2); this subscription's own caps it.
+        self._own_lifespan_ns = int(sub.qos.lifespan * 1e9) if sub.qos.lifespan else None
         self.blocked: frozenset[int] = frozenset()   # read per sample on the executor: swapped, never mutated
         self.message_lost_total = 0
         self.lifespans_ns: dict[int, int] = {}     # offered lifespan of each matched publisher
@@ -219,13 +241,12 @@ class SubscriptionEvents(_EntityEvents):
     def _register(self) -> None:
         # Again on every new leased writer: the monitor re-reads tick_period, which may have shrunk.
         self._registered = True
-        self.node.qos_monitor.register(self)
+        self.context.qos_monitor.register(self)
 
     # -- graph (Zenoh thread) ---------------------------------------------------------
     def on_peer(self, appeared: bool, info: TopicEndpointInfo) -> None:
         gid = info.endpoint_gid
-        result = self._match(appeared, info, info.qos_profile, self.qos, self.sub.msg_type._type_hash,
-                             self.sub.msg_type._type_name, ev.QoSRequestedIncompatibleQoSInfo)
+        result = self._match(appeared, info, info.qos_profile, self.qos, ev.QoSRequestedIncompatibleQoSInfo)
         if result is False:
             with self._lock:
                 self.blocked = self.blocked | {gid}
@@ -257,8 +278,8 @@ class SubscriptionEvents(_EntityEvents):
         alive = not (manual and lease is not None)
         if q.lifespan is not None:
             lifespan_ns = int(q.lifespan * 1e9)
-            if self.sub._lifespan_ns is not None:
-                lifespan_ns = min(lifespan_ns, self.sub._lifespan_ns)
+            if self._own_lifespan_ns is not None:
+                lifespan_ns = min(lifespan_ns, self._own_lifespan_ns)
             self.lifespans_ns = {**self.lifespans_ns, gid: lifespan_ns}
         with self._lock:
             # last_seen 0: a MANUAL_BY_TOPIC writer has not asserted yet.
@@ -277,7 +298,7 @@ class SubscriptionEvents(_EntityEvents):
         with self._lock:
             if self._hb_sub is not None:
                 return
-            self._hb_sub = self.node.session.declare_subscriber(heartbeat_key(self.key), self._on_heartbeat)
+            self._hb_sub = self.context.session.declare_subscriber(heartbeat_key(self.key), self._on_heartbeat)
 
     def _on_heartbeat(self, sample: Any) -> None:
         try:
@@ -340,7 +361,7 @@ class SubscriptionEvents(_EntityEvents):
 
     def close(self) -> None:
         if self._registered:
-            self.node.qos_monitor_if_any(lambda m: m.unregister(self))
+            self.context.qos_monitor_if_any(lambda m: m.unregister(self))
         if self._hb_sub is not None:
             try:
                 self._hb_sub.undeclare()

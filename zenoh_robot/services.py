@@ -37,7 +37,9 @@ import zenoh
 
 from . import names
 from ._wire import envelope
-from .message import Message, require_message_type
+from .context import EntityContext
+from .message import Message, TypeSupport, require_message_type, type_support, validated
+from ._ratelimit import RateLimitedLog
 
 if TYPE_CHECKING:
     from .node import Node
@@ -55,6 +57,7 @@ DISCOVERY_GRACE_S = 1.0
 MATCH_WAIT_S = 0.2
 
 log = logging.getLogger("zenoh_robot.services")
+MAX_REQUEST_BYTES = 16 << 20    # a request over this is refused (bad_request) before it is copied
 
 
 class ServiceCallError(Exception):
@@ -106,13 +109,15 @@ def decode_error(payload: bytes) -> tuple[str, str] | None:
 class Service(Generic[Req, Resp]):
     """A server: ``handler(request) -> response`` run on the node's executor."""
 
-    def __init__(self, node: "Node", name: str, key: str, request_type: type[Req],
+    def __init__(self, context: EntityContext, name: str, key: str, request_type: type[Req],
                  response_type: type[Resp], handler: Callable[[Req], Resp]) -> None:
         for what, t in (("request", request_type), ("response", response_type)):
             require_message_type(t, f"create_service {name!r}: {what} type")
         if not callable(handler):
             raise TypeError(f"create_service {name!r}: handler must be callable")
-        self.node = node
+        self.context = context
+        self._req = type_support(request_type)
+        self._resp = type_support(response_type)
         self.name = name
         self.key = key
         self.service_name = service_name_of_key(key)
@@ -124,7 +129,9 @@ class Service(Generic[Req, Resp]):
         self.errors = 0
         self._lock = threading.Lock()
         self._destroyed = False
-        self._queryable = node.session.declare_queryable(key, self._on_query, complete=True)
+        self.bad_requests = 0     # refused before the handler: malformed, oversize, a field off its schema
+        self._rlog = RateLimitedLog(log)
+        self._queryable = context.session.declare_queryable(key, self._on_query, complete=True)
 
     # Zenoh's thread: only hand over.
     def _on_query(self, query: zenoh.Query) -> None:
@@ -135,14 +142,14 @@ class Service(Generic[Req, Resp]):
             # No user code involved: answer at once, so listing works even if the node does not spin.
             self._serve(query)
             return
-        if not self.node.executor.call_soon(lambda: self._serve(query)):
+        if not self.context.executor.call_soon(lambda: self._serve(query)):
             self._reply_err(query, "busy", f"service {self.service_name}: server queue full, request dropped")
             query.drop()
 
     def describe(self) -> dict[str, Any]:
-        return {"service": service_name_of_key(self.key), "node": self.node.fully_qualified_name,
-                "request": self.request_type._type_name, "request_hash": self.request_type._type_hash,
-                "response": self.response_type._type_name, "response_hash": self.response_type._type_hash}
+        return {"service": service_name_of_key(self.key), "node": self.context.fully_qualified_name,
+                "request": self._req.name, "request_hash": self._req.hash,
+                "response": self._resp.name, "response_hash": self._resp.hash}
 
     def _serve(self, query: zenoh.Query) -> None:
         try:
@@ -160,48 +167,62 @@ class Service(Generic[Req, Resp]):
 
     def _call(self, query: zenoh.Query) -> None:
         payload = query.payload
+        size = len(payload) if payload is not None else 0
+        if size > MAX_REQUEST_BYTES:     # refused before it is copied
+            self._bad_request(query, f"request of {size} bytes is over the limit of {MAX_REQUEST_BYTES}")
+            return
         try:
             env = envelope.unpack(payload.to_bytes() if payload is not None else b"")
         except envelope.MalformedSample as exc:
-            self._reply_err(query, "bad_request", f"service {self.service_name}: malformed request ({exc})")
+            self._bad_request(query, f"malformed request ({exc})")
             return
-        rt = self.request_type
+        rt, resp_t = self._req, self._resp
         dict_form = env.extra.get("form") == "dict"
-        if env.type_hash != rt._type_hash or env.type_name != rt._type_name:
+        if env.type_hash != rt.hash or env.type_name != rt.name:
             self._reply_err(query, "type",
-                            f"service {self.service_name} takes {rt._type_name} ({rt._type_hash}), "
+                            f"service {self.service_name} takes {rt.name} ({rt.hash}), "
                             f"got {env.type_name} ({env.type_hash})")
             return
         want_name, want_hash = env.extra.get("rt"), env.extra.get("rh")
-        if want_hash is not None and (want_hash != self.response_type._type_hash
-                                      or want_name != self.response_type._type_name):
+        if want_hash is not None and (want_hash != resp_t.hash or want_name != resp_t.name):
             self._reply_err(query, "type",
-                            f"service {self.service_name} returns {self.response_type._type_name} "
-                            f"({self.response_type._type_hash}), client expects {want_name} ({want_hash})")
+                            f"service {self.service_name} returns {resp_t.name} "
+                            f"({resp_t.hash}), client expects {want_name} ({want_hash})")
             return
         try:
-            request = rt.from_dict(env.body) if dict_form else rt._from_wire(env.body)
+            # Both forms are checked field by field (types, ranges, lengths): a handler never sees
+            # force='yes' or a NaN where an int belongs; the caller gets a ServiceError naming the field.
+            if dict_form:
+                request = validated(self.request_type.from_dict(env.body))
+            else:
+                request = rt.decode(env.body)
         except Exception as exc:
-            self._reply_err(query, "bad_request", f"service {self.service_name}: cannot decode {rt._type_name}: {exc}")
+            self._bad_request(query, f"cannot decode {rt.name}: {str(exc)[:500]}")
             return
         try:
             response = self.handler(request)
             if not isinstance(response, self.response_type):
                 raise TypeError(f"handler returned {type(response).__name__}, "
-                                f"not {self.response_type._type_name}")
-            body = response.to_dict() if dict_form else self.response_type._to_wire(response)
+                                f"not {resp_t.name}")
+            body = response.to_dict() if dict_form else resp_t.encode(response)
         except Exception as exc:
             with self._lock:
                 self.errors += 1
-            self.node.get_logger().warning("service %s: handler raised %s: %s", self.service_name,
-                                           type(exc).__name__, exc)
+            self._rlog.warning("handler", "service %s: handler raised %s: %s", self.service_name,
+                               type(exc).__name__, exc)
             self._reply_err(query, "handler", f"{type(exc).__name__}: {exc}")
             return
-        query.reply(self.key, envelope.pack(self.response_type._type_name, self.response_type._type_hash,
+        query.reply(self.key, envelope.pack(resp_t.name, resp_t.hash,
                                             self.server_id, env.seq, time.time_ns(), body,
                                             {"form": "dict"} if dict_form else None))
         with self._lock:
             self.served += 1
+
+    def _bad_request(self, query: zenoh.Query, why: str) -> None:
+        with self._lock:
+            self.bad_requests += 1
+        self._rlog.warning("bad_request", "service %s: refused a request: %s", self.service_name, why)
+        self._reply_err(query, "bad_request", f"service {self.service_name}: {why}")
 
     @staticmethod
     def _reply_err(query: zenoh.Query, kind: str, text: str) -> None:
@@ -268,12 +289,16 @@ class _Call:
 class Client(Generic[Req, Resp]):
     """``client.call(request, timeout)`` -> response, or a ServiceCallError subclass."""
 
-    def __init__(self, node: "Node", name: str, key: str, request_type: type[Req],
-                 response_type: type[Resp] | None) -> None:
-        require_message_type(request_type, f"create_client {name!r}: request type")
+    def __init__(self, context: EntityContext, name: str, key: str, request_type: type[Req],
+                 response_type: type[Resp] | None, *, request_support: TypeSupport | None = None) -> None:
+        # request_support: a request type known only by name and hash (call_dict); else request_type's.
+        if request_support is None:
+            require_message_type(request_type, f"create_client {name!r}: request type")
         if response_type is not None:
             require_message_type(response_type, f"create_client {name!r}: response type")
-        self.node = node
+        self.context = context
+        self._req = request_support or type_support(request_type)
+        self._resp = type_support(response_type) if response_type is not None else None
         self.name = name
         self.key = key
         self.service_name = service_name_of_key(key)
@@ -281,7 +306,7 @@ class Client(Generic[Req, Resp]):
         self.response_type = response_type
         self.client_id = secrets.randbits(63)
         self._seq = itertools.count(1)
-        self._querier = node.session.declare_querier(key)
+        self._querier = context.session.declare_querier(key)
 
     # -- discovery -------------------------------------------------------------------
     def service_is_ready(self) -> bool:
@@ -294,7 +319,7 @@ class Client(Generic[Req, Resp]):
         """Block until a server is known (True) or ``timeout`` seconds pass (False); None waits forever."""
         deadline = None if timeout is None else time.monotonic() + timeout
         while not self.service_is_ready():
-            if self.node.closed:
+            if self.context.closed:
                 return False
             if deadline is not None and time.monotonic() >= deadline:
                 return False
@@ -310,7 +335,7 @@ class Client(Generic[Req, Resp]):
         service of the same executor, which then cannot run: ServiceTimeout).
         """
         if not self.service_is_ready():
-            started = getattr(self.node, "_services_started", 0.0)
+            started = self.context.started
             grace = max(MATCH_WAIT_S, DISCOVERY_GRACE_S - (time.monotonic() - started))
             if not self.wait_for_service(min(timeout, grace)):
                 raise ServiceUnavailable(f"service {self.service_name}: no server")
@@ -323,24 +348,24 @@ class Client(Generic[Req, Resp]):
     def call_async(self, request: Req, timeout: float = 2.0) -> "Future[Resp]":
         """Send ``request``; the Future completes on a Zenoh thread (keep done-callbacks short)."""
         if not isinstance(request, self.request_type):
-            raise TypeError(f"service {self.service_name} client takes {self.request_type._type_name}, "
+            raise TypeError(f"service {self.service_name} client takes {self._req.name}, "
                             f"got {type(request).__name__}")
-        return self._send(self.request_type._to_wire(request), timeout, dict_form=False)
+        return self._send(self._req.encode(request), timeout, dict_form=False)
 
     def _send(self, body: Any, timeout: float, dict_form: bool) -> Future:
         if not timeout > 0:
             raise ValueError(f"timeout must be > 0 seconds, got {timeout!r}")
-        self.node._check_open()
-        future: Future = Future()
+        self.context.check_open()
+        future: Future[Any] = Future()
         call = _Call(self, future, timeout, dict_form)
         extra: dict[str, Any] = {}
-        if self.response_type is not None:
-            extra = {"rt": self.response_type._type_name, "rh": self.response_type._type_hash}
+        if self._resp is not None:
+            extra = {"rt": self._resp.name, "rh": self._resp.hash}
         if dict_form:
             extra["form"] = "dict"
-        payload = envelope.pack(self.request_type._type_name, self.request_type._type_hash, self.client_id,
+        payload = envelope.pack(self._req.name, self._req.hash, self.client_id,
                                 next(self._seq), time.time_ns(), body, extra)
-        self.node.session.get(self.key, zenoh.handlers.Callback(call.on_reply, call.on_done),
+        self.context.session.get(self.key, zenoh.handlers.Callback(call.on_reply, call.on_done),
                               payload=payload, timeout=timeout, priority=zenoh.Priority.INTERACTIVE_HIGH)
         return future
 
@@ -349,14 +374,14 @@ class Client(Generic[Req, Resp]):
             env = envelope.unpack(data)
         except envelope.MalformedSample as exc:
             raise ServiceError(f"service {self.service_name}: malformed response ({exc})", "bad_response")
-        rt = self.response_type
-        if rt is not None and (env.type_hash != rt._type_hash or env.type_name != rt._type_name):
+        rt = self._resp
+        if rt is not None and (env.type_hash != rt.hash or env.type_name != rt.name):
             raise ServiceError(f"service {self.service_name} returned {env.type_name} ({env.type_hash}), "
-                               f"expected {rt._type_name} ({rt._type_hash})", "type")
-        if dict_form:
+                               f"expected {rt.name} ({rt.hash})", "type")
+        if dict_form or rt is None:
             return env.body
         try:
-            return rt._from_wire(env.body)
+            return rt.decode(env.body)
         except Exception as exc:
             raise ServiceError(f"service {self.service_name}: cannot decode {env.type_name}: {exc}",
                                "bad_response") from None
@@ -368,12 +393,9 @@ class Client(Generic[Req, Resp]):
             pass
 
 
-class _DictRequestType:
-    """Stands in for a request type known only by name and hash (from a describe reply)."""
-
-    def __init__(self, name: str, hash_: str) -> None:
-        self._type_name = name
-        self._type_hash = hash_
+def _dict_form(name: str, hash_: str) -> TypeSupport:
+    """A request type known only by name and hash (from a describe reply): bodies are mappings."""
+    return TypeSupport(name, hash_, dict, dict, Message)
 
 
 def describe_services(session: zenoh.Session, pattern: str = f"{SERVICE_PREFIX}/**",
@@ -396,15 +418,15 @@ def describe_services(session: zenoh.Session, pattern: str = f"{SERVICE_PREFIX}/
 def call_dict(node: "Node", service: str, request: dict[str, Any], timeout: float = 2.0) -> dict[str, Any]:
     """Call a service by its absolute name with a mapping, without its Python types (for the CLI)."""
     key = service_key(service if service.startswith("/") else "/" + service)
-    client: Client[Any, Any] = Client(node, service, key, Message, None)  # type: ignore[arg-type]
+    client: Client[Any, Any] = Client(node.entity_context, service, key, Message, None,
+                                      request_support=_dict_form("", ""))
     try:
         if not client.wait_for_service(min(timeout, DISCOVERY_GRACE_S)):
             raise ServiceUnavailable(f"service {client.service_name}: no server")
         infos = describe_services(node.session, key, timeout=min(timeout, 2.0))
         if not infos:
             raise ServiceUnavailable(f"service {client.service_name}: no server")
-        client.request_type = _DictRequestType(infos[0]["request"],  # type: ignore[assignment]
-                                               infos[0]["request_hash"])
+        client._req = _dict_form(str(infos[0]["request"]), str(infos[0]["request_hash"]))
         future = client._send(request, timeout, dict_form=True)
         try:
             return future.result(timeout + 2.0)
@@ -414,49 +436,50 @@ def call_dict(node: "Node", service: str, request: dict[str, Any], timeout: floa
         client.destroy()
 
 
-class ServicesMixin:
-    """Node methods: ``create_service``, ``create_client``."""
+class Services:
+    """A node's services and clients (the node owns one and delegates ``create_service`` etc. to it)."""
 
-    def _init_services(self: Any) -> None:
-        self._services_started = time.monotonic()
+    def __init__(self, context: EntityContext) -> None:
+        self._context = context
+        self._lock = threading.Lock()
         self.services: list[Service[Any, Any]] = []
         self.clients: list[Client[Any, Any]] = []
-        self.add_on_close(self._close_services)
 
-    def resolve_service_name(self: Any, name: str) -> str:
+    def resolve_service_name(self, name: str) -> str:
         """The Zenoh key of service ``name``: ``arm`` in ``uav1`` -> ``@srv/uav1/arm``."""
-        return service_key(name, self.namespace, self.name)
+        return service_key(name, self._context.namespace, self._context.node_name)
 
-    def create_service(self: Any, name: str, request_type: type[Req], response_type: type[Resp],
+    def create_service(self, name: str, request_type: type[Req], response_type: type[Resp],
                        handler: Callable[[Req], Resp]) -> Service[Req, Resp]:
-        self._check_open()
-        srv = Service(self, name, self.resolve_service_name(name), request_type, response_type, handler)
+        self._context.check_open()
+        srv = Service(self._context, name, self.resolve_service_name(name), request_type, response_type, handler)
         with self._lock:
             self.services.append(srv)
         return srv
 
-    def create_client(self: Any, name: str, request_type: type[Req],
-                      response_type: type[Resp]) -> Client[Req, Resp]:
-        self._check_open()
+    def create_client(self, name: str, request_type: type[Req], response_type: type[Resp]) -> Client[Req, Resp]:
+        self._context.check_open()
         if not (isinstance(response_type, type) and issubclass(response_type, Message)):
             raise TypeError(f"create_client {name!r}: response type {response_type!r} is not a message type")
-        client = Client(self, name, self.resolve_service_name(name), request_type, response_type)
+        client = Client(self._context, name, self.resolve_service_name(name), request_type, response_type)
         with self._lock:
             self.clients.append(client)
         return client
 
-    def destroy_service(self: Any, srv: Service[Any, Any]) -> None:
+    def destroy_service(self, srv: Service[Any, Any]) -> None:
         with self._lock:
             if srv in self.services:
                 self.services.remove(srv)
         srv.destroy()
 
-    def destroy_client(self: Any, client: Client[Any, Any]) -> None:
+    def destroy_client(self, client: Client[Any, Any]) -> None:
         with self._lock:
             if client in self.clients:
                 self.clients.remove(client)
         client.destroy()
 
-    def _close_services(self: Any) -> None:
-        for entity in [*self.services, *self.clients]:
+    def close(self) -> None:
+        with self._lock:
+            entities: list[Service[Any, Any] | Client[Any, Any]] = [*self.services, *self.clients]
+        for entity in entities:
             entity.destroy()

@@ -4,6 +4,22 @@ Zenoh's callback thread does as little as possible (copy the bytes, stamp the
 arrival, append to a bounded deque). Decoding, checks and the user callback run
 on the node's executor. KEEP_LAST(n) holds at most n unprocessed samples: the
 oldest is dropped and counted when a new one arrives.
+
+Raw mode (rclpy's ``raw=True``), for tools that show what is on a topic without its
+Python type::
+
+    node.create_subscription(None, "/uav1/state", cb, qos, raw=True)      # any type
+    node.create_subscription(VehicleState, "/uav1/state", cb, qos, raw=True)  # that type only
+
+``cb(raw)`` or ``cb(raw, info)`` gets a :class:`RawMessage`: ``type_name``, ``type_hash``,
+``fields`` (the msgpack body as Python values: a list of field values in declaration
+order, nested messages as lists) and ``data`` (the bytes of the envelope that carried
+it); ``info`` (:class:`MessageInfo`) has the publisher id, sequence number and source and
+receive stamps. Everything else is as for a typed subscription: QoS, queue bound,
+deduplication of redundant/repeated publishers, lost/expired counters, QoS events,
+the graph (a raw subscription of any type announces the type hash ``any``, which
+matches every publisher). With ``None`` the type check is off: samples of every type
+are delivered, each naming its own type.
 """
 from __future__ import annotations
 
@@ -13,20 +29,18 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Callable, Generic, TypeVar
+from typing import Any, Callable, Generic, TypeVar
 
 from ._wire import envelope
-from .message import Message, require_message_type
-from .graph import SUBSCRIPTION, TopicEndpointInfo
+from ._wire.redundancy import Deduplicator
+from .context import EntityContext
+from .graph import ANY_TYPE_HASH, SUBSCRIPTION, TopicEndpointInfo
+from .message import Message, require_message_type, type_support
 from .qos import HistoryPolicy, QoSProfile
 from .qos_events import SubscriptionEvents
 from .qos_mapping import declare_subscriber
-from ._wire.redundancy import Deduplicator
 
-if TYPE_CHECKING:
-    from .node import Node
-
-M = TypeVar("M", bound=Message)
+M = TypeVar("M")
 DRAIN_BATCH = 64  # samples per executor turn, so one busy topic cannot starve the others
 
 
@@ -44,6 +58,16 @@ class MessageInfo:
         return (self.received_stamp_ns - self.source_stamp_ns) / 1e6
 
 
+@dataclass(frozen=True, slots=True)
+class RawMessage:
+    """A sample of a raw subscription, not decoded into a message type (see the module doc)."""
+    type_name: str
+    type_hash: str
+    fields: Any              # the body as msgpack decoded it: field values in declaration order
+    data: bytes              # the whole envelope this sample arrived in
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
 @dataclass
 class SubscriptionCounters:
     received: int = 0          # samples that reached this process
@@ -59,20 +83,30 @@ class SubscriptionCounters:
 
 
 class Subscription(Generic[M]):
-    def __init__(self, node: "Node", msg_type: type[M], topic: str, key: str,
-                 callback: Callable[..., Any], qos: QoSProfile, event_callbacks: Any = None) -> None:
-        require_message_type(msg_type, "create_subscription")
+    """Delivers one topic's samples to a callback on the executor; made by ``Node.create_subscription``."""
+
+    endpoint_kind = SUBSCRIPTION
+
+    def __init__(self, context: EntityContext, msg_type: type[M] | None, topic: str, key: str,
+                 callback: Callable[..., Any], qos: QoSProfile, event_callbacks: Any = None,
+                 *, raw: bool = False) -> None:
+        if msg_type is not None or not raw:
+            require_message_type(msg_type, "create_subscription")
         if not callable(callback):
             raise TypeError("create_subscription: callback is not callable")
-        self.node = node
+        self.context = context
         self.msg_type = msg_type
+        self.raw = raw
+        ts = type_support(msg_type) if msg_type is not None else None
+        self.type_name = ts.name if ts is not None else ""
+        self.type_hash = ts.hash if ts is not None else ANY_TYPE_HASH
         self.topic = topic
         self.key = key
         self.qos = qos
         self.callback = callback
         self.event_callbacks = event_callbacks
         self.counters = SubscriptionCounters()
-        self.log = node.get_logger().getChild(topic.replace("/", "."))
+        self.log = context.logger.getChild(topic.replace("/", "."))
         self._with_info = _takes_two_args(callback)
         self._queue: deque[tuple[bytes, int]] = deque()
         self._dropped_unseen = 0
@@ -82,9 +116,11 @@ class Subscription(Generic[M]):
         self._scheduled = False
         self._mismatch_reported: set[int] = set()
         self._malformed_logged_at = 0.0
-        self._hash = msg_type._type_hash
-        self._from_wire = msg_type._from_wire
-        self._executor = node.executor
+        self._hash = self.type_hash
+        self._any_type = ts is None
+        self._from_wire: Callable[[Any], Any] = self._raw_sample if raw else ts.decode  # type: ignore[union-attr]
+        self._raw_env: tuple[envelope.Envelope, bytes] | None = None   # the envelope being handled (raw mode)
+        self._executor = context.executor
         self._lifespan_ns = int(qos.lifespan * 1e9) if qos.lifespan else None
         self.sample_hooks: list[Callable[[M, MessageInfo], None]] = []
         self.statistics: Any = None   # a TopicStatisticsCollector when statistics are enabled
@@ -92,9 +128,14 @@ class Subscription(Generic[M]):
         self.dedup = Deduplicator() if (qos.redundancy or qos.repeat) else None
         self.gid = secrets.randbits(63)
         self.last_sample_mono: float | None = None
-        self.events = SubscriptionEvents(self, event_callbacks)
-        self._zsub = declare_subscriber(node.session, key, qos, self._on_sample)
-        self._token = node._declare_endpoint_token(SUBSCRIPTION, self)
+        self.events = SubscriptionEvents(context, self, event_callbacks)
+        self._zsub = declare_subscriber(context.session, key, qos, self._on_sample)
+        try:
+            self._token = context.declare_endpoint(SUBSCRIPTION, self)
+        except BaseException:
+            self.events.close()
+            self._zsub.undeclare()
+            raise
 
     # -- Zenoh thread --------------------------------------------------------------
     def _on_sample(self, sample: Any) -> None:
@@ -148,13 +189,15 @@ class Subscription(Generic[M]):
         if self.events.blocked and env.publisher_id in self.events.blocked:
             self.counters.incompatible += 1    # reported once as an incompatible-QoS event
             return
-        if env.type_hash != self._hash:
+        if self.raw:
+            self._raw_env = (env, data)
+        if env.type_hash != self._hash and not self._any_type:
             self.counters.type_mismatch += 1
             if env.publisher_id not in self._mismatch_reported:
                 self._mismatch_reported.add(env.publisher_id)
                 self.log.error("type mismatch on %r: publisher %x sends %s (hash %s), this subscription expects "
                                "%s (hash %s); its samples are dropped", self.topic, env.publisher_id,
-                               env.type_name, env.type_hash, self.msg_type._type_name, self._hash)
+                               env.type_name, env.type_hash, self.type_name, self._hash)
             return
         if self.dedup is None and env.extra:
             # A redundant or repeating publisher, whatever this subscription's own QoS: from now
@@ -171,7 +214,7 @@ class Subscription(Generic[M]):
         try:
             msg = self._from_wire(body)
         except (TypeError, ValueError) as exc:
-            self._malformed(f"body does not decode as {self.msg_type._type_name}: {exc}")
+            self._malformed(f"body does not decode as {self.type_name}: {exc}")
             return
         events = self.events
         gap = self._track_sequence(env.publisher_id, seq)
@@ -190,6 +233,13 @@ class Subscription(Generic[M]):
         for hook in self.sample_hooks:
             hook(msg, info)
         self.deliver(msg, info)
+
+    def _raw_sample(self, body: Any) -> RawMessage:
+        # Raw mode's decoder: the envelope being handled names the type (set in _handle, same turn).
+        env, data = self._raw_env if self._raw_env is not None else (None, b"")
+        if env is None:
+            raise ValueError("raw sample without its envelope")
+        return RawMessage(env.type_name, env.type_hash, body, data, env.extra)
 
     def deliver(self, msg: M, info: MessageInfo) -> None:
         try:

@@ -173,6 +173,7 @@ class StatisticsEntry(Message):
 
 @message(name="zenoh_robot/TopicStatistics")
 class TopicStatistics(Message):
+    __zr_no_statistics__ = True   # statistics of statistics would publish forever
     topic: str = ""
     node: str = ""
     window_start: int = 0     # ns since epoch
