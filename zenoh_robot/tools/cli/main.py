@@ -3,28 +3,78 @@
 Each subcommand lives in its own module with ``register(sub)``, which adds a parser
 and sets ``func(args) -> int``. Built-in ones are modules of this package; the
 applications (gcs, companion, the PX4 simulator) plug in through the
-``zenoh_robot.tools.cli`` entry-point group, so this package never imports them (nor MAVLink).
+``zenoh_robot.cli`` entry-point group, so this package never imports them (nor MAVLink).
+
+A user's mistake (a missing file, a busy port, a bad value) ends the command with one
+line on stderr and a non-zero exit; ``-v`` adds the traceback. Zenoh's own log (Rust,
+written to stdout with colour codes) is off unless ``-v`` or ``RUST_LOG`` asks for it.
 """
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import logging
+import os
 import sys
-from typing import Callable
+from typing import Any, Callable, Sequence
 
-from importlib.metadata import entry_points
+from importlib.metadata import PackageNotFoundError, entry_points, version
 
-SUBCOMMANDS = ["topic", "stats", "param", "service", "launch", "bench", "experiment", "demo", "keys", "router", "bag", "foxglove"]
+# Others (security: keys, router) append theirs; a module that does not exist yet is skipped.
+SUBCOMMANDS = ["topic", "node", "interface", "stats", "param", "service", "launch", "doctor", "completion",
+               "bench", "experiment", "demo", "keys", "router", "bag", "foxglove"]
+EXIT_USER_ERROR = 1
 
 
 class CliError(Exception):
     """An error to print as one line, exiting non-zero."""
 
 
+class Parser(argparse.ArgumentParser):
+    """An ArgumentParser whose subcommands report their own usage errors.
+
+    Plain argparse hands a subcommand's unknown options back to the top-level parser,
+    which then prints the top-level usage; here the subcommand's parser complains.
+    A parser with ``intermixed`` set takes stray positionals into that list instead
+    (``launch FILE --show x:=1``).
+    """
+
+    is_subcommand = False
+    intermixed: str | None = None
+
+    def parse_known_args(self, args: Sequence[str] | None = None,   # type: ignore[override]
+                         namespace: argparse.Namespace | None = None) -> tuple[argparse.Namespace, list[str]]:
+        ns, extras = super().parse_known_args(args, namespace)
+        if extras and self.intermixed:
+            late = [e for e in extras if not e.startswith("-")]
+            if late:
+                setattr(ns, self.intermixed, [*(getattr(ns, self.intermixed, None) or []), *late])
+                extras = [e for e in extras if e.startswith("-")]
+        if extras and self.is_subcommand:
+            self.error(f"unrecognized arguments: {' '.join(extras)}")
+        return ns, extras
+
+
+class _SubParsers(argparse._SubParsersAction):
+    def add_parser(self, name: str, **kwargs: Any) -> argparse.ArgumentParser:
+        parser = super().add_parser(name, **kwargs)
+        if isinstance(parser, Parser):
+            parser.is_subcommand = True
+        return parser
+
+
+def package_version() -> str:
+    try:
+        return version("zenoh-robot")
+    except PackageNotFoundError:
+        return "unknown"
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="zenoh-robot", description=(__doc__ or "").splitlines()[0])
-    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    parser = Parser(prog="zenoh-robot", description=(__doc__ or "").splitlines()[0])
+    parser.register("action", "parsers", _SubParsers)
+    _common_flags(parser)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in SUBCOMMANDS:
         try:
@@ -42,21 +92,72 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _common_flags(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("-v", "--verbose", action="store_true",
+                        help="debug logging, Zenoh's own warnings, and tracebacks for errors")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
+
+
+def quiet_zenoh_log(verbose: bool) -> None:
+    """Zenoh logs from Rust straight to stdout, coloured, where it would mix with a command's
+    output (``topic echo | ...``); zenoh-python 1.10 has no hook into Python logging. So: off
+    unless asked (``-v`` or RUST_LOG), and without colour codes. Set in the environment so the
+    processes ``demo`` and ``launch`` start inherit it."""
+    if "RUST_LOG" not in os.environ:
+        os.environ["RUST_LOG"] = "warn" if verbose else "off"
+    os.environ.setdefault("NO_COLOR", "1")
+
+
+def user_error(exc: BaseException) -> str | None:
+    """One line for the exceptions a user's input causes; None for anything else (a bug)."""
+    from zenoh_robot.session_config import SessionConfigError
+
+    if isinstance(exc, CliError):
+        return str(exc)
+    if isinstance(exc, SessionConfigError):
+        return f"Zenoh config: {exc}"
+    if isinstance(exc, OSError):
+        if exc.errno == errno.EADDRINUSE:
+            return f"address already in use ({exc.strerror}): another program, or another copy of this one, " \
+                   "holds the port; choose another port or stop it"
+        if exc.errno == errno.EADDRNOTAVAIL:
+            return f"cannot bind: address not available ({exc.strerror})"
+        if exc.filename is not None:
+            return f"{exc.strerror or exc}: {exc.filename}"
+        return str(exc)
+    try:
+        import yaml
+        if isinstance(exc, yaml.YAMLError):
+            return f"invalid YAML: {exc}"
+    except ImportError:   # pragma: no cover - PyYAML is a core dependency
+        pass
+    if isinstance(exc, (ValueError, LookupError)):
+        return str(exc.args[0]) if isinstance(exc, KeyError) and exc.args else str(exc)
+    return None
+
+
 def main(argv: list[str] | None = None, parser: argparse.ArgumentParser | None = None) -> int:
     parser = parser or build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if getattr(args, "verbose", False) else logging.INFO,
+    verbose = bool(getattr(args, "verbose", False))
+    logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    quiet_zenoh_log(verbose)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
     try:
         return int(args.func(args) or 0)
-    except CliError as exc:
-        print(f"zenoh-robot {args.command}: {exc}", file=sys.stderr)
-        return 1
     except KeyboardInterrupt:
         return 130
+    except Exception as exc:
+        text = user_error(exc)
+        if text is None:
+            raise
+        if verbose:
+            logging.getLogger("zenoh_robot.cli").exception("%s failed", args.command)
+        print(f"zenoh-robot {args.command}: {' '.join(text.split())}", file=sys.stderr)
+        return EXIT_USER_ERROR
 
 
 if __name__ == "__main__":
@@ -69,7 +170,9 @@ if __name__ == "__main__":
 def run_single(register: Callable[[argparse._SubParsersAction], None], command: str, prog: str,
                argv: list[str] | None = None) -> int:
     """Run one plugin subcommand as its own program (``python -m gcs`` == ``zenoh-robot gcs``)."""
-    parser = argparse.ArgumentParser(prog=prog)
+    parser = Parser(prog=prog)
+    parser.register("action", "parsers", _SubParsers)
+    _common_flags(parser)
     sub = parser.add_subparsers(dest="command", required=True)
     register(sub)
     return main([command, *(sys.argv[1:] if argv is None else argv)], parser=parser)

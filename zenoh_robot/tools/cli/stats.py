@@ -16,8 +16,11 @@ import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from zenoh_robot.message import type_support
+
+from .common import add_duration_arg, cli_node, deadline_of, quiet_exit
+from .common import add_zenoh_arg as add_config_arg
 from .main import CliError
-from .topic import add_config_arg, add_duration_arg, cli_node, deadline_of, quiet_exit
 
 if TYPE_CHECKING:
     from rich.table import Table
@@ -66,10 +69,10 @@ def decode(data: bytes) -> "TopicStatistics | None":
         env = envelope.unpack(data)
     except envelope.MalformedSample:
         return None
-    if env.type_hash != TopicStatistics._type_hash:
+    if env.type_hash != type_support(TopicStatistics).hash:
         return None
     try:
-        return TopicStatistics._from_wire(env.body)
+        return type_support(TopicStatistics).decode(env.body)
     except (TypeError, ValueError):
         return None
 

@@ -1,0 +1,196 @@
+"""What every network command shares: the ``--zenoh`` flag, a hidden node, Ctrl-C, names, types."""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import difflib
+import functools
+import os
+import secrets
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Callable, Iterable, Iterator
+
+from .main import CliError
+
+if TYPE_CHECKING:
+    from zenoh_robot.node import Node
+
+HIDDEN_PREFIX = "_zr_"        # the CLI's own nodes: left out of list/info unless --all
+
+
+# -- the session flag: --zenoh FILE everywhere ------------------------------------------------
+def add_zenoh_arg(parser: argparse.ArgumentParser) -> None:
+    # SUPPRESS: given before or after the operation, a missing one never overwrites the other.
+    parser.add_argument("--zenoh", default=argparse.SUPPRESS, metavar="FILE",
+                        help="Zenoh session config (JSON5/YAML) to reach the network")
+    parser.add_argument("--config", dest="zenoh_deprecated", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+
+
+add_config_arg = add_zenoh_arg   # the old name, for callers not yet renamed
+
+
+def zenoh_config(args: argparse.Namespace) -> str | None:
+    """The --zenoh file; --config still works for these commands, with a warning."""
+    old = getattr(args, "zenoh_deprecated", None)
+    if old is not None:
+        print("zenoh-robot: --config is deprecated for the Zenoh session config: use --zenoh FILE",
+              file=sys.stderr, flush=True)
+    path = getattr(args, "zenoh", None) or old
+    if path is not None and not Path(path).is_file():
+        raise CliError(f"--zenoh: no such file {path!r}")
+    return path
+
+
+def add_duration_arg(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--duration", type=float, metavar="S", help="exit after S seconds")
+
+
+def deadline_of(args: argparse.Namespace) -> float | None:
+    if args.duration is None:
+        return None
+    if not args.duration > 0:
+        raise CliError(f"--duration must be > 0 seconds, got {args.duration:g}")
+    return time.monotonic() + args.duration
+
+
+def quiet_exit(fn: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
+    """Ctrl-C ends a command normally (exit 0, no traceback); so does a closed pipe (`| head`)."""
+    @functools.wraps(fn)
+    def wrapper(args: argparse.Namespace) -> int:
+        try:
+            return fn(args)
+        except KeyboardInterrupt:
+            return 0
+        except BrokenPipeError:
+            # Python would complain again flushing stdout at exit: point it at /dev/null.
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            return 0
+    return wrapper
+
+
+@contextlib.contextmanager
+def cli_node(kind: str, args: argparse.Namespace) -> Iterator["Node"]:
+    """A hidden node (``_zr_<kind>_<hex>``) on the configured session, always closed."""
+    from zenoh_robot.node import Node   # imported late so `zenoh-robot --help` stays fast
+    from zenoh_robot.session_config import SessionConfigError
+
+    try:
+        node = Node(f"{HIDDEN_PREFIX}{kind}_{secrets.token_hex(3)}", config=zenoh_config(args))
+    except SessionConfigError as exc:
+        raise CliError(one_line(str(exc))) from None
+    try:
+        yield node
+    finally:
+        _close_uninterrupted(node)
+
+
+def _close_uninterrupted(node: "Node") -> None:
+    # A second Ctrl-C halfway through close() would leave the session open and exit hanging on it.
+    main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+    try:
+        node.close()
+    finally:
+        if previous is not None:   # None: a handler not set from Python, nothing to restore
+            signal.signal(signal.SIGINT, previous)
+
+
+class CallbackOutput:
+    """stdout for text printed from callbacks, where the executor would catch (and log) a
+    closed pipe: a reader gone (`| head`) is remembered, and ends the command."""
+
+    def __init__(self) -> None:
+        self.closed = False
+
+    def print(self, text: str) -> None:
+        if self.closed:
+            return
+        try:
+            print(text, flush=True)
+        except BrokenPipeError:
+            self.closed = True
+
+    def check(self) -> None:
+        if self.closed:
+            raise BrokenPipeError("stdout closed")
+
+
+def one_line(text: str) -> str:
+    return " ".join(text.split())
+
+
+def spin_until(node: "Node", done: Callable[[], bool], deadline: float | None) -> None:
+    """Run the node's callbacks on this thread until ``done()`` or the deadline."""
+    while not done():
+        wait = 0.1
+        if deadline is not None:
+            wait = min(wait, deadline - time.monotonic())
+            if wait <= 0:
+                return
+        node.spin_once(wait)
+
+
+def topic_key(topic: str) -> str:
+    """``/a/b`` or ``a/b`` -> the Zenoh key ``a/b`` (validated by ROS 2's name rules)."""
+    from zenoh_robot.names import InvalidNameError, resolve_topic
+
+    try:
+        return resolve_topic(topic if topic.startswith("/") else "/" + topic)
+    except InvalidNameError as exc:
+        raise CliError(str(exc)) from None
+
+
+def did_you_mean(name: str, known: Iterable[str]) -> str:
+    """`` (did you mean /uav1/setpoint?)`` for a near miss, else ''."""
+    close = difflib.get_close_matches(name, list(known), n=3, cutoff=0.6)
+    return f" (did you mean {' or '.join(close)}?)" if close else ""
+
+
+def is_msg_file(name: str) -> bool:
+    return name.endswith(".msg")
+
+
+def load_msg_file(path: str, package: str = "msg") -> type:
+    from zenoh_robot.msg_loader import MsgParseError, load_msg
+
+    if not Path(path).is_file():
+        raise CliError(f"no such .msg file {path!r}")
+    try:
+        return load_msg(Path(path), package=package)
+    except MsgParseError as exc:
+        raise CliError(str(exc)) from None
+
+
+def lookup_type(name: str) -> type:
+    """A registered type by name (``Setpoint``, ``std_msgs/String``), or a ``.msg`` file's."""
+    from zenoh_robot import msgs  # noqa: F401  registers the standard types
+    from zenoh_robot.message import lookup
+
+    if is_msg_file(name):
+        return load_msg_file(name)
+    _register_drone_types()
+    try:
+        return lookup(name)
+    except KeyError as exc:
+        raise CliError(str(exc.args[0])) from None
+
+
+_plugins_loaded = False
+
+
+def _register_drone_types() -> None:
+    """Import the message modules applications declare (entry-point group ``zenoh_robot.messages``),
+    so the tools read /uav1/state by name without importing the drone system themselves."""
+    global _plugins_loaded
+    if _plugins_loaded:
+        return
+    _plugins_loaded = True
+    from importlib.metadata import entry_points
+
+    for ep in entry_points(group="zenoh_robot.messages"):
+        with contextlib.suppress(Exception):   # a broken plugin costs its types, not the command
+            ep.load()
