@@ -24,7 +24,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from zenoh_robot.message import FieldSpec, lookup
+from zenoh_robot.message import FieldSpec, lookup, type_support
 
 JSON_SCHEMA = "jsonschema"
 RAW_ENCODING = "x-zenoh-robot-envelope"    # the original msgpack wire bytes, for bit-exact replay
@@ -63,7 +63,7 @@ def _field_schema(spec: FieldSpec) -> dict[str, Any]:
 
 def object_schema(cls: Any) -> dict[str, Any]:
     """The JSON schema of a message class, from its field specs (nested types inline)."""
-    return {"type": "object", "title": cls._type_name,
+    return {"type": "object", "title": type_support(cls).name,
             "properties": {s.name: _field_schema(s) for s in cls._fields_spec}}
 
 
@@ -90,7 +90,7 @@ def local_type(type_name: str, type_hash: str) -> Any | None:
         cls = lookup(type_name)
     except KeyError:
         return None
-    return cls if cls._type_name == type_name and cls._type_hash == type_hash else None
+    return cls if type_support(cls).name == type_name and type_support(cls).hash == type_hash else None
 
 
 @dataclass(slots=True)
@@ -104,7 +104,7 @@ def decode_body(cls: Any | None, body: Any) -> Decoded:
     if cls is None:
         return Decoded(None, {"raw_fields": jsonable(body)})
     try:
-        msg = cls._from_wire(body)
+        msg = type_support(cls).decode(body)
     except (TypeError, ValueError, AttributeError):
         return Decoded(None, {"raw_fields": jsonable(body)})
     return Decoded(msg, jsonable(msg.to_dict()))

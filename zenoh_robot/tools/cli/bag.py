@@ -8,16 +8,16 @@ import threading
 import time
 
 from .main import CliError
-from .common import add_config_arg, cli_node, quiet_exit
+from .common import add_zenoh_arg, cli_node, quiet_exit
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bag", help="record, inspect and replay flight logs (MCAP, opens in Foxglove)")
-    add_config_arg(p)
+    add_zenoh_arg(p)
     ops = p.add_subparsers(dest="op", metavar="OP", required=True)
 
     r = ops.add_parser("record", help="record topics to an MCAP file")
-    add_config_arg(r)
+    add_zenoh_arg(r)
     r.add_argument("topics", nargs="*", metavar="TOPIC", help="topics to record (absolute names)")
     r.add_argument("-a", "--all", action="store_true", help="every topic, including ones that appear later")
     r.add_argument("-o", "--output", required=True, help="the .mcap file to write")
@@ -33,7 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     i.set_defaults(func=_info)
 
     pl = ops.add_parser("play", help="republish a recording with its timing, types and QoS")
-    add_config_arg(pl)
+    add_zenoh_arg(pl)
     pl.add_argument("file")
     pl.add_argument("topics", nargs="*", metavar="TOPIC", help="only these topics")
     pl.add_argument("--rate", type=float, default=1.0, help="speed factor (2 = twice as fast)")
@@ -83,9 +83,9 @@ def _record(args: argparse.Namespace) -> int:
             pass
         finally:
             rec.close()
-    c = rec.counters
+    c, t = rec.counters, rec.tap_counters
     print(f"wrote {args.output}: {c.written} messages on {len(c.per_topic)} topics "
-          f"({c.raw_written} raw, {c.views_written} views, {c.dropped} dropped, {c.malformed} malformed)",
+          f"({c.raw_written} raw, {c.views_written} views, {t.dropped} dropped, {c.malformed} malformed)",
           file=sys.stderr, flush=True)
     return 0
 
