@@ -1,15 +1,19 @@
 """The companion: Zenoh on one side, PX4 over MAVLink on the other.
 
-Setpoints in (``<id>/setpoint``) -> px4_link's offboard stream. PX4 telemetry out:
-``<id>/sensor`` (SensorCombined from HIGHRES_IMU), ``<id>/state`` (VehicleState), camera
-frames on ``<id>/image``, failsafe events on ``<id>/events``. Commands arrive on the
-``<id>/command`` service.
+Setpoints in (``<id>/setpoint``, DroneSetpoint) -> px4_link's offboard stream, but only
+inside an operator-requested offboard session (companion/offboard.py) and only from the
+GCS in control (companion/control.py). PX4 telemetry out: ``<id>/sensor``
+(SensorCombined from HIGHRES_IMU), ``<id>/state`` (VehicleState, with the offboard
+lifecycle, the controller and the sensor rate PX4 really delivers), camera frames on
+``<id>/image``, events on ``<id>/events`` (FailsafeEvent: failsafes, lifecycle
+transitions, refused setpoints and commands, rate-limited). Commands arrive on the
+``<id>/command`` service; every one is logged with its sender and every refusal says why.
 
-Link-loss failsafe: the setpoint subscription has a deadline. When it is missed while
-the companion is flying offboard, it commands PX4 HOLD (AUTO.LOITER) so the drone
-holds position in a known mode instead of drifting out of OFFBOARD on stale data, and
-publishes a FailsafeEvent. When setpoints return it resumes OFFBOARD only with
-``resume_on_setpoints``; otherwise it waits for an explicit ``offboard_start``.
+Link-loss failsafe: when setpoints from the controller stop for ``setpoint_deadline``
+while a session is active, the companion commands PX4 HOLD (AUTO.LOITER), then stops
+streaming, and publishes a FailsafeEvent. It resumes only on an explicit
+``offboard_start``, from setpoints near the vehicle's current position (or by itself with
+``resume_on_setpoints``, under the same checks).
 """
 from __future__ import annotations
 
@@ -17,26 +21,47 @@ import logging
 import math
 import threading
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
-from companion.interface import Command, CommandResult, FailsafeEvent, VehicleState
+import zenoh
+
+from companion.interface import (
+    CONTROL_TOKEN_PREFIX,
+    Command,
+    CommandResult,
+    DroneSetpoint,
+    FailsafeEvent,
+    VehicleState,
+    valid_client_id,
+)
 from px4_link import Px4Link
 from px4_link.commands import CommandError
-from px4_link.setpoints import PositionSetpoint, SetpointRejected, VelocitySetpoint
+from px4_link.setpoints import PositionSetpoint, Setpoint, SetpointRejected, VelocitySetpoint
 from px4_link.telemetry import Attitude, Battery, Imu, LocalPosition
 from zenoh_robot import Node
 from zenoh_robot.events import SubscriptionEventCallbacks
 from zenoh_robot.image_transport import ImagePublisher, encode_strip
-from zenoh_robot.msgs import Header, Image, SensorCombined, Setpoint
+from zenoh_robot.msgs import Header, Image, SensorCombined
 from zenoh_robot.publisher import PublisherClosed
 from zenoh_robot.tools.stream_metrics import StreamRecorder
 from zenoh_robot.tools.stream_profiles import StreamProfile, stream_profile
 
 from .camera import RateKeeper, open_source
+from .control import ControlArbiter
+from .offboard import SAFE_MODE, OffboardLifecycle, OffboardState, Refused, VehicleMotion, check_against_vehicle
+from .reporting import RateLimiter, RateMeter
 
 log = logging.getLogger("companion")
+
+# Parameters a GCS may set by default: speeds and takeoff/landing behaviour, never failsafes or geofence.
+DEFAULT_PARAM_ALLOW = ("MPC_XY_VEL_MAX", "MPC_XY_CRUISE", "MPC_Z_VEL_MAX_UP", "MPC_Z_VEL_MAX_DN",
+                       "MPC_TKO_SPEED", "MPC_LAND_SPEED", "MIS_TAKEOFF_ALT")
+FLIGHT_COMMANDS = ("arm", "disarm", "takeoff", "land", "hold", "rtl", "offboard_start", "offboard_stop",
+                   "set_param", "take_control")
+COMMANDS = (*FLIGHT_COMMANDS, "release_control")
 
 
 @dataclass
@@ -46,27 +71,55 @@ class CompanionConfig:
     setpoint_deadline: float = 1.0
     resume_on_setpoints: bool = False
     sensor_rate_hz: float = 200.0        # the thesis's SensorCombined rate; asked of PX4 via MAVLink
+    sensor_rate_tolerance: float = 0.9   # warn when PX4 delivers less than this share of it
     state_rate_hz: float = 5.0
     camera: str | None = "test"          # None: no images
     camera_rate_hz: float = 30.0
     image_width: int = 320
     image_height: int = 240
+    max_offset_m: float = 10.0           # how far a position target may lie from the vehicle
+    max_speed: float = 10.0              # velocity setpoints, m/s
+    control_lease_s: float = 5.0         # a controller without liveliness token is gone after this silence
+    allow_force_disarm: bool = False     # a forced disarm in flight drops the vehicle
+    param_allow: tuple[str, ...] = DEFAULT_PARAM_ALLOW
+    report_interval_s: float = 2.0       # repeated refusals: one event per key per interval
+
+
+@dataclass
+class Candidate:
+    """The latest setpoint from one client while no session forwards it: where offboard_start begins."""
+    sp: Setpoint | None
+    at: float
+    refused: str = ""        # why the latest one was refused, "" when it passed the checks
 
 
 class Companion:
+    MAX_CANDIDATES = 16
+
     def __init__(self, node: Node, link: Px4Link, config: CompanionConfig) -> None:
         self.node, self.link, self.config = node, link, config
         q = config.profile.qos
         self.setpoints = StreamRecorder()
         self.sent = {name: StreamRecorder() for name in ("sensor", "state", "image")}
         self.setpoints_rejected = 0
+        self.setpoints_ignored = 0        # valid but outside a session: kept as candidate only
+        self.commands_refused = 0
         self.failsafe = ""                # why we hold, or ""
-        self.offboard_wanted = False      # the operator asked for OFFBOARD and not since for anything else
-        self.last_setpoint_at = 0.0
+        self.last_setpoint_at = 0.0       # last setpoint forwarded to PX4 inside a session
         self.events_sent: list[str] = []
+        self._candidates: dict[str, Candidate] = {}
         self._lock = threading.Lock()
+        self._limiter = RateLimiter(config.report_interval_s)
+        self.sensor_rate = RateMeter(window_s=2.0)
+        self.sensor_rate_requested = config.sensor_rate_hz
+        self._sensor_low_warned = 0.0
+        self._park_sent = 0.0
+        self._resume_tried = 0.0
         # PX4 commands wait for an ACK (up to seconds): never on the executor's threads.
+        # One worker: lifecycle transitions and commands run in order, never concurrently.
         self._commands = ThreadPoolExecutor(max_workers=1, thread_name_prefix="px4-cmd")
+        self.control = ControlArbiter(config.control_lease_s)
+        self.lifecycle = OffboardLifecycle(link, self._on_transition)
 
         self.sensor_pub = node.create_publisher(SensorCombined, "sensor", q["sensor"])
         self.state_pub = node.create_publisher(VehicleState, "state", q["state"])
@@ -78,14 +131,17 @@ class Companion:
             else:
                 self.image_pub = node.create_publisher(Image, "image", q["image"])
         self.setpoint_sub = node.create_subscription(
-            Setpoint, "setpoint", self._on_setpoint, q["setpoint"].replace(deadline=config.setpoint_deadline),
+            DroneSetpoint, "setpoint", self._on_setpoint, q["setpoint"].replace(deadline=config.setpoint_deadline),
             event_callbacks=SubscriptionEventCallbacks(deadline=self._on_deadline_missed))
         node.create_service("command", Command, CommandResult, self._on_command)
         node.create_timer(1.0 / config.state_rate_hz, self._publish_state)
         # The QoS deadline event is the trigger; this watchdog is its backstop, checked at 20 Hz,
-        # so the failsafe never depends on one mechanism alone.
+        # so the failsafe never depends on one mechanism alone. It also checks the invariants.
         node.create_timer(0.05, self._watchdog)
+        self._tokens = node.session.liveliness().declare_subscriber(
+            f"{CONTROL_TOKEN_PREFIX}/*", self._on_token, history=True)
         link.add_listener(self._on_imu, Imu)
+        link.add_event_listener(self._on_link_event)
         self._stop = threading.Event()
         self._camera_thread: threading.Thread | None = None
         if config.camera:
@@ -93,125 +149,307 @@ class Companion:
             self._camera_thread.start()
         node.add_on_close(self.close)
 
-    # -- setpoints -------------------------------------------------------------------
-    def _on_setpoint(self, msg: Setpoint, info: Any) -> None:
-        self.setpoints.record(info.seq, info.source_stamp_ns, info.received_stamp_ns)
-        yaw = msg.yaw if math.isfinite(msg.yaw) else None
-        sp = (VelocitySetpoint(msg.x, msg.y, msg.z, yaw) if msg.is_velocity
-              else PositionSetpoint(msg.x, msg.y, msg.z, yaw))
+    # -- events ------------------------------------------------------------------------
+    def _event(self, kind: str, detail: str, action: str = "", client_id: str = "", count: int = 0) -> None:
+        log.warning("%s%s: %s -> %s", kind, f" [{client_id}]" if client_id else "", detail, action or "no action")
+        self.events_sent.append(kind)
+        del self.events_sent[:-200]
         try:
-            self.link.set_setpoint(sp)
-        except SetpointRejected as exc:
+            self.events_pub.publish(FailsafeEvent(Header.now(), kind, detail, action, client_id, count))
+        except PublisherClosed:
+            pass
+
+    def _on_transition(self, old: OffboardState, new: OffboardState, why: str) -> None:
+        self._event("lifecycle", f"{old.value} -> {new.value}: {why}", new.value)
+
+    def _report_refused(self, kind: str, client_id: str, reason: str, detail: str) -> None:
+        """Count always; publish and log the first and then once per interval per (kind, client, reason)."""
+        count = self._limiter.hit(kind, client_id, reason)
+        if count:
+            self._event(kind, detail, "refused", client_id, count)
+
+    # -- setpoints -----------------------------------------------------------------------
+    def _on_setpoint(self, msg: DroneSetpoint, info: Any) -> None:
+        self.setpoints.record(info.seq, info.source_stamp_ns, info.received_stamp_ns)
+        client = msg.client_id if valid_client_id(msg.client_id) else ""
+        holder = self.control.holder
+        if holder and client != holder or not client:
+            _, why, _ = self.control.admit(client, "setpoint")
             self.setpoints_rejected += 1
-            if self.setpoints_rejected == 1 or self.setpoints_rejected % 100 == 0:
-                log.warning("setpoint rejected, never sent to PX4: %s (%d so far)", exc, self.setpoints_rejected)
+            self._report_refused("setpoint_rejected", client, "not_in_control", why)
+            return
+        now = time.monotonic()
+        try:
+            sp = self._to_setpoint(msg)
+            check_against_vehicle(sp, self._motion(), self.config.max_offset_m, self.config.max_speed)
+        except Refused as exc:
+            self._remember(client, None, now, f"{exc}")
+            self.setpoints_rejected += 1
+            self._report_refused("setpoint_rejected", client, exc.reason, f"setpoint refused: {exc}")
+            return
+        self._remember(client, sp, now, "")
+        try:
+            self.lifecycle.forward(sp)
+        except Refused as exc:   # no session: valid, kept as the candidate, never sent
+            self.setpoints_ignored += 1
+            self._report_refused("setpoint_ignored", client, exc.reason, str(exc))
+            return
+        except SetpointRejected as exc:   # px4_link's own checks (geofence, step rate)
+            self.setpoints_rejected += 1
+            self._remember(client, None, now, str(exc))
+            self._report_refused("setpoint_rejected", client, exc.reason, f"setpoint refused: {exc}")
             return
         # Only setpoints PX4 accepted keep the failsafe away: a stream of garbage is no link.
-        self.last_setpoint_at = time.monotonic()
-        if self.failsafe and self.config.resume_on_setpoints and self.offboard_wanted:
-            self._event("setpoints_resumed", "setpoints back: resuming OFFBOARD", "OFFBOARD")
-            self.failsafe = ""
-            self._commands.submit(self._try, self.link.start_offboard)
+        self.last_setpoint_at = now
+
+    @staticmethod
+    def _to_setpoint(msg: DroneSetpoint) -> Setpoint:
+        yaw = msg.yaw if math.isfinite(msg.yaw) else None
+        return (VelocitySetpoint(msg.x, msg.y, msg.z, yaw) if msg.is_velocity
+                else PositionSetpoint(msg.x, msg.y, msg.z, yaw))
+
+    def _remember(self, client: str, sp: Setpoint | None, now: float, refused: str) -> None:
+        with self._lock:
+            if client not in self._candidates and len(self._candidates) >= self.MAX_CANDIDATES:
+                oldest = min(self._candidates, key=lambda c: self._candidates[c].at)
+                del self._candidates[oldest]
+            self._candidates[client] = Candidate(sp, now, refused)
+        if (not refused and self.config.resume_on_setpoints and client == self.control.holder
+                and self.lifecycle.state is OffboardState.FAILSAFE_HOLD and now - self._resume_tried > 3.0):
+            self._resume_tried = now   # one attempt at a time, not one per setpoint
+            self._commands.submit(self._guarded, "resume", lambda: self._offboard_start(client))
+
+    def _motion(self) -> VehicleMotion | None:
+        pos = self.link.latest(LocalPosition)
+        if pos is None or time.monotonic() - pos.received_at > 1.0:
+            return None
+        return VehicleMotion((pos.x, pos.y, pos.z), (pos.vx, pos.vy, pos.vz))
 
     def _watchdog(self) -> None:
-        if self.last_setpoint_at and time.monotonic() - self.last_setpoint_at > self.config.setpoint_deadline:
+        now = time.monotonic()
+        if self.lifecycle.state is OffboardState.ACTIVE and now - self.last_setpoint_at > self.config.setpoint_deadline:
             self._on_deadline_missed(None)
+        gone = self.control.expire(now)
+        if gone:
+            self._event("control_changed", f"{gone} released: liveliness lost", "no GCS in control", gone)
+        if not self.lifecycle.in_session and self.link.mode == "OFFBOARD" and self.link.connected \
+                and now - self._park_sent > 2.0:
+            # Real PX4 returns to OFFBOARD after landing and auto-disarm: never leave it there.
+            self._park_sent = now
+            self._commands.submit(self._guarded, "park", self._park)
+        wrong = self.lifecycle.audit()
+        if wrong:
+            self._event("lifecycle", wrong, "stream stopped")
+        self._check_sensor_rate(now)
+
+    def _park(self) -> None:
+        if self.lifecycle.park("PX4 in OFFBOARD outside a session"):
+            self._event("stray_offboard", "PX4 in OFFBOARD without an operator-requested session", SAFE_MODE)
 
     def _on_deadline_missed(self, status: Any) -> None:
         with self._lock:   # the event and the watchdog may race on a multi-threaded executor
-            if not self.offboard_wanted or self.failsafe:
+            if self.lifecycle.state is not OffboardState.ACTIVE or self.failsafe:
                 return
             self.failsafe = f"no setpoint for {self.config.setpoint_deadline:.1f} s"
-        self._event("setpoint_deadline_missed", self.failsafe, "HOLD")
-        self._commands.submit(self._hold_for_failsafe)
+        self._event("setpoint_deadline_missed", self.failsafe, "HOLD", self.control.holder)
+        self._commands.submit(self._hold_for_failsafe, self.failsafe)
 
-    def _hold_for_failsafe(self) -> None:
+    def _hold_for_failsafe(self, why: str) -> None:
         try:
-            self.link.stop_offboard(mode="AUTO.LOITER")   # HOLD first, then stop streaming
+            self.lifecycle.deadline_missed(why)   # HOLD first, then stop streaming
         except CommandError as exc:
             log.error("failsafe HOLD failed: %s", exc)
             self._event("failsafe_failed", str(exc), "")
 
-    def _event(self, kind: str, detail: str, action: str) -> None:
-        log.warning("%s: %s -> %s", kind, detail, action or "no action")
-        self.events_sent.append(kind)
-        self.events_pub.publish(FailsafeEvent(Header.now(), kind, detail, action))
+    def _on_link_event(self, name: str, details: dict[str, Any]) -> None:   # px4_link's thread: never block
+        if name == "offboard_lost":
+            new = str(details.get("new_mode", "?"))
+            self._event("offboard_lost", f"PX4 left OFFBOARD for {new} by itself", "stream stopped",
+                        self.control.holder)
+            self._commands.submit(self._guarded, "offboard_lost", lambda: self.lifecycle.px4_left_offboard(new))
+        elif name == "armed_changed" and not details.get("armed", True):
+            self._commands.submit(self._guarded, "disarmed", self.lifecycle.disarmed)
+        elif name == "connected" and details.get("reconnect"):
+            self.sensor_rate.reset()
+            self._event("px4_reconnected", "PX4 heartbeats back: asking for the sensor rate again",
+                        f"HIGHRES_IMU {self.sensor_rate_requested:g} Hz")
+            self._commands.submit(self._guarded, "request rates", self.request_rates)
+        elif name == "disconnected":
+            self._event("px4_disconnected", f"no PX4 heartbeat for {details.get('silent_s', 0):.1f} s", "")
 
-    # -- commands --------------------------------------------------------------------
-    def _on_command(self, cmd: Command) -> CommandResult:
-        handlers = {
-            "arm": lambda: self.link.arm(),
-            "disarm": lambda: self.link.disarm(force=cmd.force),
-            "takeoff": lambda: self.link.takeoff(cmd.value or 5.0),
-            "land": lambda: self._leave_offboard("AUTO.LAND"),
-            "hold": lambda: self._leave_offboard("AUTO.LOITER"),
-            "rtl": lambda: self._leave_offboard("AUTO.RTL"),
-            "offboard_start": self._offboard_start,
-            "offboard_stop": lambda: self._leave_offboard("AUTO.LOITER"),
-            "set_param": lambda: self.link.set_param(cmd.text, cmd.value),
-        }
-        fn = handlers.get(cmd.name)
-        if fn is None:
-            return CommandResult(False, f"unknown command {cmd.name!r}; commands: {', '.join(handlers)}",
-                                 self.link.state.mode)
-        if cmd.name == "takeoff" and not (0.5 <= (cmd.value or 5.0) <= 120):
-            return CommandResult(False, f"takeoff altitude {cmd.value} m outside 0.5..120", self.link.state.mode)
-        future = self._commands.submit(fn)
-        try:
-            future.result(timeout=15.0)
-        except CommandError as exc:
-            return CommandResult(False, str(exc), self.link.state.mode)
-        except Exception as exc:   # a bad argument, a link that is down
-            return CommandResult(False, f"{type(exc).__name__}: {exc}", self.link.state.mode)
-        return CommandResult(True, "done", self.link.state.mode)
+    def request_rates(self) -> None:
+        self.link.request_message_interval("HIGHRES_IMU", self.sensor_rate_requested)
 
-    def _offboard_start(self) -> None:
-        if time.monotonic() - self.last_setpoint_at > self.config.setpoint_deadline:
-            raise RuntimeError("no recent setpoints: stream setpoints before asking for OFFBOARD")
-        self.link.start_offboard()
-        self.offboard_wanted = True
-        self.failsafe = ""
+    def _check_sensor_rate(self, now: float) -> None:
+        rate = self.sensor_rate.rate_hz(now)
+        want = self.sensor_rate_requested
+        if math.isnan(rate) or not self.link.connected or rate >= self.config.sensor_rate_tolerance * want:
+            return
+        if now - self._sensor_low_warned >= 60.0:
+            self._sensor_low_warned = now
+            self._event("sensor_rate_low", f"PX4 delivers HIGHRES_IMU at {rate:.0f} Hz, {want:g} Hz requested", "")
 
-    def _leave_offboard(self, mode: str) -> None:
-        """Switch mode, then stop the setpoint stream (stop_offboard does both in that order)."""
-        self.offboard_wanted = False
-        self.failsafe = ""
-        if self.link.streaming:
-            self.link.stop_offboard(mode=mode)
-        else:
-            self.link.set_mode(mode)
-
-    def _try(self, fn: Any) -> None:
+    def _guarded(self, what: str, fn: Callable[[], Any]) -> None:
         try:
             fn()
-        except CommandError as exc:
-            log.error("%s", exc)
+        except (CommandError, Refused, SetpointRejected, RuntimeError) as exc:
+            log.error("%s: %s", what, exc)
+            self._event("failsafe_failed" if what in ("park", "offboard_lost") else "lifecycle",
+                        f"{what} failed: {exc}", "")
+
+    def _on_token(self, sample: Any) -> None:   # Zenoh thread
+        client = str(sample.key_expr).rsplit("/", 1)[-1]
+        if valid_client_id(client):
+            self.control.token(client, sample.kind == zenoh.SampleKind.PUT)
+
+    # -- commands ------------------------------------------------------------------------
+    def _on_command(self, cmd: Command) -> CommandResult:
+        who = cmd.client_id if valid_client_id(cmd.client_id) else f"<invalid {cmd.client_id[:64]!r}>"
+        log.info("command %s (value=%g text=%r force=%s) from %s", cmd.name[:32], cmd.value, cmd.text[:32],
+                 cmd.force, who)
+        res = self._decide(cmd)
+        if not res.success:
+            log.warning("command %s from %s refused or failed: %s", cmd.name[:32], who, res.message)
+        return res
+
+    def _refuse(self, cmd: Command, why: str) -> CommandResult:
+        self.commands_refused += 1
+        return CommandResult(False, why, self.link.state.mode)
+
+    def _decide(self, cmd: Command) -> CommandResult:
+        if cmd.name not in COMMANDS:
+            return self._refuse(cmd, f"unknown command {cmd.name[:32]!r}; commands: {', '.join(COMMANDS)}")
+        client = cmd.client_id
+        if cmd.name == "release_control":
+            if self.control.release(client):
+                self._event("control_changed", f"{client} released control", "no GCS in control", client)
+                return CommandResult(True, "control released", self.link.state.mode)
+            return self._refuse(cmd, f"release_control refused: {client or '<none>'} does not hold control "
+                                     f"(holder: {self.control.holder or 'none'})")
+        ok, why, previous = self.control.admit(client, cmd.name, claim=True,
+                                               force=cmd.force and cmd.name == "take_control")
+        if not ok:
+            self._report_refused("control_refused", client if valid_client_id(client) else "", cmd.name,
+                                 f"command {cmd.name} from {client or '<no id>'}: {why}")
+            return self._refuse(cmd, why)
+        if previous:
+            self._event("control_lost", f"{client} took control from {previous}", "", previous)
+        if cmd.name == "take_control":
+            return CommandResult(True, f"{client} in control" + (f" (taken from {previous})" if previous else ""),
+                                 self.link.state.mode)
+        why = self._policy(cmd)
+        if why:
+            return self._refuse(cmd, why)
+        fn = self._handler(cmd)
+        future = self._commands.submit(fn)
+        try:
+            msg = future.result(timeout=20.0)
+        except (CommandError, Refused, SetpointRejected) as exc:
+            return CommandResult(False, str(exc), self.link.state.mode)
+        except Exception as exc:  # noqa: BLE001  (a bad argument, a link that is down: the sender hears it)
+            return CommandResult(False, f"{type(exc).__name__}: {exc}", self.link.state.mode)
+        return CommandResult(True, msg or "done", self.link.state.mode)
+
+    def _policy(self, cmd: Command) -> str:
+        """Why ``cmd`` is not allowed whoever sends it, or ""."""
+        if cmd.name == "takeoff" and not (0.5 <= (cmd.value or 5.0) <= 120):
+            return f"takeoff altitude {cmd.value} m outside 0.5..120"
+        if cmd.name == "disarm" and cmd.force and not self.link.state.landed and not self.config.allow_force_disarm:
+            return ("forced disarm refused: the vehicle is not landed (motors would stop in flight); "
+                    "the companion allows it only with --allow-force-disarm")
+        if cmd.name == "set_param":
+            if cmd.text not in self.config.param_allow:
+                return (f"set_param {cmd.text[:32]!r} refused: not in the companion's allow-list "
+                        f"({', '.join(self.config.param_allow) or 'empty'})")
+            if not math.isfinite(cmd.value):
+                return f"set_param {cmd.text}: value {cmd.value} is not finite"
+        return ""
+
+    def _handler(self, cmd: Command) -> Callable[[], str | None]:
+        lc, link, who = self.lifecycle, self.link, cmd.client_id
+
+        def leave(mode: str) -> Callable[[], None]:
+            return lambda: self._leave(mode, f"{cmd.name} by {who}")
+
+        handlers: dict[str, Callable[[], Any]] = {
+            "arm": self._arm,
+            "disarm": lambda: (link.disarm(force=cmd.force), lc.disarmed()),
+            "takeoff": lambda: (lc.in_session and lc.leave(SAFE_MODE, f"takeoff by {who}"),
+                                link.takeoff(cmd.value or 5.0)),
+            "land": leave("AUTO.LAND"),
+            "hold": leave("AUTO.LOITER"),
+            "rtl": leave("AUTO.RTL"),
+            "offboard_stop": leave("AUTO.LOITER"),
+            "offboard_start": lambda: self._offboard_start(who),
+            "set_param": lambda: link.set_param(cmd.text, cmd.value),
+        }
+        fn = handlers[cmd.name]
+
+        def run() -> str | None:
+            r = fn()
+            return r if isinstance(r, str) else None
+        return run
+
+    def _leave(self, mode: str, why: str) -> None:
+        self.failsafe = ""
+        self.lifecycle.leave(mode, why)
+
+    def _arm(self) -> str:
+        # Arming must never take off by itself: PX4 sitting in OFFBOARD outside a session
+        # (it returns there after landing) goes to Hold first.
+        note = ""
+        if self.link.mode == "OFFBOARD" and not self.lifecycle.in_session:
+            self.lifecycle.park("arm outside an offboard session")
+            note = f"PX4 was in OFFBOARD without a session: switched to {SAFE_MODE} before arming"
+        self.link.arm()
+        return note or "armed"
+
+    def _offboard_start(self, client: str) -> str:
+        with self._lock:
+            cand = self._candidates.get(client)
+        now = time.monotonic()
+        fresh = cand is not None and now - cand.at <= max(self.config.setpoint_deadline, 0.5)
+        if cand is None or not fresh:
+            raise Refused("no_setpoints", f"no recent setpoints from {client}: stream setpoints (from the "
+                                          "vehicle's position) before asking for OFFBOARD")
+        if cand.sp is None:
+            raise Refused("setpoints_refused", f"setpoints refused: {cand.refused}")
+        try:
+            check_against_vehicle(cand.sp, self._motion(), self.config.max_offset_m, self.config.max_speed)
+        except Refused as exc:
+            raise Refused(exc.reason, f"setpoints refused: {exc}") from None
+        self.lifecycle.start(cand.sp)
+        self.last_setpoint_at = time.monotonic()
+        self.failsafe = ""
+        return "OFFBOARD"
 
     # -- telemetry -------------------------------------------------------------------
     def _on_imu(self, imu: Imu) -> None:    # px4_link's thread: publish is thread safe
+        self.sensor_rate.tick()
         msg = SensorCombined(
             Header.now(frame_id="base_link"), imu.timestamp_us, list(imu.gyro_rad), 0, 0,
             list(imu.accelerometer_m_s2), 0, list(imu.magnetometer_ga), imu.baro_alt_meter,
             imu.baro_temp_celcius)
         try:
-            self.sensor_pub.publish(msg)
+            sent = self.sensor_pub.publish(msg)
         except PublisherClosed:   # shutting down: the link's thread outlived the node by a moment
             return
-        self.sent["sensor"].record(self.sensor_pub.sequence, self.sensor_pub.last_stamp_ns)
+        self.sent["sensor"].record(sent.seq, sent.stamp_ns)
 
     def _publish_state(self) -> None:
         st = self.link.state
         pos = self.link.latest(LocalPosition)
         att = self.link.latest(Attitude)
         batt = self.link.latest(Battery)
-        self.state_pub.publish(VehicleState(
+        sent = self.state_pub.publish(VehicleState(
             Header.now(), st.mode, st.armed, bool(st.landed), self.link.connected, self.link.streaming,
             [pos.x, pos.y, pos.z] if pos else [math.nan] * 3,
             [pos.vx, pos.vy, pos.vz] if pos else [math.nan] * 3,
             [att.roll, att.pitch, att.yaw] if att else [math.nan] * 3,
             batt.remaining_pct / 100.0 if batt else math.nan, batt.voltage_v if batt else math.nan,
-            self.failsafe, self.setpoints_rejected))
-        self.sent["state"].record(self.state_pub.sequence, self.state_pub.last_stamp_ns)
+            self.failsafe, self.setpoints_rejected, self.lifecycle.state.value, self.control.holder,
+            self.sensor_rate.rate_hz(), self.sensor_rate_requested, self.commands_refused))
+        self.sent["state"].record(sent.seq, sent.stamp_ns)
 
     def _camera_loop(self) -> None:
         cfg = self.config
@@ -243,8 +481,8 @@ class Companion:
             img = Image(head, h, w, "jpeg", 0, 0, encode_strip(frame, self.config.profile.jpeg_quality))
         else:
             img = Image.from_array(frame, header=head)
-        self.image_pub.publish(img)
-        self.sent["image"].record(self.image_pub.sequence, self.image_pub.last_stamp_ns)
+        sent = self.image_pub.publish(img)
+        self.sent["image"].record(sent.seq, sent.stamp_ns)
 
     def close(self) -> None:
         # Runs before the node's publishers go: the link's thread must stop using them first.
@@ -253,11 +491,18 @@ class Companion:
         if self._camera_thread is not None:
             self._camera_thread.join(timeout=2.0)
         self._commands.shutdown(wait=False, cancel_futures=True)
+        try:
+            self._tokens.undeclare()
+        except zenoh.ZError as exc:   # the session may already be closing
+            log.debug("liveliness subscriber: %s", exc)
 
     def summary(self) -> dict[str, Any]:
         s = self.setpoints.summary().as_dict()
         s["lost_pct"] = self.setpoints.lost_pct()
-        return {"setpoints": s, "setpoints_rejected": self.setpoints_rejected, "events": self.events_sent,
+        return {"setpoints": s, "setpoints_rejected": self.setpoints_rejected,
+                "setpoints_ignored": self.setpoints_ignored, "commands_refused": self.commands_refused,
+                "control": vars(self.control.counters), "sensor_rate_hz": self.sensor_rate.rate_hz(),
+                "offboard_state": self.lifecycle.state.value, "events": self.events_sent,
                 "final_mode": self.link.state.mode,
                 "logs": {"sent": {k: v.to_dict() for k, v in self.sent.items()},
                          "received": {"setpoint": self.setpoints.to_dict()}}}

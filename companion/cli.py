@@ -7,9 +7,10 @@ import json
 import logging
 import signal
 import threading
+from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 from px4_link import CommandError, Px4Link
 from zenoh_robot import Node, SessionConfig
@@ -18,7 +19,7 @@ from zenoh_robot.parameters import add_param_argument, params_from_args
 from zenoh_robot.qos import load_qos
 from zenoh_robot.tools.stream_profiles import IMAGE_MODES, PROFILES, STREAMS, StreamProfile, stream_profile
 
-from .app import Companion, CompanionConfig
+from .app import DEFAULT_PARAM_ALLOW, Companion, CompanionConfig
 
 log = logging.getLogger("companion")
 DEFAULT_PX4 = "udpin:0.0.0.0:14540"
@@ -46,6 +47,14 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="raw rgb8 (as the thesis), one JPEG per frame, or sliced JPEG; default: the profile's")
     p.add_argument("--jpeg-quality", type=int, help="JPEG quality 1..95 (default: the profile's)")
     p.add_argument("--sensor-rate", type=float, default=200.0, help="HIGHRES_IMU rate asked of PX4, Hz")
+    p.add_argument("--max-offset", type=float, default=10.0,
+                   help="farthest a position setpoint may lie from the vehicle, m (default 10)")
+    p.add_argument("--control-lease", type=float, default=5.0,
+                   help="a GCS in control without a liveliness token loses control after this silence, s")
+    p.add_argument("--allow-force-disarm", action="store_true",
+                   help="accept `disarm --force` in flight (motors stop: the vehicle falls); refused by default")
+    p.add_argument("--param-allow", default=",".join(DEFAULT_PARAM_ALLOW),
+                   help="comma-separated PX4 parameters a GCS may set (default: %(default)s)")
     p.add_argument("--duration", type=float, help="stop after this many seconds")
     p.add_argument("--record", type=Path, help="write the setpoint stream's figures here (JSON) at exit")
     add_param_argument(p)
@@ -95,7 +104,10 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(str(exc)) from None
     config = CompanionConfig(drone_id=args.id, profile=profile, setpoint_deadline=args.deadline,
                              resume_on_setpoints=args.resume_on_setpoints, sensor_rate_hz=args.sensor_rate,
-                             camera=None if args.camera == "none" else args.camera, camera_rate_hz=args.camera_rate)
+                             camera=None if args.camera == "none" else args.camera, camera_rate_hz=args.camera_rate,
+                             max_offset_m=args.max_offset, control_lease_s=args.control_lease,
+                             allow_force_disarm=args.allow_force_disarm,
+                             param_allow=tuple(n for n in args.param_allow.split(",") if n))
     session = SessionConfig.from_file(args.zenoh) if args.zenoh else SessionConfig(**profile.transport)
     from zenoh_robot import MultiThreadedExecutor
     stop = threading.Event()
@@ -106,11 +118,11 @@ def run(args: argparse.Namespace) -> int:
         log.info("companion %s: PX4 at %s, profile %s", args.id, connection, profile.name)
         if not link.wait_connected(timeout=10.0):
             log.warning("no PX4 heartbeat yet on %s; waiting in the background", connection)
-        try:
-            link.request_message_interval("HIGHRES_IMU", args.sensor_rate)
-        except CommandError as exc:   # PX4 not there yet: its default rate applies
-            log.warning("could not set the HIGHRES_IMU rate: %s", exc)
         companion = Companion(node, link, config)
+        try:
+            companion.request_rates()   # asked again by the companion after every PX4 reconnect
+        except CommandError as exc:   # PX4 not there yet: its default rate applies until it reconnects
+            log.warning("could not set the HIGHRES_IMU rate: %s", exc)
         spinner = threading.Thread(target=node.spin, name="companion-spin", daemon=True)
         spinner.start()
         try:

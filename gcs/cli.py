@@ -22,7 +22,7 @@ from .mission import run_mission
 from .patterns import PATTERNS
 
 COMMANDS = ("arm", "disarm", "takeoff", "land", "hold", "rtl", "offboard", "offboard_start", "offboard_stop",
-            "set_param")
+            "set_param", "take_control", "release_control")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -33,9 +33,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     c.add_argument("drone")
     c.add_argument("command", choices=COMMANDS)
     c.add_argument("value", nargs="?", help="takeoff altitude, or NAME=VALUE for set_param")
-    c.add_argument("--force", action="store_true", help="force (disarm in flight)")
+    c.add_argument("--force", action="store_true",
+                   help="disarm: in flight (the companion refuses unless started with --allow-force-disarm); "
+                        "take_control: take over from another GCS")
     c.add_argument("--timeout", type=float, default=8.0)
     c.add_argument("--zenoh", help="Zenoh session config (JSON5)")
+    c.add_argument("--gcs-id", default=None, help="this GCS's id (default user@host, shared with `gcs` runs)")
     p.set_defaults(func=run)
 
 
@@ -51,7 +54,12 @@ def add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--image", choices=IMAGE_MODES, help="image path, overriding the profile's (must match the drone's)")
     p.add_argument("--duration", type=float, help="stop after this many seconds")
     p.add_argument("--mission", action="store_true",
-                   help="fly: offboard, arm, pattern for --duration, land (needs one drone)")
+                   help="fly: offboard, arm, pattern for --duration, land (needs one drone); without it the "
+                        "pattern is flown from wherever a drone is once an operator starts its offboard session")
+    p.add_argument("--gcs-id", default=None,
+                   help="this GCS's id, carried by its setpoints and commands (default user@host)")
+    p.add_argument("--take-control", action="store_true",
+                   help="take control of the drones from whichever GCS holds it (that GCS is told)")
     p.add_argument("--no-dashboard", action="store_true", help="log lines instead of the live table")
     p.add_argument("--record", type=Path,
                    help="write per-drone, per-stream figures here at the end: FILE.json (with raw sample "
@@ -75,9 +83,13 @@ def run(args: argparse.Namespace) -> int:
     params = params_from_args(args)
     profile = stream_profile(args.profile, params, image_mode=args.image)
     drones = [d for d in (args.drones or "").split(",") if d]
+    client_id = _client_id(args)
+    if client_id is None:
+        return 2
     config = GcsConfig(drones=drones, pattern=args.pattern, rate_hz=args.rate, altitude=args.altitude,
                        size=args.size, speed=args.speed, profile=profile, save_image=args.save_image,
-                       save_every=args.save_every)
+                       save_every=args.save_every, client_id=client_id, take_control=args.take_control,
+                       auto_fly=not args.mission)
     console = Console(stderr=False)
     with Node("gcs", config=session_config(args, profile.transport), parameter_overrides=params,
               enable_topic_statistics=not args.no_topic_statistics) as node:
@@ -86,6 +98,13 @@ def run(args: argparse.Namespace) -> int:
         spinner.start()
         result: dict[str, Any] = {}
         mission_thread = None
+        if args.take_control:
+            if not drones:
+                console.print("gcs: --take-control needs --drones (which drones to take)")
+                node.shutdown()
+                return 2
+            for d, res in gcs.take_control().items():
+                console.print(f"gcs: take_control {d}: {'ok' if res.success else 'FAILED'} {res.message}")
         if args.mission:
             if len(drones) != 1:
                 console.print("gcs: --mission needs exactly one drone (--drones uav1)")
@@ -101,6 +120,7 @@ def run(args: argparse.Namespace) -> int:
         except KeyboardInterrupt:
             console.print("gcs: interrupted")
         finally:
+            gcs.release_control()
             node.shutdown()
             spinner.join(timeout=2.0)
         summary = summarize(gcs, profile.name)
@@ -109,9 +129,22 @@ def run(args: argparse.Namespace) -> int:
         if args.record:
             write_record(summary, args.record)
             console.print(f"gcs: figures written to {args.record}")
+        if args.mission:
+            console.print(f"gcs: mission {result.get('result') or 'FAILED: did not finish'}")
     if args.mission and not result.get("ok"):
         return 1
     return 0
+
+
+def _client_id(args: argparse.Namespace) -> str | None:
+    from companion.interface import valid_client_id
+
+    from .app import default_client_id
+    cid = args.gcs_id or default_client_id()
+    if not valid_client_id(cid):
+        print(f"gcs: --gcs-id {cid!r}: letters, digits and _.@:+- only, at most 64", file=sys.stderr)
+        return None
+    return cid
 
 
 def _watch(gcs: Gcs, console: Console, args: argparse.Namespace, deadline: float | None,
@@ -134,7 +167,10 @@ def _watch(gcs: Gcs, console: Console, args: argparse.Namespace, deadline: float
                     console.log(f"{d.id}: mode={s.mode if s else '?'} armed={s.armed if s else '?'} "
                                 f"pos={[round(v, 1) for v in s.position] if s else '?'} "
                                 f"sensor {sensor.rate_hz:.0f} Hz age {sensor.age_avg_ms:.1f} ms, "
-                                f"frames {d.image.frames}, setpoints sent {d.setpoints_sent}")
+                                f"(PX4 delivers {s.sensor_rate_hz if s else float('nan'):.0f} of "
+                                f"{s.sensor_rate_requested_hz if s else float('nan'):.0f} Hz asked), "
+                                f"frames {d.image.frames}, setpoints sent {d.setpoints_sent}, "
+                                f"offboard {s.offboard_state if s else '?'}, control {s.controller if s else '?'}")
         return
     with Live(render(gcs, rates), console=console, refresh_per_second=4, transient=False) as live:
         while not done():
@@ -210,11 +246,14 @@ def run_command(args: argparse.Namespace) -> int:
         except ValueError:
             print(f"gcs cmd: parameter value {raw!r} is not a number", file=sys.stderr)
             return 2
+    client_id = _client_id(args)
+    if client_id is None:
+        return 2
     config = SessionConfig.from_file(args.zenoh) if args.zenoh else SessionConfig()
     with Node("gcs_cmd", config=config) as node:
         client = node.create_client(f"/{args.drone}/command", Command, CommandResult)
         try:
-            res = client.call(Command(name, value, text, args.force), timeout=args.timeout)
+            res = client.call(Command(name, value, text, args.force, client_id), timeout=args.timeout)
         except ServiceCallError as exc:
             print(f"gcs cmd: {args.drone} {name}: {exc}", file=sys.stderr)
             return 1

@@ -7,6 +7,8 @@ import time
 from rich.console import Group
 from rich.table import Table
 
+from companion.interface import VehicleState
+
 from .app import DroneLink, Gcs
 
 
@@ -29,7 +31,8 @@ class RateMeter:
 
 def render(gcs: Gcs, rates: RateMeter, title: str = "zenoh-robot GCS") -> Group:
     drones = Table(title=title, expand=True)
-    for col in ("drone", "mode", "armed", "landed", "position (NED m)", "battery", "PX4", "link", "failsafe"):
+    for col in ("drone", "mode", "armed", "landed", "position (NED m)", "battery", "PX4", "link", "offboard",
+                "control", "sensor Hz (asked)", "failsafe"):
         drones.add_column(col)
     streams = Table(expand=True)
     for col in ("drone", "stream", "rate Hz", "age avg ms", "age p99 ms", "period avg ms", "period max ms",
@@ -53,10 +56,21 @@ def render(gcs: Gcs, rates: RateMeter, title: str = "zenoh-robot GCS") -> Group:
 def _drone_row(table: Table, d: DroneLink) -> None:
     s = d.state
     if s is None:
-        table.add_row(d.id, "?", "", "", "", "", "", "waiting", "")
+        table.add_row(d.id, "?", "", "", "", "", "", "waiting", "", "", "", "")
         return
     pos = ", ".join(f"{v:6.1f}" for v in s.position)
     batt = "-" if math.isnan(s.battery_remaining) else f"{s.battery_remaining * 100:3.0f}%"
     link = "ok" if d.link_age < 2.0 else f"silent {d.link_age:.0f}s"
+    control = "this GCS" if d.in_control else (s.controller or "none")
     table.add_row(d.id, s.mode, "yes" if s.armed else "no", "yes" if s.landed else "no", pos, batt,
-                  "up" if s.connected else "DOWN", link, s.failsafe or "")
+                  "up" if s.connected else "DOWN", link, s.offboard_state, control, sensor_rate(s),
+                  s.failsafe or (d.failures[-1] if d.failures else ""))
+
+
+def sensor_rate(s: VehicleState) -> str:
+    """Delivered (requested) HIGHRES_IMU rate, flagged LOW below 90 % of the request."""
+    got, want = s.sensor_rate_hz, s.sensor_rate_requested_hz
+    if math.isnan(got) or math.isnan(want):
+        return "-"
+    flag = " LOW" if got < 0.9 * want else ""
+    return f"{got:.0f} ({want:.0f}){flag}"

@@ -1,65 +1,100 @@
 """A scripted flight: wait for the drone, OFFBOARD, arm, fly the pattern, land.
 
-Setpoints stream from the GCS's timer the whole time (hover target first), so
-PX4's rule that OFFBOARD needs a setpoint stream beforehand is met by the
-companion receiving them; commands go through the drone's command service and
-are retried, because on a lossy link a request or its reply can be lost.
+Setpoints stream from the GCS's timer the whole time, starting at the drone's current
+position (see gcs/app.py), so PX4's rule that OFFBOARD needs a setpoint stream beforehand
+is met and a mission may start anywhere. Commands go through the drone's command
+service and are retried while the answer is a lost request or reply (a lossy link), never
+when the drone refused: a refusal is the answer.
+
+The mission tells the truth: it fails, says why and stops at once when the companion
+reports a failsafe (deadline missed, PX4 left OFFBOARD, control lost) or refuses this
+GCS's setpoints, or when the drone is not doing what the mission asked.
 """
 from __future__ import annotations
 
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
-from .app import Gcs
+from .app import DroneLink, Gcs
 
 
-def _until(pred: Callable[[], bool], timeout: float, step: float = 0.1) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(step)
-    return pred()
+class MissionFailed(Exception):
+    pass
 
 
 def run_mission(gcs: Gcs, drone_id: str, duration: float, log: Callable[..., None]) -> dict[str, Any]:
-    out: dict[str, Any] = {"ok": False, "steps": []}
+    out: dict[str, Any] = {"ok": False, "steps": [], "result": ""}
     drone = gcs.add_drone(drone_id)
+    drone.fly = False
+    try:
+        _fly(gcs, drone, duration, out, log)
+        out["ok"] = True
+        out["result"] = (f"ok: flew the {gcs.config.pattern} pattern for {duration:.0f} s, landed and disarmed "
+                         f"(largest distance from the path {drone.max_path_error:.2f} m)")
+    except MissionFailed as exc:
+        out["result"] = f"FAILED: {exc}"
+        if drone.state is not None and drone.state.armed and drone.in_control:
+            res = drone.command("hold")   # whatever went wrong, do not leave it following a stale plan
+            log(f"mission: hold after failure: {'ok' if res.success else 'FAILED'} {res.message}")
+    out["max_path_error_m"] = drone.max_path_error
+    out["failures"] = list(drone.failures)
+    log(f"mission: {out['result']}")
+    return out
 
-    def step(name: str, ok: bool, detail: str = "") -> bool:
+
+def _fly(gcs: Gcs, drone: DroneLink, duration: float, out: dict[str, Any], log: Callable[..., None]) -> None:
+    failures_at_start = len(drone.failures)
+
+    def step(name: str, ok: bool, detail: str = "") -> None:
         out["steps"].append({"step": name, "ok": ok, "detail": detail, "t": time.time()})
         log(f"mission: {name}: {'ok' if ok else 'FAILED'} {detail}")
-        return ok
+        if not ok:
+            raise MissionFailed(f"{name}: {detail}" if detail else name)
 
-    def command(name: str, value: float = 0.0, tries: int = 3) -> bool:
-        res = None
-        for _ in range(tries):
-            res = drone.command(name, value)
-            if res.success:
+    def check() -> None:
+        if len(drone.failures) > failures_at_start:
+            step("no failsafe, no refused setpoint", False, drone.failures[-1])
+
+    def until(pred: Callable[[], bool], timeout: float) -> bool:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            check()
+            if pred():
+                return True
+            time.sleep(0.1)
+        return pred()
+
+    def command(name: str, value: float = 0.0, tries: int = 3) -> None:
+        res = drone.command(name, value)
+        for _ in range(tries - 1):
+            if res.success or not res.message.startswith(("ServiceCallError", "ServiceTimeout", "Timeout")):
                 break
             time.sleep(0.5)
-        assert res is not None
-        return step(name, res.success, res.message)
+            res = drone.command(name, value)
+        step(name, res.success, res.message)
 
-    gcs.restart_pattern(flying=False)
-    if not step("drone connected", _until(lambda: bool(drone.state and drone.state.connected), 30.0)):
-        return out
-    if not command("offboard_start"):
-        return out
-    if not command("arm"):
-        return out
+    step("drone connected", until(lambda: bool(drone.state and drone.state.connected
+                                               and drone.setpoints_sent > 5), 30.0),
+         "" if drone.state else "no state from the drone")
+    time.sleep(0.3)   # a few setpoints from the drone's position reach the companion first
+    command("offboard_start")
+    command("arm")
     alt = gcs.config.altitude
-    step("climb", _until(lambda: bool(drone.state and -drone.state.position[2] > 0.8 * alt), 20.0))
-    gcs.restart_pattern(flying=True)
+    climbed = until(lambda: bool(drone.state and -drone.state.position[2] > 0.8 * alt), 30.0)
+    step("climb", climbed, "" if climbed else f"altitude {-drone.state.position[2] if drone.state else 0:.1f} m "
+                                               f"after 30 s (asked {alt:g} m)")
+    drone.start_pattern()
     log(f"mission: flying the {gcs.config.pattern} pattern for {duration:.0f} s")
     end = time.monotonic() + duration
     while time.monotonic() < end:
+        check()
+        s = drone.state
+        if s is not None and (s.mode != "OFFBOARD" or s.offboard_state != "active"):
+            step("offboard", False, f"drone left the offboard session: mode {s.mode}, "
+                                    f"companion {s.offboard_state or '?'} {s.failsafe}".strip())
         time.sleep(0.2)
-    gcs.freeze()
-    if not command("land"):
-        return out
-    landed = _until(lambda: bool(drone.state and drone.state.landed and not drone.state.armed), 30.0)
+    drone.freeze()
+    command("land")
+    landed = until(lambda: bool(drone.state and drone.state.landed and not drone.state.armed), 40.0)
     step("landed and disarmed", landed)
-    out["ok"] = landed
-    out["max_path_error_m"] = drone.max_path_error
-    return out

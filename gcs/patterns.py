@@ -6,8 +6,8 @@ pure function of time since start, so a restarted GCS resumes the same path.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 PATTERNS = ("thesis", "hover", "square", "circle", "line")
 

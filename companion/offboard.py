@@ -1,0 +1,237 @@
+"""The companion's offboard lifecycle: when setpoints may reach PX4, and when they must not.
+
+A small explicit state machine. PX4 flies whatever the companion streams while it is in
+OFFBOARD, and real PX4 returns to OFFBOARD by itself after landing and auto-disarm; so a
+stream left running after a mission makes the next ``arm`` climb to a stale target.
+The rule here: setpoints stream to PX4 only inside an operator-requested session.
+
+    IDLE --offboard_start--> STARTING --PX4 in OFFBOARD--> ACTIVE
+    STARTING --refused/failed--> IDLE
+    ACTIVE --setpoint deadline missed--> (HOLD commanded, then stream stops) FAILSAFE_HOLD
+    FAILSAFE_HOLD --offboard_start (from the vehicle's current position)--> STARTING
+    any --land / hold / rtl / disarm / offboard_stop / PX4 left OFFBOARD--> IDLE
+        (the new mode is set while still streaming, then the stream stops)
+
+Outside STARTING/ACTIVE a setpoint is never forwarded: the companion keeps the latest
+valid one as the candidate an ``offboard_start`` begins from, and reports the refusal.
+Every transition is logged and handed to ``on_transition`` (the companion publishes it
+as a ``lifecycle`` event). Methods that talk to PX4 block on ACKs: call them from the
+companion's command thread, never from a Zenoh or px4_link callback.
+"""
+from __future__ import annotations
+
+import enum
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Protocol
+
+from px4_link.setpoints import PositionSetpoint, Setpoint, VelocitySetpoint
+
+log = logging.getLogger("companion.offboard")
+
+SAFE_MODE = "AUTO.LOITER"   # PX4 Hold: where the companion parks the vehicle when it stops streaming
+
+
+class OffboardState(str, enum.Enum):
+    IDLE = "idle"
+    STARTING = "starting"
+    ACTIVE = "active"
+    FAILSAFE_HOLD = "failsafe_hold"
+
+
+class Refused(Exception):
+    """A setpoint or request the lifecycle will not act on; ``reason`` is a short code."""
+
+    def __init__(self, reason: str, message: str) -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
+class Link(Protocol):
+    """What the lifecycle needs of px4_link.Px4Link."""
+
+    @property
+    def streaming(self) -> bool: ...
+    @property
+    def mode(self) -> str: ...
+    @property
+    def connected(self) -> bool: ...
+    def set_setpoint(self, sp: Setpoint) -> None: ...
+    def start_offboard(self) -> object: ...
+    def stop_offboard(self, mode: str | None = ...) -> object: ...
+    def stop_setpoint_stream(self) -> None: ...
+    def set_mode(self, name: str) -> object: ...
+
+
+@dataclass(frozen=True)
+class VehicleMotion:
+    position: tuple[float, float, float]
+    velocity: tuple[float, float, float]
+
+
+def check_against_vehicle(sp: Setpoint, vehicle: VehicleMotion | None, max_offset_m: float,
+                          max_speed: float) -> None:
+    """Raise Refused unless ``sp`` is something the vehicle can fly to from where it is now.
+
+    A position target may lie at most ``max_offset_m`` (plus one second of the vehicle's
+    current speed: a moving vehicle's target leads it) from the vehicle's position. This
+    compares with the vehicle, not with the previous setpoint, so a restarted GCS that
+    streams from the vehicle's current position is accepted anywhere, and a stale target
+    far away is refused, saying how far.
+    """
+    values = (sp.x, sp.y, sp.z) if isinstance(sp, PositionSetpoint) else (sp.vx, sp.vy, sp.vz)
+    if not all(math.isfinite(v) for v in values) or (sp.yaw is not None and not math.isfinite(sp.yaw)):
+        raise Refused("non_finite", f"setpoint has a non-finite value: {values}")
+    if isinstance(sp, VelocitySetpoint):
+        if sp.speed > max_speed:
+            raise Refused("too_fast", f"velocity {sp.speed:.1f} m/s > speed limit {max_speed:g} m/s")
+        return
+    if vehicle is None or not all(math.isfinite(v) for v in vehicle.position):
+        raise Refused("no_position", "vehicle position unknown: position setpoints need LOCAL_POSITION_NED")
+    speed = math.hypot(*vehicle.velocity) if all(math.isfinite(v) for v in vehicle.velocity) else 0.0
+    allowed = max_offset_m + speed * 1.0
+    jump = math.dist(values, vehicle.position)
+    if jump > allowed:
+        raise Refused("jump", f"jump {jump:.1f} m from vehicle position > {allowed:.0f} m "
+                              f"(target {_fmt(values)}, vehicle at {_fmt(vehicle.position)})")
+
+
+def _fmt(v: tuple[float, ...]) -> str:
+    return "(" + ", ".join(f"{x:.1f}" for x in v) + ")"
+
+
+Transition = Callable[[OffboardState, OffboardState, str], None]
+
+
+class OffboardLifecycle:
+    def __init__(self, link: Link, on_transition: Transition) -> None:
+        self.link = link
+        self._on_transition = on_transition
+        self._state = OffboardState.IDLE
+        self._lock = threading.RLock()
+        self.transitions = 0
+
+    @property
+    def state(self) -> OffboardState:
+        return self._state
+
+    @property
+    def in_session(self) -> bool:
+        return self._state in (OffboardState.STARTING, OffboardState.ACTIVE)
+
+    def _go(self, new: OffboardState, why: str) -> None:
+        with self._lock:
+            old, self._state = self._state, new
+            self.transitions += 1
+        if old != new:
+            log.info("offboard lifecycle: %s -> %s (%s)", old.value, new.value, why)
+            self._on_transition(old, new, why)
+
+    # -- setpoints (any thread) ----------------------------------------------------
+    def forward(self, sp: Setpoint) -> None:
+        """Hand ``sp`` to PX4's stream, or raise Refused when no session is open."""
+        with self._lock:
+            if not self.in_session:
+                hint = ("failsafe hold: send offboard_start to resume from the vehicle's position"
+                        if self._state is OffboardState.FAILSAFE_HOLD else
+                        "no offboard session: send offboard_start first")
+                raise Refused("no_session", f"setpoint not forwarded to PX4 ({hint})")
+            self.link.set_setpoint(sp)   # SetpointRejected propagates: nothing was sent
+
+    # -- requests (command thread) -------------------------------------------------
+    def start(self, candidate: Setpoint) -> None:
+        """Open a session from ``candidate`` (already checked against the vehicle)."""
+        with self._lock:
+            if self._state is OffboardState.ACTIVE and self.link.mode == "OFFBOARD":
+                return
+            self._go(OffboardState.STARTING, "offboard_start requested")
+            try:
+                self.link.set_setpoint(candidate)   # starts the stream PX4 needs before OFFBOARD
+            except Exception:
+                self._abort("first setpoint refused by px4_link")
+                raise
+        try:
+            self.link.start_offboard()
+        except Exception as exc:
+            self._abort(f"PX4 refused OFFBOARD: {exc}")
+            raise
+        self._go(OffboardState.ACTIVE, "PX4 in OFFBOARD")
+
+    def _abort(self, why: str) -> None:
+        self.link.stop_setpoint_stream()
+        self._go(OffboardState.IDLE, why)
+
+    def leave(self, mode: str, why: str) -> None:
+        """Switch PX4 to ``mode`` while still streaming, then stop the stream: PX4 never
+        sees the stream end in OFFBOARD, and nothing streams afterwards."""
+        with self._lock:
+            was = self._state
+            self._go(OffboardState.IDLE, why)   # first: no setpoint arriving now restarts anything
+        try:
+            if self.link.streaming or was is not OffboardState.IDLE:
+                self.link.stop_offboard(mode=mode)
+            else:
+                self.link.set_mode(mode)
+        finally:
+            self.link.stop_setpoint_stream()
+
+    def deadline_missed(self, why: str) -> bool:
+        """HOLD first, then stop streaming. False when there was no session to protect."""
+        with self._lock:
+            if self._state is not OffboardState.ACTIVE:
+                return False
+            self._go(OffboardState.FAILSAFE_HOLD, why)
+        try:
+            self.link.stop_offboard(mode=SAFE_MODE)
+        finally:
+            self.link.stop_setpoint_stream()
+        return True
+
+    def px4_left_offboard(self, new_mode: str) -> None:
+        """PX4 switched away by itself (its failsafe, RC, another GCS): stop streaming."""
+        with self._lock:
+            if self.in_session:
+                self._go(OffboardState.IDLE, f"PX4 left OFFBOARD for {new_mode}")
+            self.link.stop_setpoint_stream()
+
+    def disarmed(self) -> None:
+        """Landed and disarmed (or disarmed by anyone): park PX4 in Hold, then stop streaming."""
+        with self._lock:
+            self._go(OffboardState.IDLE, "vehicle disarmed")
+        self.park("disarmed")
+
+    def park(self, why: str) -> bool:
+        """PX4 in OFFBOARD outside a session (real PX4 returns there after landing): Hold.
+        True when a mode change was sent."""
+        if self.in_session:
+            return False
+        sent = False
+        try:
+            if self.link.connected and self.link.mode == "OFFBOARD":
+                log.warning("PX4 in OFFBOARD outside a session (%s): commanding %s", why, SAFE_MODE)
+                self.link.stop_offboard(mode=SAFE_MODE)
+                sent = True
+        finally:
+            self.link.stop_setpoint_stream()
+        return sent
+
+    def audit(self) -> str | None:
+        """The invariant, checked often: outside a session nothing streams. Returns what
+        was wrong (and has been fixed), or None."""
+        if not self.in_session and self.link.streaming:
+            self.link.stop_setpoint_stream()
+            return f"stream running in state {self._state.value}: stopped"
+        return None
+
+
+def wait(pred: Callable[[], bool], timeout: float, step: float = 0.05) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if pred():
+            return True
+        time.sleep(step)
+    return pred()
