@@ -5,6 +5,7 @@ import io
 import os
 import re
 import signal
+import subprocess
 import sys
 import textwrap
 import time
@@ -192,3 +193,77 @@ def test_shipped_launch_files_validate(name: str) -> None:
     path = Path(__file__).resolve().parents[1] / "configs" / "launch" / f"{name}.yaml"
     specs = load_launch(path).processes
     assert specs and all(s.argv[1] == "-m" for s in specs), specs
+
+
+STOPPER = r"""
+import signal, sys, time
+name = sys.argv[1]
+def stop(*_):
+    print(f"{name} got SIGINT at {time.monotonic():.6f}", flush=True)
+    time.sleep(0.3)   # a dependent's orderly stop takes a moment (a companion commanding HOLD)
+    print(f"{name} done at {time.monotonic():.6f}", flush=True)
+    sys.exit(0)
+signal.signal(signal.SIGINT, stop)
+print(f"{name} up", flush=True)
+while True:
+    time.sleep(0.05)
+"""
+
+
+def test_stop_goes_in_reverse_dependency_order(tmp_path):
+    """sim <- companion <- gcs: Ctrl-C stops gcs first, then companion, then sim; each signalled
+    only once the one depending on it has exited."""
+    script = tmp_path / "stopper.py"
+    script.write_text(STOPPER)
+    path = write(tmp_path, f"""
+        processes:
+          - name: sim
+            cmd: ["$(python)", "{script}", sim]
+          - name: companion
+            cmd: ["$(python)", "{script}", companion]
+            depends_on: [sim]
+          - name: gcs
+            cmd: ["$(python)", "{script}", gcs]
+            depends_on: [companion]
+    """)
+    proc = python_proc(*CLI, "launch", str(path))
+    seen: list[str] = []
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline and sum(" up" in line for line in seen) < 3:
+        seen.append(proc.stdout.readline())
+    proc.send_signal(signal.SIGINT)
+    rest, _ = proc.communicate(timeout=30)
+    text = "".join(seen) + rest
+    assert proc.returncode == 0, text
+    t = {m[1] + m[2]: float(m[3]) for m in re.finditer(r"(\w+) (got SIGINT|done) at ([\d.]+)", text)}
+    assert t["gcsdone"] <= t["companiongot SIGINT"], text
+    assert t["companiondone"] <= t["simgot SIGINT"], text
+
+
+def test_stop_order_defaults_to_reverse_declaration_and_refuses_cycles(tmp_path):
+    from zenoh_robot.tools.launch import stop_order
+    specs = [ProcessSpec("sim", ["x"]), ProcessSpec("companion", ["x"]), ProcessSpec("gcs", ["x"])]
+    assert stop_order(specs) == [["gcs"], ["companion"], ["sim"]]
+    specs = [ProcessSpec("a", ["x"], depends_on=["b"]), ProcessSpec("b", ["x"], depends_on=["a"])]
+    with pytest.raises(LaunchError, match="cycle"):
+        stop_order(specs)
+
+
+def test_cli_takes_launch_arguments_after_show(tmp_path):
+    r = subprocess.run([*ZR, "launch", str(ROOT / "configs/launch/demo.yaml"), "--show", "duration:=20"],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert "--duration 20" in r.stdout
+
+
+@pytest.mark.parametrize("cmd", ["[false]", "[null]", "[yes, x]"])
+def test_yaml_values_in_a_command_are_named(tmp_path, cmd):
+    path = write(tmp_path, f"""
+        processes:
+          - name: b
+            cmd: {cmd}
+    """)
+    r = subprocess.run([*ZR, "launch", str(path)], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 1
+    assert "is a YAML" in r.stderr and "quote it" in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1

@@ -20,13 +20,16 @@ Format (every key but ``processes`` optional; unknown keys are errors)::
         required: true            # default: when it exits, stop everything
         respawn: false            # restart it when it exits (then it never stops the launch)
         respawn_delay: 1.0
+        depends_on: [sim]         # stopped before these (default: every process listed before it)
 
 Substitutions: ``$(arg NAME)``, ``$(env NAME)`` / ``$(env NAME DEFAULT)``, ``$(python)``
 (this interpreter), ``$(dirname)`` (the launch file's directory).
 
-Stopping (Ctrl-C, SIGTERM, ``duration`` or a required process exiting): SIGINT to
-each process group, then SIGTERM after ``sigint_timeout``, then SIGKILL after
-``sigterm_timeout``; a second Ctrl-C skips ahead. Each process runs in its own
+Stopping (Ctrl-C, SIGTERM, ``duration`` or a required process exiting) goes in reverse
+dependency order: dependents first (a companion commands HOLD while its simulator still
+runs), and each group is stopped before what it depends on is signalled. Per group:
+SIGINT, then SIGTERM after ``sigint_timeout``, then SIGKILL after ``sigterm_timeout``;
+a second Ctrl-C skips ahead. Each process runs in its own
 process group (a stop reaches its children too) and, on Linux, dies with the runner.
 Exit code: 0 after a requested stop or a clean end, 1 when a required process failed.
 """
@@ -56,7 +59,7 @@ class LaunchError(ValueError):
 
 
 PROCESS_KEYS = {"name", "cmd", "exec", "module", "args", "params", "env", "cwd", "delay", "required",
-                "respawn", "respawn_delay"}
+                "respawn", "respawn_delay", "depends_on"}
 TOP_KEYS = {"args", "include", "processes"}
 # Not `-m zenoh_robot.tools.cli.main`: that runs main.py as __main__, a second copy whose CliError
 # the subcommands do not raise, so user errors would print tracebacks.
@@ -75,6 +78,7 @@ class ProcessSpec:
     required: bool = True
     respawn: bool = False
     respawn_delay: float = 1.0
+    depends_on: list[str] | None = None    # None: every process declared before this one
 
 
 @dataclass
@@ -140,7 +144,12 @@ def _as_argv(value: Any, where: str) -> list[str]:
             return shlex.split(value)
         except ValueError as exc:
             raise LaunchError(f"{where}: {exc}") from None
-    if isinstance(value, list) and all(isinstance(x, (str, int, float)) for x in value):
+    if isinstance(value, list):
+        bad = [x for x in value if isinstance(x, bool) or not isinstance(x, (str, int, float))]
+        if bad:
+            # YAML reads `false`, `yes`, `null` as values, not words: `cmd: [false]` is no program.
+            raise LaunchError(f"{where}: argument {bad[0]!r} is a YAML {type(bad[0]).__name__}, not text; "
+                              f"quote it (e.g. [\"{str(bad[0]).lower()}\"])")
         return [str(x) for x in value]
     raise LaunchError(f"{where}: expected a command line string or a list of arguments, got {value!r}")
 
@@ -223,8 +232,15 @@ def _process(entry: Any, ctx: _Context, where: str) -> ProcessSpec:
     if cwd is not None:
         cwd_path = Path(str(ctx.value(cwd, f"{where}.cwd")))
         cwd = str(cwd_path if cwd_path.is_absolute() else ctx.path.parent / cwd_path)
+    deps = entry.get("depends_on")
+    if deps is not None:
+        deps = ctx.value(deps, f"{where}.depends_on")
+        if isinstance(deps, str):
+            deps = [deps]
+        if not isinstance(deps, list) or not all(isinstance(d, str) for d in deps):
+            raise LaunchError(f"{where}.depends_on: expected a list of process names")
     return ProcessSpec(
-        name=name, argv=argv, env=env, cwd=cwd,
+        name=name, argv=argv, env=env, cwd=cwd, depends_on=deps,
         delay=_number(ctx.value(entry.get("delay", 0.0), where), f"{where}.delay"),
         required=_flag(ctx.value(entry.get("required", True), where), f"{where}.required"),
         respawn=_flag(ctx.value(entry.get("respawn", False), where), f"{where}.respawn"),
@@ -308,7 +324,33 @@ def load_launch(path: str | Path, args: dict[str, str] | None = None, _stack: tu
         if p.name in seen:
             raise LaunchError(f"{where}: two processes are named {p.name!r}")
         seen.add(p.name)
+    for p in processes:
+        for d in p.depends_on or []:
+            if d not in seen or d == p.name:
+                raise LaunchError(f"{where}: process {p.name!r} depends_on {d!r}, which is not another process "
+                                  f"here ({', '.join(sorted(seen - {p.name}))})")
+    stop_order(processes)   # refuses a cycle now, not at Ctrl-C
     return LaunchDescription(processes, where)
+
+
+def stop_order(specs: Sequence[ProcessSpec]) -> list[list[str]]:
+    """Groups of process names to stop one after the other: dependents before what they depend on.
+
+    Without ``depends_on``, a process depends on every one declared before it, so the
+    launch stops in reverse order of declaration.
+    """
+    names = [s.name for s in specs]
+    deps = {s.name: set(names[:i]) if s.depends_on is None else set(s.depends_on) for i, s in enumerate(specs)}
+    left = set(names)
+    groups: list[list[str]] = []
+    while left:
+        # Nothing still running depends on these: they go now.
+        free = [n for n in names if n in left and not any(n in deps[o] for o in left if o != n)]
+        if not free:
+            raise LaunchError(f"depends_on forms a cycle among {', '.join(sorted(left))}")
+        groups.append(free)
+        left -= set(free)
+    return groups
 
 
 # -- running -------------------------------------------------------------------------------
@@ -532,23 +574,36 @@ class LaunchRunner:
         return exit_code
 
     def _shutdown(self) -> None:
+        by_name = {p.spec.name: p for p in self.procs}
+        for group in stop_order([p.spec for p in self.procs]):
+            self._shutdown_group([by_name[n] for n in group])
+
+    def _shutdown_group(self, procs: list[_Proc]) -> None:
         phases = [(signal.SIGINT, self.sigint_timeout), (signal.SIGTERM, self.sigterm_timeout),
                   (signal.SIGKILL, 2.0)]
         requests_seen = self._stop_requests
+
+        def running() -> list[_Proc]:
+            return [p for p in procs if p.popen is not None and p.popen.poll() is None]
+
         for sig, timeout in phases:
-            running = self._running()
-            if not running:
+            alive = running()
+            if not alive:
                 break
             if sig != signal.SIGINT:
-                self.log(f"sending {sig.name} to {', '.join(repr(p.spec.name) for p in running)}")
-            self._signal_all(sig)
+                self.log(f"sending {sig.name} to {', '.join(repr(p.spec.name) for p in alive)}")
+            for proc in alive:
+                try:
+                    os.killpg(proc.popen.pid, sig)   # type: ignore[union-attr]
+                except (ProcessLookupError, PermissionError):
+                    pass
             deadline = time.monotonic() + timeout
-            while self._running() and time.monotonic() < deadline:
+            while running() and time.monotonic() < deadline:
                 if self._stop_requests > requests_seen:   # another Ctrl-C: escalate now
                     requests_seen = self._stop_requests
                     break
                 time.sleep(0.02)
-        for proc in self.procs:
+        for proc in procs:
             if proc.popen is not None:
                 try:
                     proc.popen.wait(timeout=2.0)

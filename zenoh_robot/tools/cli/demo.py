@@ -4,6 +4,12 @@ Three processes, as on a drone: the PX4 simulator, the companion (MAVLink <-> Ze
 and the GCS (mission + dashboard in this terminal). At the end, one summary joins
 both ends' records: delivered %, age and period per stream, and how far the vehicle
 strayed from the path.
+
+``--duration`` is the whole run, take-off and landing included: at that time the GCS is
+asked to stop. Ctrl-C reaches only this process (each child has its own session), which
+then stops the others in dependency order: the GCS first (it writes its record), then
+the companion (it still has PX4 to command HOLD), then the simulator; so the summary is
+printed after an interrupted run too.
 """
 from __future__ import annotations
 
@@ -14,6 +20,7 @@ import socket
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 from rich.console import Console
@@ -24,7 +31,8 @@ from ..stream_metrics import StreamRecorder, analyse
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("demo", help="run simulator + companion + GCS on localhost and fly a square")
-    p.add_argument("--duration", type=float, default=60.0, help="seconds of pattern flight (default 60)")
+    p.add_argument("--duration", type=float, default=60.0,
+                   help="seconds for the whole run, take-off and landing included (default 60)")
     p.add_argument("--pattern", default="square", choices=("square", "circle", "line", "hover"))
     p.add_argument("--profile", default="resilient", help="stream profile (default resilient)")
     p.add_argument("--drone", default="uav1")
@@ -37,48 +45,86 @@ def _free_udp_port() -> int:
         return s.getsockname()[1]
 
 
+SETUP_S = 17.0        # s of a run that are not the pattern: start-up, arming, take-off, landing
+STOP_TIMEOUT = 15.0    # s a child has to stop after SIGINT (the GCS lands and writes its record)
+
+
 def _stop(proc: subprocess.Popen, name: str, console: Console) -> None:
     if proc.poll() is None:
         proc.send_signal(signal.SIGINT)
         try:
-            proc.wait(timeout=10)
+            proc.wait(timeout=STOP_TIMEOUT)
         except subprocess.TimeoutExpired:
-            console.print(f"demo: {name} did not stop in 10 s; killing it")
+            console.print(f"demo: {name} did not stop in {STOP_TIMEOUT:g} s; killing it")
             proc.kill()
             proc.wait()
 
 
+def _wait_until(proc: subprocess.Popen, deadline: float) -> bool:
+    """True when ``proc`` ended before ``deadline``."""
+    while proc.poll() is None:
+        left = deadline - time.monotonic()
+        if left <= 0:
+            return False
+        try:
+            proc.wait(timeout=min(left, 0.5))
+        except subprocess.TimeoutExpired:
+            pass
+    return True
+
+
 def run(args: argparse.Namespace) -> int:
+    from .main import CliError
+
+    if not args.duration > 0:
+        raise CliError(f"--duration must be > 0 seconds, got {args.duration:g}")
     console = Console()
+    started = time.monotonic()
     work = Path(tempfile.mkdtemp(prefix="zenoh-robot-demo-"))
     port = _free_udp_port()
     py = sys.executable
     logs = {name: open(work / f"{name}.log", "w") for name in ("sim", "companion")}
-    console.print(f"demo: simulator, companion and GCS on localhost; logs in {work}")
+    console.print(f"demo: simulator, companion and GCS on localhost for {args.duration:g} s; logs in {work}")
+    # Own sessions: a terminal's Ctrl-C reaches this process only, which stops the rest in order.
+    detached = {"start_new_session": True}
     sim = subprocess.Popen([py, "-m", "px4_link.sim", "--port", "0", "--target-port", str(port)],
-                           stdout=logs["sim"], stderr=subprocess.STDOUT)
+                           stdout=logs["sim"], stderr=subprocess.STDOUT, **detached)
     companion = subprocess.Popen([py, "-m", "companion", "--id", args.drone, "--px4", f"udpin:127.0.0.1:{port}",
                                   "--profile", args.profile, "--record", str(work / "companion.json")],
-                                 stdout=logs["companion"], stderr=subprocess.STDOUT)
-    gcs_cmd = [py, "-m", "gcs", "--drones", args.drone, "--mission", "--duration", str(args.duration),
+                                 stdout=logs["companion"], stderr=subprocess.STDOUT, **detached)
+    pattern_s = max(args.duration - SETUP_S, args.duration / 2)   # so the GCS ends by itself near the deadline
+    gcs_cmd = [py, "-m", "gcs", "--drones", args.drone, "--mission", "--duration", f"{pattern_s:g}",
                "--pattern", args.pattern, "--profile", args.profile, "--record", str(work / "gcs.json")]
-    gcs = subprocess.Popen(gcs_cmd)
-    rc = 1
+    gcs = subprocess.Popen(gcs_cmd, stdin=subprocess.DEVNULL, **detached)
+    rc = 0
     try:
-        rc = gcs.wait()
+        if not _wait_until(gcs, started + args.duration):
+            console.print(f"demo: {args.duration:g} s are up; stopping")
+        rc = gcs.returncode if gcs.returncode is not None else 0
     except KeyboardInterrupt:
-        console.print("demo: interrupted; stopping")
-        _stop(gcs, "gcs", console)
+        console.print("demo: interrupted; stopping (GCS, then companion, then simulator)")
     finally:
-        _stop(companion, "companion", console)
-        _stop(sim, "simulator", console)
+        _stop_all([(gcs, "gcs"), (companion, "companion"), (sim, "simulator")], console)
         for f in logs.values():
             f.close()
     for name, proc in (("simulator", sim), ("companion", companion)):
         if proc.returncode not in (0, -signal.SIGINT, 130):
             console.print(f"demo: {name} exited with {proc.returncode}; see {work / (name[:3] if name == 'simulator' else name)}.log")
     print_summary(console, work, args.drone)
-    return rc
+    console.print(f"demo: {time.monotonic() - started:.1f} s in all")
+    return 0 if rc in (0, -signal.SIGINT, 130) else rc
+
+
+def _stop_all(procs: list[tuple[subprocess.Popen, str]], console: Console) -> None:
+    """Dependents first: each stops (and records) while what it depends on still runs. A second
+    Ctrl-C while waiting moves on to the next one rather than abandoning them all."""
+    for proc, name in procs:
+        try:
+            _stop(proc, name, console)
+        except KeyboardInterrupt:
+            console.print(f"demo: killing {name}")
+            proc.kill()
+            proc.wait()
 
 
 def print_summary(console: Console, work: Path, drone: str) -> None:

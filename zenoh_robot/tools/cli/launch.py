@@ -19,6 +19,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sigterm-timeout", type=float, default=3.0,
                    help="seconds between SIGTERM and SIGKILL when stopping (default 3)")
     p.set_defaults(func=run)
+    # `launch demo.yaml --show duration:=20`: NAME:=VALUE after an option is still an argument.
+    p.intermixed = "launch_args"
 
 
 def run(args: argparse.Namespace) -> int:
