@@ -3,6 +3,7 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+# DURATION: seconds for the whole `make demo` run, take-off and landing included
 DURATION ?= 60
 ARGS ?=
 
