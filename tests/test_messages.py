@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from zenoh_robot import Message, array, message
-from zenoh_robot.message import lookup
+from zenoh_robot.message import lookup, type_support
 from zenoh_robot.msgs import (Float32, Header, Image, JointState, Quaternion, SensorCombined, Setpoint, String,
                               Twist, Vector3)
 
@@ -22,8 +22,8 @@ ALL = [
 
 @pytest.mark.parametrize("msg", ALL, ids=lambda m: type(m).__name__)
 def test_round_trip_through_msgpack(msg: Message) -> None:
-    wire = msgpack.unpackb(msgpack.packb(type(msg)._to_wire(msg), use_bin_type=True))
-    assert type(msg)._from_wire(wire) == msg
+    wire = msgpack.unpackb(msgpack.packb(type_support(type(msg)).encode(msg), use_bin_type=True))
+    assert type_support(type(msg)).decode(wire) == msg
 
 
 def test_type_hash_depends_on_fields_and_names() -> None:
@@ -39,22 +39,23 @@ def test_type_hash_depends_on_fields_and_names() -> None:
     class A3(Message):
         y: float = 0.0
 
-    assert A._type_hash != A3._type_hash           # same name, other field
-    assert A._type_hash != A2._type_hash           # same fields, other name
-    assert len({Setpoint._type_hash, SensorCombined._type_hash, Image._type_hash}) == 3
+    assert type_support(A).hash != type_support(A3).hash           # same name, other field
+    assert type_support(A).hash != type_support(A2).hash           # same fields, other name
+    assert len({type_support(Setpoint).hash, type_support(SensorCombined).hash, type_support(Image).hash}) == 3
 
 
 def test_fixed_array_length_is_checked_on_the_wire() -> None:
     bad = SensorCombined(gyro_rad=[0.0, 1.0])
     with pytest.raises(ValueError, match=r"gyro_rad.*needs 3 elements, got 2"):
-        SensorCombined._to_wire(bad)
+        type_support(SensorCombined).encode(bad)
 
 
 def test_numpy_values_are_accepted_in_fields() -> None:
     from zenoh_robot._wire import envelope
     msg = SensorCombined(gyro_rad=np.array([1.0, 2.0, 3.0], dtype=np.float32))
-    data = envelope.pack(msg._type_name, msg._type_hash, 1, 1, 0, SensorCombined._to_wire(msg))
-    back = SensorCombined._from_wire(envelope.unpack(data).body)
+    ts = type_support(SensorCombined)
+    data = envelope.pack(ts.name, ts.hash, 1, 1, 0, ts.encode(msg))
+    back = type_support(SensorCombined).decode(envelope.unpack(data).body)
     assert back.gyro_rad == [1.0, 2.0, 3.0]
 
 
@@ -62,11 +63,11 @@ def test_image_bytes_stay_bytes_and_views_do_not_copy() -> None:
     arr = np.random.default_rng(1).integers(0, 255, (240, 320, 3), dtype=np.uint8)
     img = Image.from_array(arr)
     assert (img.width, img.height, img.step, img.encoding) == (320, 240, 960, "rgb8")
-    wire = Image._to_wire(img)
+    wire = type_support(Image).encode(img)
     assert wire[-1] is img.data  # the body references the bytes; msgpack writes them as one bin
     packed = msgpack.packb(wire, use_bin_type=True)
     assert len(packed) < len(img.data) + 100
-    back = Image._from_wire(msgpack.unpackb(packed))
+    back = type_support(Image).decode(msgpack.unpackb(packed))
     view = back.to_array()
     assert view.base is not None and not view.flags.writeable   # a view over the bytes
     np.testing.assert_array_equal(view, arr)
@@ -103,4 +104,4 @@ def test_user_message_with_explicit_types() -> None:
 
     p = Pose3()
     assert p.position == [0.0, 0.0, 0.0]
-    assert Pose3._from_wire(list(Pose3._to_wire(p))) == p
+    assert type_support(Pose3).decode(list(type_support(Pose3).encode(p))) == p

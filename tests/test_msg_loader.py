@@ -6,6 +6,7 @@ from pathlib import Path
 import pytest
 
 from zenoh_robot import load_msg
+from zenoh_robot.message import type_support
 from zenoh_robot.msg_loader import MsgParseError
 from zenoh_robot.msgs import Header
 
@@ -15,7 +16,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_humanoid_state_loads_with_fixed_arrays() -> None:
     H = load_msg(ROOT / "configs" / "msg" / "HumanoidState.msg")
     h = H(robot_name="atlas")
-    assert H._type_name == "msg/HumanoidState"
+    assert type_support(H).name == "msg/HumanoidState"
     assert isinstance(h.header, Header)
     assert len(h.joint_positions) == 28 and len(h.center_of_mass) == 3 and len(h.orientation) == 4
     assert h.in_motion is False and H.NUM_JOINTS == 28
@@ -25,7 +26,7 @@ def test_humanoid_state_loads_with_fixed_arrays() -> None:
                      "angular_velocity", "in_motion", "in_safe_mode"]
     h.joint_positions = [0.0] * 27
     with pytest.raises(ValueError, match=r"joint_positions.*float64\[28\] needs 28 elements, got 27"):
-        H._to_wire(h)
+        type_support(H).encode(h)
 
 
 def test_text_definition_with_constants_defaults_unbounded_and_nested() -> None:
@@ -47,7 +48,7 @@ def test_text_definition_with_constants_defaults_unbounded_and_nested() -> None:
     assert t.v.x == 0.0
     t.counts = [1, 2, 3]
     import msgpack
-    assert T._from_wire(msgpack.unpackb(msgpack.packb(T._to_wire(t)))) == t
+    assert type_support(T).decode(msgpack.unpackb(msgpack.packb(type_support(T).encode(t)))) == t
 
 
 @pytest.mark.parametrize("text,match", [

@@ -6,12 +6,12 @@ import threading
 import time
 
 import pytest
+from conftest import linked_nodes, python_proc, wait_for
+from test_messages import ALL
 
 from zenoh_robot import InvalidNameError, MultiThreadedExecutor, Node, QoSProfile, qos
+from zenoh_robot.message import type_support
 from zenoh_robot.msgs import Setpoint, String
-
-from conftest import linked_configs, linked_nodes, python_proc, wait_for
-from test_messages import ALL
 
 
 @pytest.fixture
@@ -135,7 +135,7 @@ def test_malformed_bytes_are_counted_and_the_subscriber_keeps_working(pair, ns: 
     time.sleep(0.3)
     import msgpack
     for junk in (b"\xff\x00garbage", b"", msgpack.packb([1, 2, 3]),
-                 msgpack.packb(["zr1", "zenoh_robot/Setpoint", Setpoint._type_hash, 1, 1, 0, ["bad"], {}])):
+                 msgpack.packb(["zr1", "zenoh_robot/Setpoint", type_support(Setpoint).hash, 1, 1, 0, ["bad"], {}])):
         zpub.put(junk)
     pub.publish(Setpoint(y=3.0))
     assert b.spin_until(lambda: got and sub.counters.malformed == 4, 3.0), sub.counters
@@ -223,3 +223,67 @@ def test_repeated_and_redundant_samples_arrive_once_whatever_the_subscriber_qos(
     b.spin_until(lambda: False, 0.3)
     assert sub.counters.received >= 20 * copies   # every packet went out 1 + repeat times
     assert got == list(range(1, 21))              # yet each sample was delivered once, in order
+
+
+def test_publish_returns_the_seq_and_stamp_the_subscriber_sees(pair) -> None:
+    a, b = pair
+    got: list = []
+    b.create_subscription(String, "pinfo", lambda m, info: got.append(info), QoSProfile(depth=10))
+    pub = a.create_publisher(String, "pinfo", QoSProfile(depth=10))
+    assert wait_for(lambda: pub.get_subscription_count() == 1, 5.0)
+    sent = [pub.publish(String(f"m{i}")) for i in range(3)]
+    assert [s.seq for s in sent] == [1, 2, 3]
+    assert b.spin_until(lambda: len(got) == 3, 5.0)
+    assert [(i.seq, i.source_stamp_ns) for i in got] == [(s.seq, s.stamp_ns) for s in sent]
+    with pytest.raises(AttributeError):
+        sent[0].seq = 9   # frozen: a record of what was sent
+
+
+def test_raw_subscription_of_any_type_gets_envelope_fields_and_bytes(pair) -> None:
+    from zenoh_robot._wire import envelope
+    from zenoh_robot.subscription import RawMessage
+    a, b = pair
+    got: list = []
+    raw = b.create_subscription(None, "rawt", lambda m, info: got.append((m, info)), QoSProfile(depth=10), raw=True)
+    sp_pub = a.create_publisher(Setpoint, "rawt", QoSProfile(depth=10))
+    str_pub = a.create_publisher(String, "rawt", QoSProfile(depth=10))
+    # The graph announces the raw subscription with the any-type hash; both publishers match it.
+    assert wait_for(lambda: sp_pub.get_subscription_count() == 1 and str_pub.get_subscription_count() == 1, 5.0)
+    assert wait_for(lambda: raw.get_publisher_count() == 2, 5.0)
+    sp = Setpoint(x=1.5, y=-2.0, z=3.0, yaw=0.25)
+    s1 = sp_pub.publish(sp)
+    s2 = str_pub.publish(String("hello"))
+    assert b.spin_until(lambda: len(got) == 2, 5.0)
+    by_type = {m.type_name: (m, info) for m, info in got}
+    m, info = by_type[type_support(Setpoint).name]
+    assert isinstance(m, RawMessage) and m.type_hash == type_support(Setpoint).hash
+    assert type_support(Setpoint).decode(m.fields) == sp        # the body as plain values
+    assert envelope.unpack(m.data).seq == s1.seq == info.seq    # the bytes are the envelope it came in
+    assert info.source_stamp_ns == s1.stamp_ns
+    m2, info2 = by_type[type_support(String).name]
+    assert m2.fields == ["hello"] and info2.seq == s2.seq
+    assert raw.counters.type_mismatch == 0
+    # Topic names and types list the publishers' types only (a raw subscription names none).
+    b.refresh_graph(1.0)
+    types = dict(b.get_topic_names_and_types())["/" + b.resolve_topic_name("rawt")]
+    assert sorted(types) == sorted([type_support(Setpoint).name, type_support(String).name])
+
+
+def test_raw_subscription_of_one_type_still_checks_the_type(pair) -> None:
+    a, b = pair
+    got: list = []
+    raw = b.create_subscription(Setpoint, "rawone", got.append, QoSProfile(depth=10), raw=True)
+    pub = a.create_publisher(String, "rawone", QoSProfile(depth=10))
+    good = a.create_publisher(Setpoint, "rawone", QoSProfile(depth=10))
+    assert wait_for(lambda: good.get_subscription_count() == 1, 5.0)
+    time.sleep(0.2)
+    pub.publish(String("wrong"))
+    good.publish(Setpoint(x=1.0))
+    assert b.spin_until(lambda: len(got) == 1 and raw.counters.type_mismatch == 1, 5.0)
+    assert got[0].type_name == type_support(Setpoint).name and got[0].fields[1] == 1.0
+
+
+def test_a_typed_subscription_needs_a_type(pair) -> None:
+    _, b = pair
+    with pytest.raises(TypeError):
+        b.create_subscription(None, "notype", lambda m: None)

@@ -13,11 +13,12 @@ from typing import Any
 
 import msgpack
 import pytest
-
 from conftest import linked_configs, linked_nodes, python_proc, wait_for
+
 from zenoh_robot import Node, QoSProfile
 from zenoh_robot._wire import envelope
 from zenoh_robot.events import PublisherEventCallbacks, SubscriptionEventCallbacks
+from zenoh_robot.message import type_support
 from zenoh_robot.msgs import Float32, String
 from zenoh_robot.qos_compat import PolicyKind
 
@@ -271,7 +272,8 @@ def test_sequence_gaps_raise_message_lost_with_the_count(pair, ns):
     raw = a.session.declare_publisher(f"{ns}/gappy")
     time.sleep(0.3)
     for seq in (1, 2, 5, 6, 10, 11):
-        raw.put(envelope.pack(String._type_name, String._type_hash, 77, seq, time.time_ns(), ["x"]))
+        ts = type_support(String)
+        raw.put(envelope.pack(ts.name, ts.hash, 77, seq, time.time_ns(), ["x"]))
     assert b.spin_until(lambda: len(got) == 6, 3.0), got
     lost = events.get("message_lost")
     assert [e.total_count_change for e in lost] == [2, 3]

@@ -14,7 +14,7 @@ from typing import Any
 
 import yaml
 
-from .message import PRIMITIVES, Message, lookup, message, parse_type
+from .message import PRIMITIVES, Message, lookup, message, parse_type, type_support
 
 _LINE = re.compile(r"^(?P<type>[A-Za-z][\w/]*(?:<=\d+)?(?:\[(?:<=)?\d*\])?)\s+(?P<name>[A-Za-z]\w*)"
                    r"(?:\s*(?P<eq>=)\s*(?P<const>.+)|\s+(?P<default>.+))?$")
@@ -95,7 +95,7 @@ def load_msg(source: str | Path, name: str | None = None, package: str = "msg") 
         if fname in namespace["__annotations__"]:
             raise MsgParseError(f"{where}: duplicate field {fname!r}")
         ros = type_text if isinstance(base, str) else type_text.replace(type_text.split("[")[0],
-                                                                        base._type_name)
+                                                                        type_support(base).name)
         namespace["__annotations__"][fname] = Any
         namespace[fname] = _field(base, arr, ros, m["default"], where)
     cls = type(name, (Message,), namespace)

@@ -12,6 +12,8 @@ from typing import Any, Callable
 
 import numpy as np
 
+from zenoh_robot.message import type_support
+
 
 @dataclass(frozen=True)
 class Cell:
@@ -100,7 +102,7 @@ def run_pair(mode: str, cell: Cell, timeout: float, rss_every: float = 0.0) -> F
 def run_cell(cell: Cell) -> CellResult:
     from . import payloads
     msg = payloads.make(cell.payload)
-    size = len(__import__("msgpack").packb(type(msg)._to_wire(msg), use_bin_type=True))
+    size = len(__import__("msgpack").packb(type_support(type(msg)).encode(msg), use_bin_type=True))
     timeout = max(30.0, cell.count / cell.rate * 2 + 20) if cell.rate else 90.0
     fw, raw = run_pair("framework", cell, timeout), run_pair("raw", cell, timeout)
     for f in (fw, raw):

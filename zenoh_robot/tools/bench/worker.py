@@ -19,6 +19,8 @@ import msgpack
 import zenoh
 
 from zenoh_robot import Node, QoSProfile, SessionConfig
+from zenoh_robot.message import type_support
+
 from . import payloads
 
 KEY = "bench/data"
@@ -79,7 +81,7 @@ def run_sub(args: argparse.Namespace) -> dict[str, Any]:
         try:
             def on_sample(sample: Any) -> None:
                 values = msgpack.unpackb(sample.payload.to_bytes())
-                type(msg)._from_wire(values[1])   # same decoding work as the framework's body
+                type_support(type(msg)).decode(values[1])   # same decoding work as the framework's body
                 record(values[0])
             sub = session.declare_subscriber(KEY, on_sample)
             print("READY", flush=True)
@@ -118,7 +120,7 @@ def _wait(done: threading.Event, args: argparse.Namespace, rss: list[float]) -> 
 
 def run_pub(args: argparse.Namespace) -> dict[str, Any]:
     msg = payloads.make(args.payload)
-    body = type(msg)._to_wire(msg)
+    body = type_support(type(msg)).encode(msg)
     cfg = _config(args)
     period = 1.0 / args.rate if args.rate > 0 else 0.0
     if args.mode == "raw":

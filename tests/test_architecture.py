@@ -1,0 +1,234 @@
+"""The layers hold: library <- tools <- drone system, no import cycles, no tool loaded by the library.
+
+The import graph is read with ``ast`` from the source (module-level imports only: what runs
+when a module loads; ``if TYPE_CHECKING:`` blocks and imports inside functions are left
+out). A package's ``__init__`` counts as the package, so a package importing a submodule
+that imports the package back is a cycle.
+"""
+from __future__ import annotations
+
+import ast
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("zenoh_robot", "px4_link", "companion", "gcs")
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def _is_type_checking(test: ast.expr) -> bool:
+    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or \
+        (isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING")
+
+
+def _runtime_imports(tree: ast.Module, module: str, is_package: bool) -> set[str]:
+    """Absolute names a module imports when it loads: ``import a.b`` gives a.b; ``from a import x``
+    gives a.x if that is a module, else a (the package's ``__init__``, whose names it reads)."""
+    out: set[str] = set()
+    package = module if is_package else module.rpartition(".")[0]
+
+    def visit(stmts: list[ast.stmt]) -> None:
+        for node in stmts:
+            if isinstance(node, ast.Import):
+                out.update(alias.name for alias in node.names)
+            elif isinstance(node, ast.ImportFrom):
+                if node.level:
+                    base = package.split(".")
+                    base = base[:len(base) - (node.level - 1)]
+                    prefix = ".".join(base + ([node.module] if node.module else []))
+                else:
+                    prefix = node.module or ""
+                for alias in node.names:
+                    sub = f"{prefix}.{alias.name}"
+                    out.add(sub if sub in MODULES else prefix)
+            elif isinstance(node, ast.If):
+                if not _is_type_checking(node.test):
+                    visit(node.body)
+                visit(node.orelse)
+            elif isinstance(node, ast.Try):
+                visit(node.body)
+                for h in node.handlers:
+                    visit(h.body)
+                visit(node.orelse)
+                visit(node.finalbody)
+    visit(tree.body)
+    return out
+
+
+def _project_modules() -> dict[str, Path]:
+    mods: dict[str, Path] = {}
+    for pkg in PACKAGES:
+        for path in (ROOT / pkg).rglob("*.py"):
+            mods[_module_name(path)] = path
+    return mods
+
+
+MODULES = _project_modules()
+
+
+def _import_graph() -> dict[str, set[str]]:
+    graph: dict[str, set[str]] = {}
+    for name, path in MODULES.items():
+        tree = ast.parse(path.read_text(), str(path))
+        targets = set()
+        for imported in _runtime_imports(tree, name, path.name == "__init__.py"):
+            # Importing a.b.c loads a, a.b and a.b.c; from inside package a, a is already loading
+            # (that is no cycle), so only the ancestors the importer is not part of count.
+            parts = imported.split(".")
+            for i in range(1, len(parts) + 1):
+                candidate = ".".join(parts[:i])
+                inside = name == candidate or name.startswith(candidate + ".")
+                if candidate in MODULES and (i == len(parts) or not inside) and candidate != name:
+                    targets.add(candidate)
+        graph[name] = targets
+    return graph
+
+
+GRAPH = _import_graph()
+
+
+def _all_imports(prefix: str) -> dict[str, set[str]]:
+    """Every name each module under ``prefix`` imports at any level, TYPE_CHECKING included."""
+    out: dict[str, set[str]] = {}
+    for name, path in MODULES.items():
+        if name != prefix and not name.startswith(prefix + "."):
+            continue
+        names: set[str] = set()
+        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                names.update(a.name for a in node.names)
+            elif isinstance(node, ast.ImportFrom):
+                if node.level:
+                    base = package.split(".")
+                    base = base[:len(base) - (node.level - 1)]
+                    names.add(".".join(base + ([node.module] if node.module else [])))
+                else:
+                    names.add(node.module or "")
+        out[name] = names
+    return out
+
+
+def _offenders(prefix: str, forbidden: tuple[str, ...], exclude: str | None = None) -> list[str]:
+    bad = []
+    for module, names in _all_imports(prefix).items():
+        if exclude and (module == exclude or module.startswith(exclude + ".")):
+            continue
+        for n in names:
+            if any(n == f or n.startswith(f + ".") for f in forbidden):
+                bad.append(f"{module} imports {n}")
+    return sorted(bad)
+
+
+def test_the_graph_was_read() -> None:
+    # Guards the test itself: the parser found the modules and their edges.
+    assert "zenoh_robot.node" in GRAPH and "zenoh_robot.publisher" in GRAPH["zenoh_robot.node"]
+    assert "zenoh_robot.context" in GRAPH["zenoh_robot.subscription"]
+    assert "zenoh_robot.parameters.store" in GRAPH["zenoh_robot.parameters"]
+
+
+def _find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    WHITE, GREY, BLACK = 0, 1, 2
+    colour = dict.fromkeys(graph, WHITE)
+    stack: list[str] = []
+
+    def dfs(n: str) -> list[str] | None:
+        colour[n] = GREY
+        stack.append(n)
+        for m in sorted(graph.get(n, ())):
+            if colour.get(m) == GREY:
+                return stack[stack.index(m):] + [m]
+            if colour.get(m) == WHITE:
+                found = dfs(m)
+                if found:
+                    return found
+        stack.pop()
+        colour[n] = BLACK
+        return None
+
+    for n in sorted(graph):
+        if colour[n] == WHITE:
+            found = dfs(n)
+            if found:
+                return found
+    return None
+
+
+def test_cycle_finder_finds_a_cycle() -> None:
+    assert _find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert _find_cycle({"a": {"b"}, "b": set()}) is None
+
+
+def test_no_import_cycle_among_the_projects_modules() -> None:
+    cycle = _find_cycle(GRAPH)
+    assert cycle is None, "import cycle: " + " -> ".join(cycle or [])
+
+
+def test_px4_link_never_imports_zenoh() -> None:
+    assert _offenders("px4_link", ("zenoh", "zenoh_robot", "companion", "gcs")) == []
+
+
+def test_the_library_never_imports_mavlink_or_the_apps() -> None:
+    assert _offenders("zenoh_robot", ("pymavlink", "px4_link", "companion", "gcs"), exclude="zenoh_robot.tools") == []
+
+
+def test_the_library_never_imports_its_tools() -> None:
+    assert _offenders("zenoh_robot", ("zenoh_robot.tools",), exclude="zenoh_robot.tools") == []
+
+
+def test_tools_never_import_the_drone_system() -> None:
+    assert _offenders("zenoh_robot.tools", ("companion", "gcs", "px4_link")) == []
+
+
+def test_no_self_any_in_the_library() -> None:
+    bad = []
+    for name, path in MODULES.items():
+        if not name.startswith("zenoh_robot") or name.startswith("zenoh_robot.tools"):
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.args.args:
+                first = node.args.args[0]
+                if first.arg == "self" and first.annotation is not None:
+                    bad.append(f"{name}.{node.name}")
+    assert bad == []
+
+
+def test_node_is_one_class_not_mixins() -> None:
+    from zenoh_robot import Node
+    assert Node.__mro__ == (Node, object)
+
+
+FORBIDDEN_ON_IMPORT = ("zenoh_robot.tools", "rich", "matplotlib", "subprocess", "csv", "pymavlink",
+                       "px4_link", "companion", "gcs", "PIL", "mcap", "foxglove", "cryptography")
+
+
+def test_import_zenoh_robot_loads_no_tool() -> None:
+    code = "import json, sys; import zenoh_robot; print(json.dumps(sorted(sys.modules)))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=60,
+                         check=True)
+    loaded = json.loads(out.stdout)
+    assert "zenoh_robot.node" in loaded        # the check can fail: it sees what was loaded
+    bad = [m for m in loaded if any(m == f or m.startswith(f + ".") for f in FORBIDDEN_ON_IMPORT)
+           or m.endswith((".launch", ".bench", ".experiment"))]
+    assert bad == []
+
+
+@pytest.mark.parametrize("name", ["Parameter", "ParameterClient", "ParameterType", "ParameterDescriptor",
+                                  "SetParametersResult", "parse_param_args", "parse_param_value",
+                                  "format_param_value", "add_param_argument", "params_from_args",
+                                  "qos_from_parameters", "InvalidParameterTypeError",
+                                  "InvalidParameterValueError", "ParameterNotDeclaredError",
+                                  "ParameterAlreadyDeclaredError", "ParameterError", "PARAMETER_SERVICES"])
+def test_parameters_package_keeps_every_name(name: str) -> None:
+    import zenoh_robot.parameters as params
+    assert hasattr(params, name)
