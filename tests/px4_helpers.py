@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import time
+from pathlib import Path
 from contextlib import contextmanager
 from typing import Iterator
 
@@ -47,3 +48,42 @@ def sim_process(sysid: int, target_port: int, *extra: str):
     """``python -m px4_link.sim`` as a real child process."""
     return python_proc("-m", "px4_link.sim", "--sysid", str(sysid), "--port", "0",
                        "--target-port", str(target_port), *extra)
+
+
+# ---------------------------------------------------------------- PX4's own failsafes
+def px4_failsafes(sim: Simulator) -> list[str]:
+    """Every sign that PX4's own failsafe logic acted, whichever mode it picked (POSCTL,
+    AUTO.RTL, AUTO.LAND, AUTO.LOITER, TERMINATION, ...): a failsafe record, or a switch into
+    any failsafe mode that neither the user nor a finished manoeuvre asked for."""
+    from px4_link.sim import FAILSAFE_MODES
+
+    out = [f"failsafe {e.cause} -> {e.action}" for e in sim.failsafe_log]
+    out += [f"{c.old} -> {c.new} ({c.reason})" for c in sim.mode_log
+            if c.new in FAILSAFE_MODES and (c.reason.startswith("failsafe") or c.reason.startswith("mode fallback"))]
+    if sim.system_status == 5:
+        out.append("HEARTBEAT system_status CRITICAL")
+    return out
+
+
+def assert_no_px4_failsafe(sim: Simulator) -> None:
+    fired = px4_failsafes(sim)
+    assert not fired, f"PX4's own failsafe fired: {fired}"
+
+
+# ---------------------------------------------------------------- real PX4 SITL traces
+TRACES = Path("/work/shared/px4_traces")
+
+
+def trace_messages(name: str) -> list:
+    """All messages of a trace tlog (skips the test when the traces are not on this host)."""
+    import pytest
+    from pymavlink import mavutil
+
+    path = TRACES / name
+    if not path.exists():
+        pytest.skip(f"{path} not available")
+    conn = mavutil.mavlink_connection(str(path), dialect="common")
+    out = []
+    while (m := conn.recv_match()) is not None:
+        out.append(m)
+    return out
