@@ -1,0 +1,240 @@
+"""QGroundControl alongside: PX4's MAVLink bytes over the drone's Zenoh session, and back under a policy.
+
+``companion --mavlink-tunnel`` puts a UDP tee where PX4 sends (its MAVLink port):
+every datagram from PX4 goes on to the companion's own link unchanged and is also
+published on ``<id>/mavlink/down``; datagrams arriving on ``<id>/mavlink/up`` (from
+``gcs --mavlink-out``, i.e. from a QGC on the GCS machine) go to PX4 only if the
+command policy lets them through.
+
+Policy (safety first: the drone never moves unless an authorised operator asked, and
+the companion is where that is decided): by default only read-only traffic goes up:
+heartbeats, time sync, parameter and mission *reads*, and information requests.
+Anything that could move or reconfigure the vehicle (arm, mode, setpoints, parameter
+or mission writes, any other command) is refused, counted per message name, and the
+refusal is reported to QGC: a COMMAND_ACK DENIED for a command, a STATUSTEXT
+(rate-limited) otherwise. ``allow_control=True`` (``--mavlink-tunnel-allow-control``)
+lets everything through, for a bench or a field operator who owns the vehicle.
+"""
+from __future__ import annotations
+
+import logging
+import select
+import socket
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from pymavlink.dialects.v20 import common as mavlink2
+
+from zenoh_robot.message import Message, message
+from zenoh_robot.qos import QoSProfile, ReliabilityPolicy
+
+log = logging.getLogger("companion.mavlink_tunnel")
+
+MAX_DATAGRAM = 65535
+# Bursty telemetry, best effort (MAVLink has its own retries for what matters), a deep queue.
+TUNNEL_QOS = QoSProfile(ReliabilityPolicy.BEST_EFFORT, depth=200)
+
+# Read-only traffic a QGC needs to show a vehicle: always allowed up.
+READ_ONLY = frozenset({
+    "HEARTBEAT", "SYSTEM_TIME", "TIMESYNC", "PING",
+    "PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_EXT_REQUEST_LIST", "PARAM_EXT_REQUEST_READ",
+    "MISSION_REQUEST_LIST", "MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK",
+    "LOG_REQUEST_LIST", "AUTOPILOT_VERSION_REQUEST",
+})
+# Commands that only ask for information.
+READ_ONLY_COMMANDS = frozenset({
+    mavlink2.MAV_CMD_REQUEST_MESSAGE, mavlink2.MAV_CMD_REQUEST_PROTOCOL_VERSION,
+    mavlink2.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, mavlink2.MAV_CMD_REQUEST_CAMERA_INFORMATION,
+    mavlink2.MAV_CMD_REQUEST_FLIGHT_INFORMATION, mavlink2.MAV_CMD_REQUEST_STORAGE_INFORMATION,
+})
+COMMANDS = frozenset({"COMMAND_LONG", "COMMAND_INT"})
+STATUSTEXT_PERIOD = 2.0     # at most one refusal notice per this many seconds
+
+
+@message(name="zenoh_robot/MavlinkPacket")
+class MavlinkPacket(Message):
+    """One UDP datagram of MAVLink, as PX4 or QGC sent it (one or more frames)."""
+    data: bytes = b""
+
+
+@dataclass
+class TunnelCounters:
+    down: int = 0                 # datagrams from PX4 published
+    up_forwarded: int = 0         # datagrams from QGC sent to PX4
+    up_refused: int = 0
+    up_malformed: int = 0         # not MAVLink at all
+    refused_by_message: Counter[str] = field(default_factory=Counter)
+
+
+class MavlinkPolicy:
+    """Decides whether a datagram from QGC may reach PX4; says why not."""
+
+    def __init__(self, allow_control: bool = False) -> None:
+        self.allow_control = allow_control
+        self._parser = mavlink2.MAVLink(None)
+        self._parser.robust_parsing = True
+
+    def frames(self, data: bytes) -> list[Any]:
+        try:
+            msgs = self._parser.parse_buffer(data) or []
+        except Exception:   # a malformed datagram: nothing in it is trusted
+            return []
+        return [m for m in msgs if m.get_type() != "BAD_DATA"]
+
+    def refused(self, msgs: list[Any]) -> list[Any]:
+        """The frames that may not go up (empty: forward the datagram)."""
+        if self.allow_control:
+            return []
+        out = []
+        for m in msgs:
+            name = m.get_type()
+            if name in READ_ONLY:
+                continue
+            if name in COMMANDS and getattr(m, "command", None) in READ_ONLY_COMMANDS:
+                continue
+            out.append(m)
+        return out
+
+
+class UdpTee:
+    """Sits where PX4 sends: ``listen`` (PX4's target), relays to the link at ``link_port``.
+
+    PX4 -> tee -> link, link -> tee -> PX4 (the address PX4 last sent from); every PX4
+    datagram also goes to ``on_down``. ``inject(data)`` sends to PX4 (for QGC's traffic).
+    """
+
+    def __init__(self, listen: tuple[str, int], link_port: int, on_down: Callable[[bytes], None]) -> None:
+        self.on_down = on_down
+        self._px4_side = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._px4_side.bind(listen)
+        self._link_side = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._link_side.bind(("127.0.0.1", 0))
+        self._link_addr = ("127.0.0.1", link_port)
+        self.px4_addr: tuple[str, int] | None = None
+        self.relayed = 0
+        self.callback_errors = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="mavlink-tee", daemon=True)
+
+    @property
+    def port(self) -> int:
+        return int(self._px4_side.getsockname()[1])
+
+    def start(self) -> "UdpTee":
+        self._thread.start()
+        return self
+
+    def inject(self, data: bytes) -> bool:
+        if self.px4_addr is None:
+            return False
+        self._px4_side.sendto(data, self.px4_addr)
+        return True
+
+    def _run(self) -> None:
+        socks = [self._px4_side, self._link_side]
+        while not self._stop.is_set():
+            try:
+                ready, _, _ = select.select(socks, [], [], 0.2)
+            except (OSError, ValueError):
+                return
+            for s in ready:
+                try:
+                    data, addr = s.recvfrom(MAX_DATAGRAM)
+                except OSError:
+                    continue
+                if s is self._px4_side:
+                    self.px4_addr = addr
+                    self._link_side.sendto(data, self._link_addr)
+                    self.relayed += 1
+                    try:
+                        self.on_down(data)
+                    except Exception:
+                        self.callback_errors += 1
+                elif self.px4_addr is not None:
+                    self._px4_side.sendto(data, self.px4_addr)
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=2.0)
+        for s in (self._px4_side, self._link_side):
+            s.close()
+
+
+class MavlinkTunnel:
+    """The companion side: ``<id>/mavlink/down`` out, ``<id>/mavlink/up`` in through the policy."""
+
+    def __init__(self, node: Any, tee: UdpTee, *, allow_control: bool = False,
+                 sysid: int = 1, compid: int = 191) -> None:
+        self.node = node
+        self.tee = tee
+        self.policy = MavlinkPolicy(allow_control)
+        self.counters = TunnelCounters()
+        self._down = node.create_publisher(MavlinkPacket, "mavlink/down", TUNNEL_QOS)
+        self._up = node.create_subscription(MavlinkPacket, "mavlink/up", self._on_up, TUNNEL_QOS)
+        self._reply = mavlink2.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+        self._notice_at = 0.0
+        self._logged_at = 0.0
+        tee.on_down = self.publish_down
+
+    def publish_down(self, data: bytes) -> None:
+        self._down.publish(MavlinkPacket(data))
+        self.counters.down += 1
+
+    def _on_up(self, pkt: MavlinkPacket) -> None:
+        data = bytes(pkt.data)
+        msgs = self.policy.frames(data)
+        if not msgs:
+            self.counters.up_malformed += 1
+            return
+        refused = self.policy.refused(msgs)
+        if not refused:
+            if self.tee.inject(data):
+                self.counters.up_forwarded += 1
+            return
+        self.counters.up_refused += 1
+        for m in refused:
+            self.counters.refused_by_message[m.get_type()] += 1
+        self._report(refused)
+
+    def _report(self, refused: list[Any]) -> None:
+        """Tell QGC (down the tunnel) why nothing happened: DENIED for commands, else a STATUSTEXT."""
+        for m in refused:
+            if m.get_type() in COMMANDS:
+                ack = self._reply.command_ack_encode(m.command, mavlink2.MAV_RESULT_DENIED, 0, 0,
+                                                     m.get_srcSystem(), m.get_srcComponent())
+                self._down.publish(MavlinkPacket(bytes(ack.pack(self._reply))))
+        now = time.monotonic()
+        names = ", ".join(sorted({m.get_type() for m in refused}))
+        if now - self._notice_at >= STATUSTEXT_PERIOD:
+            self._notice_at = now
+            text = f"companion: {names} refused (tunnel is read-only)"[:50].encode()
+            st = self._reply.statustext_encode(mavlink2.MAV_SEVERITY_WARNING, text)
+            self._down.publish(MavlinkPacket(bytes(st.pack(self._reply))))
+        if now - self._logged_at >= 10.0:   # the log says it too, rate-limited
+            self._logged_at = now
+            log.warning("MAVLink from the GCS refused: %s (%d refused so far; --mavlink-tunnel-allow-control "
+                        "lets QGC command the vehicle)", names, self.counters.up_refused)
+
+    def close(self) -> None:
+        self.tee.close()
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def tee_connection(connection: str, on_down: Callable[[bytes], None] = lambda d: None) -> tuple[UdpTee, str]:
+    """Put a tee on a ``udpin:HOST:PORT`` connection: returns it and the link's new connection string."""
+    kind, _, rest = connection.partition(":")
+    host, _, port = rest.rpartition(":")
+    if kind != "udpin" or not port.isdigit():
+        raise ValueError(f"--mavlink-tunnel needs a udpin:HOST:PORT PX4 connection, got {connection!r}")
+    link_port = free_udp_port()
+    tee = UdpTee((host, int(port)), link_port, on_down).start()
+    return tee, f"udpin:127.0.0.1:{link_port}"
