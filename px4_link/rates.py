@@ -45,7 +45,7 @@ class RateMeter:
 class BootWatch:
     """Spots a vehicle reboot from its boot clock going backwards (ATTITUDE, SYSTEM_TIME)."""
 
-    JUMP_MS = 1000   # jitter and reordering never move time_boot_ms back this far
+    JUMP_MS = 250    # UDP reordering of 100 Hz ATTITUDE never moves time_boot_ms back this far
 
     def __init__(self) -> None:
         self._last_ms: int | None = None
