@@ -31,6 +31,14 @@ class CliError(Exception):
     """An error to print as one line, exiting non-zero."""
 
 
+class _SubParsers(argparse._SubParsersAction):
+    def add_parser(self, name: str, **kwargs: Any) -> argparse.ArgumentParser:
+        parser = super().add_parser(name, **kwargs)
+        if isinstance(parser, Parser):
+            parser.is_subcommand = True
+        return parser
+
+
 class Parser(argparse.ArgumentParser):
     """An ArgumentParser whose subcommands report their own usage errors.
 
@@ -42,6 +50,10 @@ class Parser(argparse.ArgumentParser):
 
     is_subcommand = False
     intermixed: str | None = None
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.register("action", "parsers", _SubParsers)   # nested subcommands, too
 
     def parse_known_args(self, args: Sequence[str] | None = None,   # type: ignore[override]
                          namespace: argparse.Namespace | None = None) -> tuple[argparse.Namespace, list[str]]:
@@ -56,14 +68,6 @@ class Parser(argparse.ArgumentParser):
         return ns, extras
 
 
-class _SubParsers(argparse._SubParsersAction):
-    def add_parser(self, name: str, **kwargs: Any) -> argparse.ArgumentParser:
-        parser = super().add_parser(name, **kwargs)
-        if isinstance(parser, Parser):
-            parser.is_subcommand = True
-        return parser
-
-
 def package_version() -> str:
     try:
         return version("zenoh-robot")
@@ -73,7 +77,6 @@ def package_version() -> str:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = Parser(prog="zenoh-robot", description=(__doc__ or "").splitlines()[0])
-    parser.register("action", "parsers", _SubParsers)
     _common_flags(parser)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in SUBCOMMANDS:
@@ -171,7 +174,6 @@ def run_single(register: Callable[[argparse._SubParsersAction], None], command: 
                argv: list[str] | None = None) -> int:
     """Run one plugin subcommand as its own program (``python -m gcs`` == ``zenoh-robot gcs``)."""
     parser = Parser(prog=prog)
-    parser.register("action", "parsers", _SubParsers)
     _common_flags(parser)
     sub = parser.add_subparsers(dest="command", required=True)
     register(sub)

@@ -13,6 +13,7 @@ import yaml
 from zenoh_robot.parameters import (Parameter, ParameterClient, ParameterType,
                           InvalidParameterValueError, parse_param_value)
 from zenoh_robot.services import ServiceCallError, ServiceTimeout
+from .common import add_zenoh_arg, zenoh_config
 from .main import CliError
 
 _LABEL = {ParameterType.BOOL: "Boolean", ParameterType.INTEGER: "Integer", ParameterType.DOUBLE: "Double",
@@ -23,7 +24,7 @@ _LABEL = {ParameterType.BOOL: "Boolean", ParameterType.INTEGER: "Integer", Param
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("param", help="list, get and set a running node's parameters")
-    p.add_argument("--config", help="Zenoh session config (YAML/JSON5) to reach the node")
+    add_zenoh_arg(p)
     p.add_argument("--timeout", type=float, default=3.0, help="seconds to find and wait for the node (default 3)")
     ops = p.add_subparsers(dest="op", metavar="OP", required=True)
     o = ops.add_parser("list", help="names of the node's parameters")
@@ -55,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     from zenoh_robot.node import Node   # imported late so `zenoh-robot --help` stays fast
 
     target = _node_name(args.node)
-    with Node(f"_zr_param_{secrets.token_hex(3)}", config=args.config) as node:
+    with Node(f"_zr_param_{secrets.token_hex(3)}", config=zenoh_config(args)) as node:
         try:
             client = ParameterClient(node, target, timeout=args.timeout)
         except ValueError as exc:

@@ -12,19 +12,20 @@ import time
 import yaml
 
 from zenoh_robot.services import SERVICE_PREFIX, ServiceCallError, call_dict, describe_services, service_key
+from .common import add_zenoh_arg, zenoh_config
 from .main import CliError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("service", help="list and call services")
-    p.add_argument("--config", help="Zenoh session config (YAML/JSON5)")
+    add_zenoh_arg(p)
     ops = p.add_subparsers(dest="op", metavar="OP", required=True)
     o = ops.add_parser("list", help="services on the network, with their types")
     o.add_argument("prefix", nargs="?", default="", help="only services under this name, e.g. /uav1")
     o.add_argument("-t", "--show-types", action="store_true", help="show request/response types")
     o.add_argument("--timeout", type=float, default=1.5, help="seconds to collect answers (default 1.5)")
     o = ops.add_parser("call", help="call a service with a YAML request")
-    o.add_argument("service", help="absolute service name, e.g. /uav1/companion/arm")
+    o.add_argument("service", help="absolute service name, e.g. /uav1/command (see `service list`)")
     o.add_argument("request", nargs="?", default="{}", help="request fields as YAML, e.g. '{altitude: 5}'")
     o.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for the reply (default 5)")
     p.set_defaults(func=run)
@@ -33,7 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from zenoh_robot.node import Node
 
-    with Node(f"_zr_service_{secrets.token_hex(3)}", config=args.config) as node:
+    with Node(f"_zr_service_{secrets.token_hex(3)}", config=zenoh_config(args)) as node:
         if args.op == "list":
             return _list(node, args)
         return _call(node, args)
