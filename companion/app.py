@@ -52,7 +52,7 @@ from zenoh_robot.tools.stream_profiles import StreamProfile, stream_profile
 from .camera import RateKeeper, open_source
 from .control import ControlArbiter
 from .offboard import SAFE_MODE, OffboardLifecycle, OffboardState, Refused, VehicleMotion, check_against_vehicle
-from .reporting import RateLimiter, RateMeter
+from .reporting import RateLimiter
 
 log = logging.getLogger("companion")
 
@@ -110,7 +110,7 @@ class Companion:
         self._candidates: dict[str, Candidate] = {}
         self._lock = threading.Lock()
         self._limiter = RateLimiter(config.report_interval_s)
-        self.sensor_rate = RateMeter(window_s=2.0)
+        self._rate_since = time.monotonic()
         self.sensor_rate_requested = config.sensor_rate_hz
         self._sensor_low_warned = 0.0
         self._park_sent = 0.0
@@ -140,7 +140,7 @@ class Companion:
         node.create_timer(0.05, self._watchdog)
         self._tokens = node.session.liveliness().declare_subscriber(
             f"{CONTROL_TOKEN_PREFIX}/*", self._on_token, history=True)
-        link.add_listener(self._on_imu, Imu)
+        link.telemetry.add_listener(self._on_imu, Imu)
         link.add_event_listener(self._on_link_event)
         self._stop = threading.Event()
         self._camera_thread: threading.Thread | None = None
@@ -178,6 +178,7 @@ class Companion:
             self.setpoints_rejected += 1
             self._report_refused("setpoint_rejected", client, "not_in_control", why)
             return
+        self.control.seen(client)
         now = time.monotonic()
         try:
             sp = self._to_setpoint(msg)
@@ -220,7 +221,7 @@ class Companion:
             self._commands.submit(self._guarded, "resume", lambda: self._offboard_start(client))
 
     def _motion(self) -> VehicleMotion | None:
-        pos = self.link.latest(LocalPosition)
+        pos = self.link.telemetry.latest(LocalPosition)
         if pos is None or time.monotonic() - pos.received_at > 1.0:
             return None
         return VehicleMotion((pos.x, pos.y, pos.z), (pos.vx, pos.vy, pos.vz))
@@ -269,19 +270,25 @@ class Companion:
             self._commands.submit(self._guarded, "offboard_lost", lambda: self.lifecycle.px4_left_offboard(new))
         elif name == "armed_changed" and not details.get("armed", True):
             self._commands.submit(self._guarded, "disarmed", self.lifecycle.disarmed)
-        elif name == "connected" and details.get("reconnect"):
-            self.sensor_rate.reset()
-            self._event("px4_reconnected", "PX4 heartbeats back: asking for the sensor rate again",
-                        f"HIGHRES_IMU {self.sensor_rate_requested:g} Hz")
-            self._commands.submit(self._guarded, "request rates", self.request_rates)
+        elif (name == "connected" and details.get("reconnect")) or name == "rebooted":
+            self._rate_since = time.monotonic()   # px4_link asks PX4 for the intervals again
+            self._event("px4_reconnected", f"PX4 {'rebooted' if name == 'rebooted' else 'heartbeats back'}: "
+                        "sensor rate asked again", f"HIGHRES_IMU {self.sensor_rate_requested:g} Hz")
         elif name == "disconnected":
             self._event("px4_disconnected", f"no PX4 heartbeat for {details.get('silent_s', 0):.1f} s", "")
 
     def request_rates(self) -> None:
-        self.link.request_message_interval("HIGHRES_IMU", self.sensor_rate_requested)
+        # px4_link remembers the interval and asks again after a PX4 reconnect or reboot.
+        self.link.telemetry.request_message_interval("HIGHRES_IMU", self.sensor_rate_requested)
+
+    def sensor_rate_hz(self) -> float:
+        """HIGHRES_IMU rate PX4 really delivers (NaN for the first window after start or a reconnect)."""
+        if time.monotonic() - self._rate_since < 2.0:
+            return math.nan
+        return self.link.telemetry.rate_hz("HIGHRES_IMU")
 
     def _check_sensor_rate(self, now: float) -> None:
-        rate = self.sensor_rate.rate_hz(now)
+        rate = self.sensor_rate_hz()
         want = self.sensor_rate_requested
         if math.isnan(rate) or not self.link.connected or rate >= self.config.sensor_rate_tolerance * want:
             return
@@ -371,17 +378,25 @@ class Companion:
         def leave(mode: str) -> Callable[[], None]:
             return lambda: self._leave(mode, f"{cmd.name} by {who}")
 
+        def disarm() -> None:
+            link.action.disarm(force=cmd.force)
+            lc.disarmed()
+
+        def takeoff() -> None:
+            if lc.in_session:
+                lc.leave(SAFE_MODE, f"takeoff by {who}")
+            link.action.takeoff(cmd.value or 5.0)
+
         handlers: dict[str, Callable[[], Any]] = {
             "arm": self._arm,
-            "disarm": lambda: (link.disarm(force=cmd.force), lc.disarmed()),
-            "takeoff": lambda: (lc.in_session and lc.leave(SAFE_MODE, f"takeoff by {who}"),
-                                link.takeoff(cmd.value or 5.0)),
+            "disarm": disarm,
+            "takeoff": takeoff,
             "land": leave("AUTO.LAND"),
             "hold": leave("AUTO.LOITER"),
             "rtl": leave("AUTO.RTL"),
             "offboard_stop": leave("AUTO.LOITER"),
             "offboard_start": lambda: self._offboard_start(who),
-            "set_param": lambda: link.set_param(cmd.text, cmd.value),
+            "set_param": lambda: link.param.set(cmd.text, cmd.value),
         }
         fn = handlers[cmd.name]
 
@@ -401,7 +416,7 @@ class Companion:
         if self.link.mode == "OFFBOARD" and not self.lifecycle.in_session:
             self.lifecycle.park("arm outside an offboard session")
             note = f"PX4 was in OFFBOARD without a session: switched to {SAFE_MODE} before arming"
-        self.link.arm()
+        self.link.action.arm()
         return note or "armed"
 
     def _offboard_start(self, client: str) -> str:
@@ -425,7 +440,6 @@ class Companion:
 
     # -- telemetry -------------------------------------------------------------------
     def _on_imu(self, imu: Imu) -> None:    # px4_link's thread: publish is thread safe
-        self.sensor_rate.tick()
         msg = SensorCombined(
             Header.now(frame_id="base_link"), imu.timestamp_us, list(imu.gyro_rad), 0, 0,
             list(imu.accelerometer_m_s2), 0, list(imu.magnetometer_ga), imu.baro_alt_meter,
@@ -438,17 +452,17 @@ class Companion:
 
     def _publish_state(self) -> None:
         st = self.link.state
-        pos = self.link.latest(LocalPosition)
-        att = self.link.latest(Attitude)
-        batt = self.link.latest(Battery)
+        pos = self.link.telemetry.latest(LocalPosition)
+        att = self.link.telemetry.latest(Attitude)
+        batt = self.link.telemetry.latest(Battery)
         sent = self.state_pub.publish(VehicleState(
-            Header.now(), st.mode, st.armed, bool(st.landed), self.link.connected, self.link.streaming,
+            Header.now(), st.mode, st.armed, bool(st.landed), self.link.connected, self.link.offboard.streaming,
             [pos.x, pos.y, pos.z] if pos else [math.nan] * 3,
             [pos.vx, pos.vy, pos.vz] if pos else [math.nan] * 3,
             [att.roll, att.pitch, att.yaw] if att else [math.nan] * 3,
             batt.remaining_pct / 100.0 if batt else math.nan, batt.voltage_v if batt else math.nan,
             self.failsafe, self.setpoints_rejected, self.lifecycle.state.value, self.control.holder,
-            self.sensor_rate.rate_hz(), self.sensor_rate_requested, self.commands_refused))
+            self.sensor_rate_hz(), self.sensor_rate_requested, self.commands_refused))
         self.sent["state"].record(sent.seq, sent.stamp_ns)
 
     def _camera_loop(self) -> None:
@@ -486,7 +500,7 @@ class Companion:
 
     def close(self) -> None:
         # Runs before the node's publishers go: the link's thread must stop using them first.
-        self.link.remove_listener(self._on_imu)
+        self.link.telemetry.remove_listener(self._on_imu)
         self._stop.set()
         if self._camera_thread is not None:
             self._camera_thread.join(timeout=2.0)
@@ -501,7 +515,7 @@ class Companion:
         s["lost_pct"] = self.setpoints.lost_pct()
         return {"setpoints": s, "setpoints_rejected": self.setpoints_rejected,
                 "setpoints_ignored": self.setpoints_ignored, "commands_refused": self.commands_refused,
-                "control": vars(self.control.counters), "sensor_rate_hz": self.sensor_rate.rate_hz(),
+                "control": vars(self.control.counters), "sensor_rate_hz": self.sensor_rate_hz(),
                 "offboard_state": self.lifecycle.state.value, "events": self.events_sent,
                 "final_mode": self.link.state.mode,
                 "logs": {"sent": {k: v.to_dict() for k, v in self.sent.items()},

@@ -93,6 +93,12 @@ class ControlArbiter:
         return self._refuse(client_id, what, f"{what} refused: {h} is in control of this drone "
                                              "(take over with take_control --force)")
 
+    def seen(self, client_id: str) -> None:
+        """Something came from ``client_id``: when it holds control, its lease is renewed."""
+        with self._lock:
+            if client_id and client_id == self.holder:
+                self._holder_seen = time.monotonic()
+
     def release(self, client_id: str) -> bool:
         with self._lock:
             if self.holder != client_id or not client_id:

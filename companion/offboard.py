@@ -24,7 +24,6 @@ import enum
 import logging
 import math
 import threading
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
@@ -36,7 +35,7 @@ log = logging.getLogger("companion.offboard")
 SAFE_MODE = "AUTO.LOITER"   # PX4 Hold: where the companion parks the vehicle when it stops streaming
 
 
-class OffboardState(str, enum.Enum):
+class OffboardState(enum.StrEnum):
     IDLE = "idle"
     STARTING = "starting"
     ACTIVE = "active"
@@ -51,20 +50,32 @@ class Refused(Exception):
         self.reason = reason
 
 
+class Offboard(Protocol):
+    """What the lifecycle needs of px4_link's ``link.offboard``."""
+
+    @property
+    def streaming(self) -> bool: ...
+    def set_setpoint(self, sp: Setpoint) -> None: ...
+    def start(self) -> object: ...
+    def stop(self, mode: str | None = ...) -> object: ...
+    def stop_stream(self) -> None: ...
+
+
+class Action(Protocol):
+    def set_mode(self, name: str) -> object: ...
+
+
 class Link(Protocol):
     """What the lifecycle needs of px4_link.Px4Link."""
 
     @property
-    def streaming(self) -> bool: ...
-    @property
     def mode(self) -> str: ...
     @property
     def connected(self) -> bool: ...
-    def set_setpoint(self, sp: Setpoint) -> None: ...
-    def start_offboard(self) -> object: ...
-    def stop_offboard(self, mode: str | None = ...) -> object: ...
-    def stop_setpoint_stream(self) -> None: ...
-    def set_mode(self, name: str) -> object: ...
+    @property
+    def offboard(self) -> Offboard: ...
+    @property
+    def action(self) -> Action: ...
 
 
 @dataclass(frozen=True)
@@ -140,7 +151,7 @@ class OffboardLifecycle:
                         if self._state is OffboardState.FAILSAFE_HOLD else
                         "no offboard session: send offboard_start first")
                 raise Refused("no_session", f"setpoint not forwarded to PX4 ({hint})")
-            self.link.set_setpoint(sp)   # SetpointRejected propagates: nothing was sent
+            self.link.offboard.set_setpoint(sp)   # SetpointRejected propagates: nothing was sent
 
     # -- requests (command thread) -------------------------------------------------
     def start(self, candidate: Setpoint) -> None:
@@ -150,19 +161,19 @@ class OffboardLifecycle:
                 return
             self._go(OffboardState.STARTING, "offboard_start requested")
             try:
-                self.link.set_setpoint(candidate)   # starts the stream PX4 needs before OFFBOARD
+                self.link.offboard.set_setpoint(candidate)   # starts the stream PX4 needs before OFFBOARD
             except Exception:
                 self._abort("first setpoint refused by px4_link")
                 raise
         try:
-            self.link.start_offboard()
+            self.link.offboard.start()
         except Exception as exc:
             self._abort(f"PX4 refused OFFBOARD: {exc}")
             raise
         self._go(OffboardState.ACTIVE, "PX4 in OFFBOARD")
 
     def _abort(self, why: str) -> None:
-        self.link.stop_setpoint_stream()
+        self.link.offboard.stop_stream()
         self._go(OffboardState.IDLE, why)
 
     def leave(self, mode: str, why: str) -> None:
@@ -172,12 +183,12 @@ class OffboardLifecycle:
             was = self._state
             self._go(OffboardState.IDLE, why)   # first: no setpoint arriving now restarts anything
         try:
-            if self.link.streaming or was is not OffboardState.IDLE:
-                self.link.stop_offboard(mode=mode)
+            if self.link.offboard.streaming or was is not OffboardState.IDLE:
+                self.link.offboard.stop(mode=mode)
             else:
-                self.link.set_mode(mode)
+                self.link.action.set_mode(mode)
         finally:
-            self.link.stop_setpoint_stream()
+            self.link.offboard.stop_stream()
 
     def deadline_missed(self, why: str) -> bool:
         """HOLD first, then stop streaming. False when there was no session to protect."""
@@ -186,9 +197,9 @@ class OffboardLifecycle:
                 return False
             self._go(OffboardState.FAILSAFE_HOLD, why)
         try:
-            self.link.stop_offboard(mode=SAFE_MODE)
+            self.link.offboard.stop(mode=SAFE_MODE)
         finally:
-            self.link.stop_setpoint_stream()
+            self.link.offboard.stop_stream()
         return True
 
     def px4_left_offboard(self, new_mode: str) -> None:
@@ -196,7 +207,7 @@ class OffboardLifecycle:
         with self._lock:
             if self.in_session:
                 self._go(OffboardState.IDLE, f"PX4 left OFFBOARD for {new_mode}")
-            self.link.stop_setpoint_stream()
+            self.link.offboard.stop_stream()
 
     def disarmed(self) -> None:
         """Landed and disarmed (or disarmed by anyone): park PX4 in Hold, then stop streaming."""
@@ -213,25 +224,17 @@ class OffboardLifecycle:
         try:
             if self.link.connected and self.link.mode == "OFFBOARD":
                 log.warning("PX4 in OFFBOARD outside a session (%s): commanding %s", why, SAFE_MODE)
-                self.link.stop_offboard(mode=SAFE_MODE)
+                self.link.offboard.stop(mode=SAFE_MODE)
                 sent = True
         finally:
-            self.link.stop_setpoint_stream()
+            self.link.offboard.stop_stream()
         return sent
 
     def audit(self) -> str | None:
         """The invariant, checked often: outside a session nothing streams. Returns what
         was wrong (and has been fixed), or None."""
-        if not self.in_session and self.link.streaming:
-            self.link.stop_setpoint_stream()
+        if not self.in_session and self.link.offboard.streaming:
+            self.link.offboard.stop_stream()
             return f"stream running in state {self._state.value}: stopped"
         return None
 
-
-def wait(pred: Callable[[], bool], timeout: float, step: float = 0.05) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(step)
-    return pred()

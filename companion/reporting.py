@@ -1,4 +1,4 @@
-"""Bounded, rate-limited reporting of repeated refusals, and the delivered sensor rate.
+"""Bounded, rate-limited reporting of repeated refusals.
 
 A peer streaming refused setpoints at 50 Hz must not turn into 50 events and 50 log lines
 a second: each (kind, client, reason) key reports its first occurrence at once and then at
@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import threading
 import time
-from collections import deque
 from dataclasses import dataclass
 
 
@@ -43,36 +42,3 @@ class RateLimiter:
             k.last_report = now
             return k.count
 
-
-class RateMeter:
-    """Samples per second over a sliding window of arrival times (bounded)."""
-
-    def __init__(self, window_s: float = 2.0, max_samples: int = 4096) -> None:
-        self.window_s = window_s
-        self._t: deque[float] = deque(maxlen=max_samples)
-        self._lock = threading.Lock()
-        self._started = time.monotonic()
-
-    def tick(self, now: float | None = None) -> None:
-        with self._lock:
-            self._t.append(time.monotonic() if now is None else now)
-
-    def reset(self) -> None:
-        with self._lock:
-            self._t.clear()
-            self._started = time.monotonic()
-
-    def rate_hz(self, now: float | None = None) -> float:
-        """NaN until a full window has been watched; 0.0 when nothing arrived in it."""
-        now = time.monotonic() if now is None else now
-        with self._lock:
-            if now - self._started < self.window_s:
-                return float("nan")
-            while self._t and now - self._t[0] > self.window_s:
-                self._t.popleft()
-            n = len(self._t)
-            if n < 2:
-                return 0.0
-            span = max(now - self._t[0], self._t[-1] - self._t[0])
-            # A full deque undercounts: its span is what the window really covers.
-            return (n - 1) / span if len(self._t) == self._t.maxlen else n / self.window_s

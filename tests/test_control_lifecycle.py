@@ -10,10 +10,10 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import pytest
+from conftest import linked_configs, wait_for
 
 from companion.app import Companion, CompanionConfig
 from companion.interface import Command, CommandResult, DroneSetpoint, FailsafeEvent, VehicleState
-from conftest import linked_configs, wait_for
 from gcs.app import Gcs, GcsConfig
 from gcs.mission import run_mission
 from px4_link import Px4Link
