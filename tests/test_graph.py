@@ -4,11 +4,19 @@ from __future__ import annotations
 import textwrap
 
 import pytest
-
 from conftest import linked_configs, python_proc, wait_for
+
 from zenoh_robot import Node, QoSProfile, qos
-from zenoh_robot.graph import (EndpointType, NodeInfo, TopicEndpointInfo, decode_qos, encode_qos,
-                               endpoint_token_key, node_token_key, parse_token)
+from zenoh_robot.graph import (
+    EndpointType,
+    NodeInfo,
+    TopicEndpointInfo,
+    decode_qos,
+    encode_qos,
+    endpoint_token_key,
+    node_token_key,
+    parse_token,
+)
 
 ODD = QoSProfile(reliability="best_effort", durability="transient_local", history="keep_all", depth=0,
                  deadline=0.25, lifespan=1.5, liveliness="manual_by_topic", liveliness_lease_duration=0.75,

@@ -4,13 +4,21 @@ from __future__ import annotations
 import pytest
 from conftest import python_proc
 
-CLI = ("-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())")
+from zenoh_robot import History, Node, QoSError, QoSProfile, Reliability
+from zenoh_robot.parameters import (
+    InvalidParameterTypeError,
+    InvalidParameterValueError,
+    Parameter,
+    ParameterAlreadyDeclaredError,
+    ParameterNotDeclaredError,
+    ParameterType,
+    SetParametersResult,
+    format_param_value,
+    parse_param_args,
+    qos_from_parameters,
+)
 
-from zenoh_robot import Node, QoSError, QoSProfile, Reliability, History
-from zenoh_robot.parameters import (InvalidParameterTypeError, InvalidParameterValueError, Parameter,
-                                    ParameterAlreadyDeclaredError, ParameterNotDeclaredError, ParameterType,
-                                    SetParametersResult, format_param_value, parse_param_args,
-                                    qos_from_parameters)
+CLI = ("-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())")
 
 
 @pytest.fixture

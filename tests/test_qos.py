@@ -7,8 +7,7 @@ import pytest
 import zenoh
 
 from zenoh_robot import QoSError, QoSProfile, qos
-from zenoh_robot.qos import (DurabilityPolicy, HistoryPolicy, Priority, ReliabilityPolicy, load_qos,
-                             save_qos)
+from zenoh_robot.qos import DurabilityPolicy, HistoryPolicy, Priority, ReliabilityPolicy, load_qos, save_qos
 from zenoh_robot.qos_mapping import publisher_options
 
 ROOT = Path(__file__).resolve().parents[1]

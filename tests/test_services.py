@@ -8,11 +8,10 @@ from concurrent.futures import Future
 import pytest
 from conftest import python_proc
 
-CLI = ("-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())")
-
 from zenoh_robot import Message, Node, message
-from zenoh_robot.services import (ServiceCallError, ServiceError, ServiceTimeout, ServiceUnavailable,
-                                  service_key)
+from zenoh_robot.services import ServiceCallError, ServiceError, ServiceTimeout, ServiceUnavailable, service_key
+
+CLI = ("-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())")
 
 
 @message(name="test_services/AddRequest")

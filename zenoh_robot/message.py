@@ -230,6 +230,19 @@ def _build_codec(cls: type) -> tuple[Callable[[Any], Any], Callable[[Any], Any]]
     return to_wire, from_wire
 
 
+_T = typing.TypeVar("_T", bound=type)
+
+
+@typing.overload
+def message(cls: _T, *, name: str | None = None) -> _T: ...
+
+
+@typing.overload
+def message(cls: None = None, *, name: str | None = None) -> Callable[[_T], _T]: ...
+
+
+# dataclass_transform: type checkers see an @message class as the dataclass it becomes.
+@typing.dataclass_transform(field_specifiers=(field, array, ros_field))
 def message(cls: type | None = None, *, name: str | None = None) -> Any:
     """Class decorator: make ``cls`` a dataclass message type with a type name and hash."""
     def wrap(c: type) -> type:
@@ -288,7 +301,7 @@ def type_support(msg_type: Any) -> TypeSupport:
         cached = TypeSupport(msg_type._type_name, msg_type._type_hash, msg_type._to_wire, msg_type._from_wire,
                              msg_type)
         type.__setattr__(msg_type, "_zr_type_support", cached)
-    return cached   # type: ignore[no-any-return]
+    return cached
 
 
 def require_message_type(t: Any, context: str) -> None:

@@ -11,23 +11,31 @@ from __future__ import annotations
 
 import logging
 import threading
+from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Any, Callable, Iterable, TypeVar, overload
+from typing import Any, TypeVar, overload
 
 import zenoh
 
 from . import names
 from ._wire.repeater import Repeater
-from .context import EntityContext, Endpoint
+from .context import Endpoint, EntityContext
 from .executor import Executor, Timer
-from .graph import Graph, GraphCache, TopicEndpointInfo, EndpointType
+from .graph import EndpointType, Graph, GraphCache, TopicEndpointInfo
 from .message import Message
-from .parameters import (Parameter, ParameterDescriptor, ParameterService, ParameterStore, ParameterType,
-                         SetCallback, SetParametersResult)
+from .parameters import (
+    Parameter,
+    ParameterDescriptor,
+    ParameterService,
+    ParameterStore,
+    ParameterType,
+    SetCallback,
+    SetParametersResult,
+)
 from .publisher import Publisher
 from .qos import SYSTEM_DEFAULT, QoSProfile
 from .qos_monitor import QoSMonitor
-from .services import Client, Services, Service
+from .services import Client, Service, Services
 from .session_config import SessionConfig, open_session
 from .subscription import RawMessage, Subscription
 

@@ -181,7 +181,8 @@ SERVICES_DEFAULT = QoSProfile(ReliabilityPolicy.RELIABLE, depth=10, priority=Pri
 PARAMETERS = QoSProfile(ReliabilityPolicy.RELIABLE, depth=1000)
 # Robot profiles.
 CONTROL = QoSProfile(ReliabilityPolicy.RELIABLE, depth=3, priority=Priority.INTERACTIVE_HIGH, express=True)
-CONFIGURATION = QoSProfile(ReliabilityPolicy.RELIABLE, DurabilityPolicy.TRANSIENT_LOCAL, HistoryPolicy.KEEP_ALL, depth=0)
+CONFIGURATION = QoSProfile(ReliabilityPolicy.RELIABLE, DurabilityPolicy.TRANSIENT_LOCAL, HistoryPolicy.KEEP_ALL,
+                           depth=0)
 FEEDBACK = QoSProfile(ReliabilityPolicy.RELIABLE, depth=10)
 # A setpoint is only worth its newest value: never queue, never wait, go first.
 SETPOINT = QoSProfile(ReliabilityPolicy.BEST_EFFORT, depth=1, priority=Priority.REAL_TIME, express=True)

@@ -84,7 +84,7 @@ def check_compatibility(offered: QoSProfile, requested: QoSProfile) -> Compatibi
                                     _longer_reason("liveliness lease", offered.liveliness_lease_duration,
                                                    requested.liveliness_lease_duration))
     undecided = [name for name in ("reliability", "durability", "liveliness")
-                 if getattr(offered, name).name == "SYSTEM_DEFAULT" or getattr(requested, name).name == "SYSTEM_DEFAULT"]
+                 if "SYSTEM_DEFAULT" in (getattr(offered, name).name, getattr(requested, name).name)]
     if undecided:
         return CompatibilityVerdict(Compatibility.WARNING, PolicyKind[undecided[0].upper()],
                                     f"{undecided[0]} is SYSTEM_DEFAULT on one side; taken as the default")

@@ -39,7 +39,8 @@ def declare_publisher(session: zenoh.Session, key: str, qos: QoSProfile) -> Any:
         return zenoh.ext.declare_advanced_publisher(
             session, key, cache=zenoh.ext.CacheConfig(_history_limit(qos)), publisher_detection=True,
             # Sequence numbers, not timestamps: no need for timestamping in every session config.
-            sample_miss_detection=zenoh.ext.MissDetectionConfig(),
+            # The stubs make heartbeat/sporadic_heartbeat required; Zenoh defaults both (no heartbeat).
+            sample_miss_detection=zenoh.ext.MissDetectionConfig(),  # type: ignore[call-arg]
             **publisher_options(qos))
     return session.declare_publisher(key, **publisher_options(qos))
 

@@ -28,18 +28,19 @@ import logging
 import secrets
 import threading
 import time
+from collections.abc import Callable
 from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeout
-from typing import TYPE_CHECKING, Any, Callable, Generic, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 import msgpack
 import zenoh
 
 from . import names
+from ._ratelimit import RateLimitedLog
 from ._wire import envelope
 from .context import EntityContext
 from .message import Message, TypeSupport, require_message_type, type_support, validated
-from ._ratelimit import RateLimitedLog
 
 if TYPE_CHECKING:
     from .node import Node
@@ -242,7 +243,7 @@ class Service(Generic[Req, Resp]):
 class _Call:
     """One outstanding query: collects replies on Zenoh's thread, completes the future at the end."""
 
-    def __init__(self, client: "Client[Any, Any]", future: Future, timeout: float, dict_form: bool) -> None:
+    def __init__(self, client: Client[Any, Any], future: Future[Any], timeout: float, dict_form: bool) -> None:
         self.client = client
         self.future = future
         self.timeout = timeout
@@ -261,7 +262,8 @@ class _Call:
                 return
             self._finish(result=result)
         else:
-            self.errors.append(decode_error(reply.err.payload.to_bytes()))
+            err = reply.err
+            self.errors.append(decode_error(err.payload.to_bytes()) if err is not None else None)
 
     def on_done(self) -> None:
         if self.future.done():
@@ -311,7 +313,8 @@ class Client(Generic[Req, Resp]):
     # -- discovery -------------------------------------------------------------------
     def service_is_ready(self) -> bool:
         try:
-            return bool(self._querier.matching_status.matching)
+            status: Any = self._querier.matching_status   # a MatchingStatus (the stubs say bool)
+            return bool(status.matching)
         except Exception:
             return False
 
@@ -352,7 +355,7 @@ class Client(Generic[Req, Resp]):
                             f"got {type(request).__name__}")
         return self._send(self._req.encode(request), timeout, dict_form=False)
 
-    def _send(self, body: Any, timeout: float, dict_form: bool) -> Future:
+    def _send(self, body: Any, timeout: float, dict_form: bool) -> Future[Any]:
         if not timeout > 0:
             raise ValueError(f"timeout must be > 0 seconds, got {timeout!r}")
         self.context.check_open()
@@ -373,7 +376,7 @@ class Client(Generic[Req, Resp]):
         try:
             env = envelope.unpack(data)
         except envelope.MalformedSample as exc:
-            raise ServiceError(f"service {self.service_name}: malformed response ({exc})", "bad_response")
+            raise ServiceError(f"service {self.service_name}: malformed response ({exc})", "bad_response") from None
         rt = self._resp
         if rt is not None and (env.type_hash != rt.hash or env.type_name != rt.name):
             raise ServiceError(f"service {self.service_name} returned {env.type_name} ({env.type_hash}), "
@@ -429,7 +432,8 @@ def call_dict(node: "Node", service: str, request: dict[str, Any], timeout: floa
         client._req = _dict_form(str(infos[0]["request"]), str(infos[0]["request_hash"]))
         future = client._send(request, timeout, dict_form=True)
         try:
-            return future.result(timeout + 2.0)
+            result: dict[str, Any] = future.result(timeout + 2.0)
+            return result
         except FutureTimeout:
             raise ServiceTimeout(f"service {client.service_name}: no reply within {timeout:g} s") from None
     finally:

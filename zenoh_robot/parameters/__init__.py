@@ -6,14 +6,36 @@ from __future__ import annotations
 
 from .args import add_param_argument, format_param_value, params_from_args, parse_param_args, parse_param_value
 from .client import ParameterClient
-from .service import (PARAMETER_SERVICES, DescribeParametersRequest, DescribeParametersResponse,
-                      GetParametersRequest, GetParametersResponse, ListParametersRequest, ListParametersResponse,
-                      ParameterDescriptorMsg, ParameterMsg, ParameterService, ParameterValue, SetParametersRequest,
-                      SetParametersResponse, SetParametersResultMsg)
+from .service import (
+                      PARAMETER_SERVICES,
+                      DescribeParametersRequest,
+                      DescribeParametersResponse,
+                      GetParametersRequest,
+                      GetParametersResponse,
+                      ListParametersRequest,
+                      ListParametersResponse,
+                      ParameterDescriptorMsg,
+                      ParameterMsg,
+                      ParameterService,
+                      ParameterValue,
+                      SetParametersRequest,
+                      SetParametersResponse,
+                      SetParametersResultMsg,
+)
 from .store import ParameterStore, SetCallback, qos_from_parameters
-from .types import (InvalidParameterTypeError, InvalidParameterValueError, Parameter, ParameterAlreadyDeclaredError,
-                    ParameterDescriptor, ParameterError, ParameterNotDeclaredError, ParameterType, SetParametersResult,
-                    coerce, infer_type)
+from .types import (
+                      InvalidParameterTypeError,
+                      InvalidParameterValueError,
+                      Parameter,
+                      ParameterAlreadyDeclaredError,
+                      ParameterDescriptor,
+                      ParameterError,
+                      ParameterNotDeclaredError,
+                      ParameterType,
+                      SetParametersResult,
+                      coerce,
+                      infer_type,
+)
 
 __all__ = [
     "ParameterType", "Parameter", "ParameterDescriptor", "SetParametersResult", "ParameterError",

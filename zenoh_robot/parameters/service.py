@@ -6,17 +6,19 @@ node's executor like any service; ``zenoh-robot param`` and ParameterClient use 
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import field
-from typing import Any, Callable, ClassVar
+from typing import Any, ClassVar
 
 from ..message import Message, message, ros_field
 from .store import ParameterStore
-from .types import (InvalidParameterTypeError, Parameter, ParameterError, ParameterType, SetParametersResult)
+from .types import InvalidParameterTypeError, Parameter, ParameterError, ParameterType, SetParametersResult
+
 
 # -- wire types of the parameter services (rcl_interfaces' shapes) ---------------------------
 @message(name="zenoh_robot/ParameterValue")
 class ParameterValue(Message):
-    type: int = ros_field("uint8", 0)
+    type: int = ros_field("uint8", default=0)
     bool_value: bool = False
     integer_value: int = 0
     double_value: float = 0.0
@@ -26,7 +28,8 @@ class ParameterValue(Message):
     double_array_value: list[float] = field(default_factory=list)
     string_array_value: list[str] = field(default_factory=list)
 
-    _SLOT: ClassVar[dict[ParameterType, str]] = {ParameterType.BOOL: "bool_value", ParameterType.INTEGER: "integer_value",
+    _SLOT: ClassVar[dict[ParameterType, str]] = {
+             ParameterType.BOOL: "bool_value", ParameterType.INTEGER: "integer_value",
              ParameterType.DOUBLE: "double_value", ParameterType.STRING: "string_value",
              ParameterType.BOOL_ARRAY: "bool_array_value", ParameterType.INTEGER_ARRAY: "integer_array_value",
              ParameterType.DOUBLE_ARRAY: "double_array_value", ParameterType.STRING_ARRAY: "string_array_value"}
@@ -62,7 +65,7 @@ class SetParametersResultMsg(Message):
 @message(name="zenoh_robot/ParameterDescriptor")
 class ParameterDescriptorMsg(Message):
     name: str = ""
-    type: int = ros_field("uint8", 0)
+    type: int = ros_field("uint8", default=0)
     description: str = ""
     read_only: bool = False
 

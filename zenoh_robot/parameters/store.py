@@ -11,13 +11,24 @@ may refuse them (also at declare time, as in rclpy).
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
-from typing import Any, Callable, Iterable, Protocol
+from typing import Any, Protocol
 
 from ..qos import HistoryPolicy, QoSError, QoSProfile, ReliabilityPolicy
-from .types import (InvalidParameterTypeError, InvalidParameterValueError, Parameter, ParameterAlreadyDeclaredError,
-                    ParameterDescriptor, ParameterNotDeclaredError, ParameterType, SetParametersResult, coerce,
-                    infer_type)
+from .types import (
+    InvalidParameterTypeError,
+    InvalidParameterValueError,
+    Parameter,
+    ParameterAlreadyDeclaredError,
+    ParameterDescriptor,
+    ParameterNotDeclaredError,
+    ParameterType,
+    SetParametersResult,
+    coerce,
+    infer_type,
+)
+
 
 @dataclass
 class _Declared:
