@@ -17,17 +17,23 @@ from __future__ import annotations
 
 import io
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
-from PIL import Image as PILImage
 
 from .message import Message, message, ros_field
 from .msgs import Header, Image
 from .qos import IMAGE, QoSProfile
 
 DEFAULT_SLICE_BYTES = 1100   # under one UDP datagram with Zenoh's headers at a 1500-byte MTU
+# Receive-side bounds: what a slice may claim before anything is allocated for it.
+MAX_SLICE_BYTES = 1 << 20
+MAX_SLICES = 4096
+MAX_SIDE = 16384
+MAX_FRAME_BYTES = 64 << 20
+STALE_FRAMES_TO_RESTART = 2  # older frames in a row, each newer than the last: the stream restarted
 
 
 @message(name="zenoh_robot/ImageSlice")
@@ -60,12 +66,21 @@ class FrameInfo:
 
 def encode_strip(rows: np.ndarray, quality: int) -> bytes:
     buf = io.BytesIO()
+    from PIL import Image as PILImage  # the [image] extra; only image paths need it
+
     PILImage.fromarray(rows).save(buf, format="JPEG", quality=quality, optimize=False)
     return buf.getvalue()
 
 
-def decode_strip(data: bytes) -> np.ndarray:
+def decode_strip(data: bytes, max_width: int | None = None, max_height: int | None = None) -> np.ndarray:
+    """One JPEG strip as an array; ValueError, before decoding, if its header claims more pixels
+    than ``max_width`` x ``max_height`` (a small packet must not inflate to gigabytes)."""
+    from PIL import Image as PILImage
+
     with PILImage.open(io.BytesIO(data)) as im:
+        w, h = im.size
+        if (max_width is not None and w > max_width) or (max_height is not None and h > max_height):
+            raise ValueError(f"strip of {w}x{h} does not fit the frame")
         return np.asarray(im)
 
 
@@ -150,22 +165,56 @@ class ImageSubscription:
         self.frames_complete = 0
         self.stale_slices = 0
         self.bad_slices = 0
+        self._stale_run = 0          # distinct older frames seen in a row since the current one began
+        self._stale_last = -1
+
+    @staticmethod
+    def _slice_error(s: ImageSlice) -> str | None:
+        """Why a slice cannot be part of any frame (checked before anything is allocated)."""
+        if s.encoding not in ("rgb8", "mono8"):
+            return f"encoding {s.encoding!r}"
+        if not (1 <= s.count <= MAX_SLICES and 0 <= s.index < s.count):
+            return f"slice {s.index} of {s.count}"
+        if not (1 <= s.width <= MAX_SIDE and 1 <= s.height <= MAX_SIDE
+                and s.width * s.height * (1 if s.encoding == "mono8" else 3) <= MAX_FRAME_BYTES):
+            return f"frame of {s.width}x{s.height}"
+        if not (0 <= s.row < s.height and len(s.data) <= MAX_SLICE_BYTES):
+            return f"row {s.row} / {len(s.data)} bytes"
+        return None
 
     def _on_slice(self, s: ImageSlice, info: Any = None) -> None:
-        frame = s.header.seq
-        if frame < self._frame and self._frame - frame < 1000:   # old (a restart resets numbering)
-            self.stale_slices += 1
+        if self._slice_error(s) is not None:
+            self.bad_slices += 1
             return
+        frame = s.header.seq
+        if frame < self._frame:
+            # Older than the current frame: a late slice, or the current frame was forged far ahead
+            # (or the publisher restarted). Older frames that keep coming, each newer than the one
+            # before, are the live stream: follow it after STALE_FRAMES_TO_RESTART of them, so a
+            # forged frame number cannot blind the viewer for more than that.
+            if frame > self._stale_last:
+                self._stale_run += 1
+                self._stale_last = frame
+            if self._stale_run < STALE_FRAMES_TO_RESTART:
+                self.stale_slices += 1
+                return
         if frame != self._frame:
             if not self._delivered:
                 self._deliver()
             self._start(s)
+        elif (s.count != self._count or self._canvas is None
+              or self._canvas.shape[:2] != (s.height, s.width)
+              or (self._canvas.ndim == 2) != (s.encoding == "mono8")):
+            self.bad_slices += 1     # disagrees with the frame's first slice
+            return
         try:
-            strip = decode_strip(s.data)
+            assert self._canvas is not None
+            strip = decode_strip(s.data, max_width=s.width, max_height=s.height - s.row)
             channels = 1 if s.encoding == "mono8" else 3
             if strip.ndim == 2 and channels == 3:
                 strip = np.repeat(strip[:, :, None], 3, axis=2)
-            assert self._canvas is not None
+            if strip.ndim != self._canvas.ndim or (strip.ndim == 3 and strip.shape[2] != channels):
+                raise ValueError(f"strip of shape {strip.shape} in a {s.encoding} frame")
             self._canvas[s.row:s.row + strip.shape[0], :strip.shape[1]] = strip
         except Exception:
             self.bad_slices += 1
@@ -180,6 +229,7 @@ class ImageSubscription:
             self._canvas = np.zeros(shape, dtype=np.uint8)   # first frame: missing strips black
         self._frame, self._stamp, self._count = s.header.seq, s.header.stamp, s.count
         self._got = set()
+        self._stale_run, self._stale_last = 0, -1
         self._delivered = False
 
     def _deliver(self) -> None:

@@ -5,6 +5,16 @@ arrival, append to a bounded deque). Decoding, checks and the user callback run
 on the node's executor. KEEP_LAST(n) holds at most n unprocessed samples: the
 oldest is dropped and counted when a new one arrives.
 
+Hostile input: nothing a peer sends can stop, blind or fool a subscription. A sample
+over ``max_sample_bytes`` is dropped before it is copied (``oversize``); the queue is
+bounded by bytes (``max_queued_bytes``) as well as by count. Every step of a sample
+(envelope, type check, deduplication, schema validation of every field, lifespan,
+statistics hooks, the callback) is guarded: a failure is counted by kind (``malformed``,
+``type_mismatch``, ``hook_errors``, ``callback_errors``, ``internal_errors``), logged at
+a bounded rate (``_ratelimit``), and the subscription keeps draining. Per-publisher
+tables are LRU-bounded; a forged sequence number cannot silence the real publisher
+(``_wire/redundancy.py`` says why).
+
 Raw mode (rclpy's ``raw=True``), for tools that show what is on a topic without its
 Python type::
 
@@ -27,21 +37,28 @@ import inspect
 import secrets
 import threading
 import time
-from collections import deque
+from collections import OrderedDict, deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable, Generic, TypeVar
+from typing import Any, Generic, TypeVar
 
+from ._ratelimit import RateLimitedLog
 from ._wire import envelope
-from ._wire.redundancy import Deduplicator
+from ._wire.redundancy import AHEAD, WINDOW, Deduplicator, check_extra
 from .context import EntityContext
 from .graph import ANY_TYPE_HASH, SUBSCRIPTION, TopicEndpointInfo
-from .message import Message, require_message_type, type_support
+from .message import require_message_type, type_support
 from .qos import HistoryPolicy, QoSProfile
 from .qos_events import SubscriptionEvents
 from .qos_mapping import declare_subscriber
 
 M = TypeVar("M")
 DRAIN_BATCH = 64  # samples per executor turn, so one busy topic cannot starve the others
+# Received data is bounded (see "Hostile input" in the module doc): per sample, the default
+# lets a raw 4K RGB image through; per queue, KEEP_ALL's 10,000 samples cannot hold gigabytes.
+MAX_SAMPLE_BYTES = 32 << 20
+MAX_QUEUED_BYTES = 128 << 20
+MAX_TRACKED_PUBLISHERS = 1024   # per-publisher tables (sequence, reported mismatches): LRU beyond this
 
 
 @dataclass(slots=True)
@@ -79,7 +96,11 @@ class SubscriptionCounters:
     expired: int = 0           # older than the lifespan when delivered
     incompatible: int = 0      # from a publisher whose QoS this subscription cannot accept
     callback_errors: int = 0
-    per_publisher_seq: dict[int, int] = field(default_factory=dict)
+    oversize: int = 0          # samples over max_sample_bytes, dropped before being copied
+    hook_errors: int = 0       # a sample hook (e.g. topic statistics) raised; the sample was still delivered
+    internal_errors: int = 0   # anything else that failed on one sample; the subscription kept draining
+    # Highest seq per publisher id, for `lost`; bounded (least recently seen id forgotten first).
+    per_publisher_seq: dict[int, int] = field(default_factory=OrderedDict)
 
 
 class Subscription(Generic[M]):
@@ -114,8 +135,14 @@ class Subscription(Generic[M]):
         self._take_batch = qos.history is HistoryPolicy.KEEP_ALL
         self._lock = threading.Lock()
         self._scheduled = False
-        self._mismatch_reported: set[int] = set()
-        self._malformed_logged_at = 0.0
+        # Everything a peer can trigger is bounded: the ids already reported (LRU), the log lines
+        # (rate-limited per kind), the bytes held (per sample and per queue).
+        self._mismatch_reported: OrderedDict[int, None] = OrderedDict()
+        self._rlog = RateLimitedLog(self.log)
+        self.max_sample_bytes = MAX_SAMPLE_BYTES
+        self.max_queued_bytes = MAX_QUEUED_BYTES
+        self._queued_bytes = 0
+        self._seq_jumps: dict[int, int] = {}   # publisher id -> unconfirmed jump (see _track_sequence)
         self._hash = self.type_hash
         self._any_type = ts is None
         self._from_wire: Callable[[Any], Any] = self._raw_sample if raw else ts.decode  # type: ignore[union-attr]
@@ -139,15 +166,33 @@ class Subscription(Generic[M]):
 
     # -- Zenoh thread --------------------------------------------------------------
     def _on_sample(self, sample: Any) -> None:
-        data = sample.payload.to_bytes()
+        # Zenoh's thread: never raises, never copies what it will drop.
+        try:
+            payload = sample.payload
+            size = len(payload)
+            if size > self.max_sample_bytes:
+                with self._lock:
+                    self.counters.received += 1
+                    self.counters.oversize += 1
+                self._rlog.warning("oversize", "sample of %d bytes on %r dropped: the limit is %d bytes "
+                                   "(Subscription.max_sample_bytes)", size, self.topic, self.max_sample_bytes)
+                return
+            data = payload.to_bytes()
+        except Exception as exc:
+            self._internal_error("receive", exc)
+            return
         now = time.time_ns()
         with self._lock:
             self.counters.received += 1
-            if len(self._queue) >= self._limit:
-                self._queue.popleft()
+            queue = self._queue
+            # Bounded by count (depth, or the KEEP_ALL limit) and by bytes: the oldest goes first.
+            while queue and (len(queue) >= self._limit or self._queued_bytes + size > self.max_queued_bytes):
+                old, _ = queue.popleft()
+                self._queued_bytes -= len(old)
                 self.counters.dropped += 1
                 self._dropped_unseen += 1   # will show as a sequence gap: not a network loss
-            self._queue.append((data, now))
+            queue.append((data, now))
+            self._queued_bytes += size
             if self._scheduled:
                 return
             self._scheduled = True
@@ -155,36 +200,46 @@ class Subscription(Generic[M]):
 
     # -- executor ------------------------------------------------------------------
     def _drain(self) -> None:
-        if self._take_batch:
-            self._drain_batch()
-            return
-        for _ in range(DRAIN_BATCH):
-            with self._lock:
-                if not self._queue:
-                    self._scheduled = False
-                    return
-                data, received = self._queue.popleft()
-            self._handle(data, received)
-        self._executor.submit(self._drain)  # still scheduled: give other entities a turn
+        more = True
+        try:
+            more = self._drain_some()
+        finally:
+            # Whatever happened to a sample, a subscription with queued samples stays scheduled
+            # and one without is unscheduled (in _drain_some, under the lock): it never stops draining.
+            if more:
+                self._executor.submit(self._drain)   # give other entities a turn
 
-    def _drain_batch(self) -> None:
+    def _drain_some(self) -> bool:
+        """Handle up to DRAIN_BATCH samples; False once the queue is empty (then unscheduled)."""
         # KEEP_ALL never drops, so samples may leave the queue in batches: one lock per batch
         # instead of one per sample, which the Zenoh thread would otherwise contend for.
-        with self._lock:
-            queue = self._queue
-            batch = [queue.popleft() for _ in range(min(len(queue), DRAIN_BATCH))]
-            if not batch:
-                self._scheduled = False
-                return
-        for data, received in batch:
-            self._handle(data, received)
-        self._executor.submit(self._drain)
+        take = DRAIN_BATCH if self._take_batch else 1
+        handled = 0
+        while handled < DRAIN_BATCH:
+            with self._lock:
+                queue = self._queue
+                if not queue:
+                    self._scheduled = False
+                    return False
+                batch = [queue.popleft() for _ in range(min(len(queue), take))]
+                self._queued_bytes -= sum(len(d) for d, _ in batch)
+            for data, received in batch:
+                try:
+                    self._handle(data, received)
+                except Exception as exc:   # a bug or a hostile sample: count it, keep the others coming
+                    self._internal_error("handle", exc)
+            handled += len(batch)
+        return True
 
     def _handle(self, data: bytes, received_ns: int) -> None:
         try:
             env = envelope.unpack(data)
         except envelope.MalformedSample as exc:
             self._malformed(f"{exc} ({len(data)} bytes)")
+            return
+        bad_extra = check_extra(env.extra)
+        if bad_extra is not None:
+            self._malformed(bad_extra)
             return
         if self.events.blocked and env.publisher_id in self.events.blocked:
             self.counters.incompatible += 1    # reported once as an incompatible-QoS event
@@ -194,10 +249,12 @@ class Subscription(Generic[M]):
         if env.type_hash != self._hash and not self._any_type:
             self.counters.type_mismatch += 1
             if env.publisher_id not in self._mismatch_reported:
-                self._mismatch_reported.add(env.publisher_id)
-                self.log.error("type mismatch on %r: publisher %x sends %s (hash %s), this subscription expects "
-                               "%s (hash %s); its samples are dropped", self.topic, env.publisher_id,
-                               env.type_name, env.type_hash, self.type_name, self._hash)
+                self._mismatch_reported[env.publisher_id] = None
+                if len(self._mismatch_reported) > MAX_TRACKED_PUBLISHERS:
+                    self._mismatch_reported.popitem(last=False)
+                self._rlog.error("type_mismatch", "type mismatch on %r: publisher %x sends %s (hash %s), this "
+                                 "subscription expects %s (hash %s); its samples are dropped", self.topic,
+                                 env.publisher_id, env.type_name[:100], env.type_hash[:64], self.type_name, self._hash)
             return
         if self.dedup is None and env.extra:
             # A redundant or repeating publisher, whatever this subscription's own QoS: from now
@@ -213,7 +270,7 @@ class Subscription(Generic[M]):
                             received_ns: int) -> None:
         try:
             msg = self._from_wire(body)
-        except (TypeError, ValueError) as exc:
+        except Exception as exc:    # ValidationError names the field; anything else is malformed too
             self._malformed(f"body does not decode as {self.type_name}: {exc}")
             return
         events = self.events
@@ -231,7 +288,12 @@ class Subscription(Generic[M]):
             events.on_sample(env.publisher_id, now)
         info = MessageInfo(env.publisher_id, seq, stamp_ns, received_ns, env.type_name)
         for hook in self.sample_hooks:
-            hook(msg, info)
+            try:
+                hook(msg, info)
+            except Exception:
+                self.counters.hook_errors += 1
+                self._rlog.error("hook", "sample hook %r on %r raised (error %d); the sample is still delivered",
+                                 hook, self.topic, self.counters.hook_errors, exc_info=True)
         self.deliver(msg, info)
 
     def _raw_sample(self, body: Any) -> RawMessage:
@@ -250,14 +312,33 @@ class Subscription(Generic[M]):
             self.counters.delivered += 1
         except Exception:
             self.counters.callback_errors += 1
-            self.log.exception("callback for topic %r raised (error %d); the node keeps running",
-                               self.topic, self.counters.callback_errors)
+            self._rlog.error("callback", "callback for topic %r raised (error %d); the node keeps running",
+                             self.topic, self.counters.callback_errors, exc_info=True)
 
     def _track_sequence(self, pub_id: int, seq: int) -> int:
-        last = self.counters.per_publisher_seq.get(pub_id)
-        self.counters.per_publisher_seq[pub_id] = seq if last is None else max(last, seq)
-        if last is not None and seq > last + 1:
-            gap = seq - last - 1
+        """Samples lost before ``seq`` (0 if none). A jump is counted only once the next sample
+        continues from it: one forged sequence number far ahead is then no loss of thousands,
+        and a sample the stream does not follow is forgotten (the real stream goes on counting)."""
+        table = self.counters.per_publisher_seq
+        jumps = self._seq_jumps
+        last = table.pop(pub_id, None)      # re-inserted below: the table is kept in LRU order
+        if last is None:
+            if len(table) >= MAX_TRACKED_PUBLISHERS:
+                jumps.pop(table.popitem(last=False)[0], None)   # type: ignore[call-arg]
+            table[pub_id] = seq
+            return 0
+        pend = jumps.pop(pub_id, None)
+        gap = 0
+        if pend is not None and pend < seq <= pend + AHEAD:
+            # The jump to `pend` is confirmed; across a restart (far jump) nothing before it counts.
+            gap = (pend - last - 1 if last < pend <= last + AHEAD else 0) + (seq - pend - 1)
+            last = seq
+        elif last - WINDOW < seq <= last + 1:
+            last = max(last, seq)           # the next one, or late
+        else:
+            jumps[pub_id] = seq             # a jump (gap, restart or forgery): wait for the next sample
+        table[pub_id] = last
+        if gap > 0:
             with self._lock:    # samples this subscription dropped itself (KEEP_LAST) were not lost
                 excused = min(gap, self._dropped_unseen)
                 self._dropped_unseen -= excused
@@ -268,11 +349,14 @@ class Subscription(Generic[M]):
 
     def _malformed(self, why: str) -> None:
         self.counters.malformed += 1
-        now = time.monotonic()
-        if now - self._malformed_logged_at > 1.0:  # a flood of garbage must not flood the log
-            self._malformed_logged_at = now
-            self.log.warning("malformed sample on %r dropped: %s (%d so far)", self.topic, why,
-                             self.counters.malformed)
+        self._rlog.warning("malformed", "malformed sample on %r dropped: %s (%d so far)", self.topic, why[:300],
+                           self.counters.malformed)
+
+    def _internal_error(self, where: str, exc: BaseException) -> None:
+        self.counters.internal_errors += 1
+        self._rlog.error("internal", "sample on %r failed in %s: %s: %s (%d so far); the subscription keeps "
+                         "draining", self.topic, where, type(exc).__name__, str(exc)[:300],
+                         self.counters.internal_errors, exc_info=True)
 
     @property
     def pending(self) -> int:

@@ -31,8 +31,9 @@ import logging
 import math
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any
 
 from .msgs import StatisticsEntry, TopicStatistics
 from .node import register_subscription_hook

@@ -26,7 +26,8 @@ the payload size limit of a subscription bounds a sample as a whole anyway.
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, Callable
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from ..message import FieldSpec
