@@ -11,19 +11,22 @@ import math
 import signal
 import socket
 import subprocess
+import threading
 import time
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
-
-
-from px4_link.sim import Simulator
-from zenoh_robot import Node, qos
-from companion.interface import Command, CommandResult, FailsafeEvent, VehicleState
-from zenoh_robot.msgs import Header, Setpoint
-from zenoh_robot.tools.stream_profiles import SETPOINT_DEADLINE, stream_profile
 
 from conftest import python_proc, wait_for
+from px4_helpers import assert_no_px4_failsafe
+
+from companion.interface import Command, CommandResult, DroneSetpoint, FailsafeEvent, VehicleState
+from px4_link.sim import Simulator
+from zenoh_robot import Node, qos
+from zenoh_robot.msgs import Header
+from zenoh_robot.tools.stream_profiles import SETPOINT_DEADLINE, stream_profile
+
+OP = "test-op"   # the GCS id the test's processes and nodes share
 
 SETPOINT_QOS = qos.RESILIENT.replace(deadline=SETPOINT_DEADLINE)   # what the companion accepts
 
@@ -61,7 +64,7 @@ def drone(drone_id: str, sysid: int = 1, *extra: str) -> Iterator[tuple[Simulato
 
 
 def gcs_proc(*args: str) -> subprocess.Popen:
-    return python_proc("-m", "gcs", "--no-dashboard", *args)
+    return python_proc("-m", "gcs", "--no-dashboard", "--gcs-id", OP, *args)
 
 
 class Observer:
@@ -79,7 +82,7 @@ class Observer:
         self.state = msg
 
     def command(self, name: str, value: float = 0.0) -> CommandResult:
-        return self.client.call(Command(name, value), timeout=10.0)
+        return self.client.call(Command(name, value, "", False, OP), timeout=10.0)
 
 
 def _spin(node: Node) -> None:
@@ -124,8 +127,8 @@ def test_gcs_killed_companion_holds_then_resumes(ns: str) -> None:
             assert wait_for(lambda: sim.mode == "AUTO.LOITER", 6), f"mode {sim.mode}"
             held_after = time.monotonic() - killed
             assert held_after < 1.0 + 2.5, f"HOLD only after {held_after:.1f} s"
-            # Our HOLD came first: PX4's own offboard-loss failsafe (POSCTL) never fired.
-            assert "POSCTL" not in [m.new for m in sim.mode_log]
+            # Our HOLD came first: PX4's own offboard-loss failsafe (whichever mode) never fired.
+            assert_no_px4_failsafe(sim)
             assert wait_for(lambda: any(e.kind == "setpoint_deadline_missed" for e in obs.events), 5)
             assert sim.armed and not sim.landed
 
@@ -142,18 +145,31 @@ def test_nan_setpoint_from_a_rogue_publisher_never_reaches_px4(ns: str) -> None:
     with drone(ns) as (sim, companion), Node("rogue") as node:
         obs = Observer(node, ns)
         _spin(node)
-        pub = node.create_publisher(Setpoint, f"/{ns}/setpoint", SETPOINT_QOS)
+        pub = node.create_publisher(DroneSetpoint, f"/{ns}/setpoint", SETPOINT_QOS)
         assert wait_for(lambda: obs.state is not None and obs.state.connected, 20)
         for i in range(5):
-            pub.publish(Setpoint(Header.now(seq=i), 1.0, 2.0, -3.0))
+            pub.publish(DroneSetpoint(Header.now(seq=i), OP, 1.0, 2.0, -3.0))
             time.sleep(0.05)
-        assert wait_for(lambda: sim.last_setpoint is not None and sim.last_setpoint.position == (1.0, 2.0, -3.0), 5)
+        time.sleep(0.3)
+        assert sim.setpoints_received == 0, "a setpoint outside an offboard session reached PX4"
+        stream = threading.Event()
+
+        def keep_streaming() -> None:
+            while not stream.is_set():
+                pub.publish(DroneSetpoint(Header.now(), OP, 1.0, 2.0, -3.0))
+                time.sleep(0.1)
+        threading.Thread(target=keep_streaming, daemon=True).start()
+        try:
+            assert wait_for(lambda: obs.command("offboard_start").success, 10, interval=0.5)
+            assert wait_for(lambda: sim.last_setpoint is not None and sim.last_setpoint.position == (1.0, 2.0, -3.0), 5)
+        finally:
+            stream.set()
         for i in range(5, 15):
-            pub.publish(Setpoint(Header.now(seq=i), math.nan, 2.0, -3.0))
+            pub.publish(DroneSetpoint(Header.now(seq=i), OP, math.nan, 2.0, -3.0))
             time.sleep(0.05)
             assert all(math.isfinite(v) for v in sim.last_setpoint.position)
         assert wait_for(lambda: obs.state is not None and obs.state.setpoints_rejected >= 10, 5)
-        time.sleep(0.3)
+        assert wait_for(lambda: any(e.kind == "setpoint_rejected" and "non-finite" in e.detail for e in obs.events), 5)
         assert sim.last_setpoint.position == (1.0, 2.0, -3.0)
         # Bad commands get an error reply, never silence, and change nothing.
         res = obs.command("dance")
@@ -161,19 +177,28 @@ def test_nan_setpoint_from_a_rogue_publisher_never_reaches_px4(ns: str) -> None:
         res = obs.command("takeoff", 500.0)
         assert not res.success and "outside" in res.message
         assert not sim.armed
+        assert obs.command("offboard_stop").success
 
 
 def test_two_drones_each_get_only_their_setpoints(ns: str) -> None:
     a, b = f"{ns}a", f"{ns}b"
     with drone(a, 1) as (sim_a, _), drone(b, 2) as (sim_b, _), Node("gcs2") as node:
-        pubs = {d: node.create_publisher(Setpoint, f"/{d}/setpoint", SETPOINT_QOS) for d in (a, b)}
+        _spin(node)
+        pubs = {d: node.create_publisher(DroneSetpoint, f"/{d}/setpoint", SETPOINT_QOS) for d in (a, b)}
+        observers = {d: Observer(node, d) for d in (a, b)}
         xs = {a: 1.5, b: -1.5}
         seen: dict[str, set] = {a: set(), b: set()}
-        deadline = time.monotonic() + 20
+        started: set[str] = set()
+        deadline = time.monotonic() + 30
         while time.monotonic() < deadline and not all(len(s) and xs[d] in s for d, s in seen.items()):
             for d, pub in pubs.items():
-                pub.publish(Setpoint(Header.now(), xs[d], 0.0, -2.0))
+                pub.publish(DroneSetpoint(Header.now(), OP, xs[d], 0.0, -2.0))
             for d, sim in ((a, sim_a), (b, sim_b)):
+                obs = observers[d]
+                # A session each (offboard_start): only then do setpoints reach PX4.
+                if d not in started and obs.state is not None and obs.state.connected \
+                        and obs.command("offboard_start").success:
+                    started.add(d)
                 if sim.last_setpoint is not None:
                     seen[d].add(sim.last_setpoint.position[0])
             time.sleep(0.1)
