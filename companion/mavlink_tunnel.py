@@ -17,14 +17,16 @@ lets everything through, for a bench or a field operator who owns the vehicle.
 """
 from __future__ import annotations
 
+import contextlib
 import logging
 import select
 import socket
 import threading
 import time
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink2
 
@@ -238,3 +240,16 @@ def tee_connection(connection: str, on_down: Callable[[bytes], None] = lambda d:
     link_port = free_udp_port()
     tee = UdpTee((host, int(port)), link_port, on_down).start()
     return tee, f"udpin:127.0.0.1:{link_port}"
+
+
+@contextlib.contextmanager
+def maybe_tee(enabled: bool, connection: str) -> Iterator[tuple[UdpTee | None, str]]:
+    """``(tee, link connection)`` with a tee on PX4's port when ``enabled``, else ``(None, connection)``."""
+    if not enabled:
+        yield None, connection
+        return
+    tee, link_connection = tee_connection(connection)
+    try:
+        yield tee, link_connection
+    finally:
+        tee.close()

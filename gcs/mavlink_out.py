@@ -76,3 +76,42 @@ class MavlinkOut:
         self._stop.set()
         self._thread.join(timeout=2.0)
         self._sock.close()
+
+
+class GcsExtras:
+    """What ``gcs`` runs beside the dashboard on request: the MCAP flight log (``--record FILE.mcap``),
+    the live Foxglove bridge (``--foxglove``) and the MAVLink re-emitter for QGC (``--mavlink-out``)."""
+
+    def __init__(self, node: Any, args: Any, drones: list[str], say: Any) -> None:
+        self.recorder: Any = None
+        self.bridge: Any = None
+        self.outs: list[MavlinkOut] = []
+        record = getattr(args, "record", None)
+        if record is not None and str(record).lower().endswith(".mcap"):
+            from zenoh_robot.tools.bag.record import BagRecorder
+            self.recorder = BagRecorder(node, record, None).start()
+            say(f"gcs: recording every topic to {record}")
+        port = getattr(args, "foxglove", None)
+        if port is not None:
+            from zenoh_robot.tools.foxglove_bridge import FoxgloveBridge
+            self.bridge = FoxgloveBridge(node, None, port=port).start()
+            say(f"gcs: Foxglove live view on {self.bridge.url} ({self.bridge.app_url()})")
+        spec = getattr(args, "mavlink_out", None)
+        if spec:
+            for i, drone in enumerate(drones or ["uav1"]):
+                host, port_ = parse_udpout(spec)
+                self.outs.append(MavlinkOut(node, drone, f"udpout:{host}:{port_ + 10 * i}"))
+                say(f"gcs: {drone}'s MAVLink to udp {host}:{port_ + 10 * i} (QGC: a UDP comm link there)")
+
+    def close(self, summary: dict[str, Any] | None = None) -> None:
+        for out in self.outs:
+            out.close()
+        if self.bridge is not None:
+            self.bridge.close()
+        if self.recorder is not None:
+            if summary is not None:
+                import json
+                from zenoh_robot.tools.bag.schemas import jsonable
+                self.recorder.metadata["gcs.summary"] = {"json": json.dumps(jsonable(summary), allow_nan=False,
+                                                                            default=str)}
+            self.recorder.close()

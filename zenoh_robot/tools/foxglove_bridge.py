@@ -104,7 +104,7 @@ class FoxgloveBridge(Tap):
         dedup = self._dedup.get(topic)
         if dedup is None and len(self._dedup) < MAX_DEDUP_TOPICS:
             dedup = self._dedup[topic] = Deduplicator()
-        fresh = dedup.fresh(env.publisher_id, env.seq, env.stamp_ns, env.body, env.extra) if dedup else \
+        fresh = dedup.fresh(env.publisher_id, env.seq, env.stamp_ns, env.body, env.extra) if dedup is not None else \
             [(env.seq, env.stamp_ns, env.body)]
         for _seq, stamp, body in fresh:
             decoded = schemas.decode_body(cls, body)
@@ -122,3 +122,15 @@ class FoxgloveBridge(Tap):
         if ch is not None:
             ch.log(bytes(view.message.encode()), log_time=received_ns)
             self.counters.views += 1
+
+
+def pick_port(preferred: int = 8765) -> int:
+    """``preferred`` when free on loopback, else any free port (a second demo must not fail on it)."""
+    import socket
+    with socket.socket() as s:
+        try:
+            s.bind(("127.0.0.1", preferred))
+            return preferred
+        except OSError:
+            s.bind(("127.0.0.1", 0))
+            return int(s.getsockname()[1])

@@ -78,6 +78,8 @@ class BagRecorder(Tap):
         self._writer.start(profile=PROFILE, library="zenoh-robot bag")
         self.first_log_ns: int | None = None
         self.last_log_ns: int | None = None
+        # name -> {key: value}: written as MCAP metadata records at the end (e.g. the GCS's summary)
+        self.metadata: dict[str, dict[str, str]] = {}
 
     def __enter__(self) -> "BagRecorder":
         self.start()
@@ -96,6 +98,8 @@ class BagRecorder(Tap):
         summary.update({k: str(v) for k, v in vars(self.tap_counters).items()})
         summary["topics"] = json.dumps(c.per_topic)
         self._writer.add_metadata(SUMMARY_NAME, summary)
+        for name, values in self.metadata.items():
+            self._writer.add_metadata(name, {str(k): str(v) for k, v in values.items()})
         self._writer.finish()
         self._file.close()
 
@@ -133,7 +137,7 @@ class BagRecorder(Tap):
         dedup = self._dedup.get(topic)
         if dedup is None and len(self._dedup) < MAX_DEDUP_TOPICS:
             dedup = self._dedup[topic] = Deduplicator()
-        fresh = dedup.fresh(env.publisher_id, env.seq, env.stamp_ns, env.body, env.extra) if dedup else \
+        fresh = dedup.fresh(env.publisher_id, env.seq, env.stamp_ns, env.body, env.extra) if dedup is not None else \
             [(env.seq, env.stamp_ns, env.body)]
         if not fresh:
             self.counters.duplicates += 1

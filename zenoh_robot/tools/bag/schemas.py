@@ -8,7 +8,8 @@ layer never imports the drone packages:
 - ``zenoh_robot/VehicleState`` (or any type with ``position``/``attitude`` triples, NED):
   ``<topic>/fix`` LocationFix (around a home point), ``<topic>/pose`` PoseInFrame and
   ``/tf`` FrameTransform ``map`` -> ``<ns>/base_link``, in ENU as Foxglove expects;
-- ``zenoh_robot/Setpoint`` positions: ``<topic>/pose`` PoseInFrame;
+- ``zenoh_robot/Setpoint``, ``zenoh_robot/DroneSetpoint`` (any ``*Setpoint`` with x, y, z) positions:
+  ``<topic>/pose`` PoseInFrame;
 - ``sensor_msgs/Image``: ``<topic>/image`` RawImage (CompressedImage when it holds a JPEG);
 - ``zenoh_robot/ImageSlice`` (the resilient JPEG slices): frames reassembled by the
   library's ImageSubscription logic, re-encoded once as ``<topic>/image`` CompressedImage.
@@ -240,7 +241,7 @@ class ViewMaker:
         try:
             if type_name == "zenoh_robot/VehicleState" or ("position" in data and "attitude" in data):
                 return vehicle_views(topic, data, stamp_ns)
-            if type_name == "zenoh_robot/Setpoint":
+            if type_name.endswith("Setpoint") and {"x", "y", "z"} <= data.keys():   # Setpoint, DroneSetpoint
                 return setpoint_views(topic, data, stamp_ns)
             if type_name == "sensor_msgs/Image":
                 return image_views(topic, decoded.msg, stamp_ns)

@@ -6,6 +6,7 @@ import signal
 import sys
 import threading
 import time
+from pathlib import Path
 
 from .main import CliError
 from .common import add_zenoh_arg, cli_node, quiet_exit
@@ -52,8 +53,11 @@ def _need_logs_extra() -> None:
 
 
 def _stop_on_sigterm(stop: threading.Event) -> None:
+    # SIGINT too: a parent (demo, launch) stopping us with it must get a finished file, even when
+    # the shell started us with SIGINT ignored.
     if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, lambda *_: stop.set())
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            signal.signal(sig, lambda *_: stop.set())
 
 
 @quiet_exit
@@ -83,9 +87,13 @@ def _record(args: argparse.Namespace) -> int:
             pass
         finally:
             rec.close()
+    import resource
     c, t = rec.counters, rec.tap_counters
-    print(f"wrote {args.output}: {c.written} messages on {len(c.per_topic)} topics "
-          f"({c.raw_written} raw, {c.views_written} views, {t.dropped} dropped, {c.malformed} malformed)",
+    cpu = resource.getrusage(resource.RUSAGE_SELF)
+    size = Path(args.output).stat().st_size
+    print(f"wrote {args.output}: {size / 1e6:.2f} MB, {c.written} messages on {len(c.per_topic)} topics "
+          f"({c.raw_written} raw, {c.views_written} views, {t.dropped} dropped, {c.malformed} malformed); "
+          f"cpu {cpu.ru_utime + cpu.ru_stime:.1f} s, max rss {cpu.ru_maxrss / 1024:.0f} MB",
           file=sys.stderr, flush=True)
     return 0
 

@@ -95,7 +95,15 @@ def run(args: argparse.Namespace) -> int:
     pattern_s = max(args.duration - SETUP_S, args.duration / 2)   # so the GCS ends by itself near the deadline
     gcs_cmd = [py, "-m", "gcs", "--drones", args.drone, "--mission", "--duration", f"{pattern_s:g}",
                "--pattern", args.pattern, "--profile", args.profile, "--record", str(work / "gcs.json")]
+    from zenoh_robot.tools.foxglove_bridge import pick_port
+    fox_port = pick_port(8765)
+    gcs_cmd += ["--foxglove", str(fox_port)]
+    flight_log = work / "flight.mcap"   # every topic, as it flew (zenoh-robot bag info/play; opens in Foxglove)
+    logs["bag"] = open(work / "bag.log", "w")
+    bag = subprocess.Popen([py, "-m", "zenoh_robot.tools.cli.main", "bag", "record", "-a", "-o", str(flight_log)],
+                           stdout=logs["bag"], stderr=subprocess.STDOUT, **detached)
     gcs = subprocess.Popen(gcs_cmd, stdin=subprocess.DEVNULL, **detached)
+    console.print(f"demo: live view: open Foxglove on ws://127.0.0.1:{fox_port}")
     rc = 0
     try:
         if not _wait_until(gcs, started + args.duration):
@@ -104,13 +112,16 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         console.print("demo: interrupted; stopping (GCS, then companion, then simulator)")
     finally:
-        _stop_all([(gcs, "gcs"), (companion, "companion"), (sim, "simulator")], console)
+        _stop_all([(gcs, "gcs"), (bag, "bag"), (companion, "companion"), (sim, "simulator")], console)
         for f in logs.values():
             f.close()
     for name, proc in (("simulator", sim), ("companion", companion)):
         if proc.returncode not in (0, -signal.SIGINT, 130):
             console.print(f"demo: {name} exited with {proc.returncode}; see {work / (name[:3] if name == 'simulator' else name)}.log")
     print_summary(console, work, args.drone)
+    console.print(f"demo: flight log {flight_log} ({flight_log.stat().st_size / 1e6:.1f} MB): "
+                  f"`zenoh-robot bag info {flight_log}`, or open it in Foxglove" if flight_log.exists()
+                  else f"demo: no flight log (see {work / 'bag.log'})")
     console.print(f"demo: {time.monotonic() - started:.1f} s in all")
     return 0 if rc in (0, -signal.SIGINT, 130) else rc
 
