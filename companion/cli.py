@@ -57,6 +57,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="comma-separated PX4 parameters a GCS may set (default: %(default)s)")
     p.add_argument("--duration", type=float, help="stop after this many seconds")
     p.add_argument("--record", type=Path, help="write the setpoint stream's figures here (JSON) at exit")
+    p.add_argument("--mavlink-tunnel", action="store_true",
+                   help="forward PX4's MAVLink over Zenoh (<id>/mavlink/down|up) for a QGC on the GCS (gcs --mavlink-out)")
+    p.add_argument("--mavlink-tunnel-allow-control", action="store_true",
+                   help="let QGC's commands, setpoints and writes through the tunnel (default: read-only, refused)")
     add_param_argument(p)
     p.set_defaults(func=run)
 
@@ -112,13 +116,17 @@ def run(args: argparse.Namespace) -> int:
     from zenoh_robot import MultiThreadedExecutor
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    with px4_connection(args.px4, args.sysid) as connection, Px4Link(connection) as link, \
+    from .mavlink_tunnel import MavlinkTunnel, maybe_tee
+    with px4_connection(args.px4, args.sysid) as px4_conn, maybe_tee(args.mavlink_tunnel, px4_conn) as (tee, connection), \
+            Px4Link(connection) as link, \
             Node("companion", namespace=args.id, config=session, executor=MultiThreadedExecutor(3),
                  parameter_overrides=params, enable_topic_statistics=not args.no_topic_statistics) as node:
         log.info("companion %s: PX4 at %s, profile %s", args.id, connection, profile.name)
         if not link.wait_connected(timeout=10.0):
             log.warning("no PX4 heartbeat yet on %s; waiting in the background", connection)
         companion = Companion(node, link, config)
+        if tee is not None:
+            MavlinkTunnel(node, tee, allow_control=args.mavlink_tunnel_allow_control)
         try:
             companion.request_rates()   # asked again by the companion after every PX4 reconnect
         except CommandError as exc:   # PX4 not there yet: its default rate applies until it reconnects

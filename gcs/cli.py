@@ -62,8 +62,14 @@ def add_common(p: argparse.ArgumentParser) -> None:
                    help="take control of the drones from whichever GCS holds it (that GCS is told)")
     p.add_argument("--no-dashboard", action="store_true", help="log lines instead of the live table")
     p.add_argument("--record", type=Path,
-                   help="write per-drone, per-stream figures here at the end: FILE.json (with raw sample "
-                        "records) or FILE.csv (one row per stream)")
+                   help="FILE.mcap: record every topic as a flight log (Foxglove opens it; `zenoh-robot bag`), "
+                        "summary in FILE.summary.json; or per-stream figures at the end: FILE.json (with raw "
+                        "sample records) or FILE.csv (one row per stream)")
+    p.add_argument("--foxglove", type=int, nargs="?", const=8765, metavar="PORT",
+                   help="serve every topic live to Foxglove on ws://127.0.0.1:PORT (default 8765)")
+    p.add_argument("--mavlink-out", metavar="udpout:HOST:PORT",
+                   help="re-emit the drones' tunnelled MAVLink (companion --mavlink-tunnel) for QGC, "
+                        "e.g. udpout:127.0.0.1:14550 (drone i on PORT+10i)")
     p.add_argument("--save-image", type=Path, help="save the latest frame here (PNG/JPEG) every --save-every s")
     p.add_argument("--save-every", type=float, default=5.0)
     p.add_argument("--no-topic-statistics", action="store_true",
@@ -94,6 +100,8 @@ def run(args: argparse.Namespace) -> int:
     with Node("gcs", config=session_config(args, profile.transport), parameter_overrides=params,
               enable_topic_statistics=not args.no_topic_statistics) as node:
         gcs = Gcs(node, config)
+        from .mavlink_out import GcsExtras
+        extras = GcsExtras(node, args, drones, console.print)
         spinner = threading.Thread(target=node.spin, name="gcs-spin", daemon=True)
         spinner.start()
         result: dict[str, Any] = {}
@@ -125,6 +133,7 @@ def run(args: argparse.Namespace) -> int:
             spinner.join(timeout=2.0)
         summary = summarize(gcs, profile.name)
         summary["mission"] = result
+        extras.close(summary)
         _print_summary(console, summary)
         if args.record:
             write_record(summary, args.record)
@@ -201,7 +210,10 @@ def summarize(gcs: Gcs, profile: str) -> dict[str, Any]:
 def write_record(summary: dict[str, Any], path: Path) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     if path.suffix.lower() != ".csv":
-        path.write_text(json.dumps(summary, indent=2, default=str))
+        from zenoh_robot.tools.bag.schemas import jsonable   # strict JSON: NaN -> null
+        if path.suffix.lower() == ".mcap":    # the flight log itself was written live (GcsExtras)
+            path = path.with_suffix(".summary.json")
+        path.write_text(json.dumps(jsonable(summary), indent=2, default=str, allow_nan=False))
         return
     import csv
     with path.open("w", newline="") as f:
