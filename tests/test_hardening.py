@@ -266,3 +266,35 @@ def test_validation_error_names_the_path() -> None:
     assert Setpoint._from_wire([[1, "", 0], 1, 2, 3, 4, True]).x == 1.0 and \
         type(Setpoint._from_wire([[1, "", 0], 1, 2, 3, 4, True]).x) is float
     assert Header._from_wire([2**63 - 1, "", -(2**63)]).stamp == 2**63 - 1
+
+
+def test_the_image_viewer_survives_hostile_slices_and_a_forged_frame_number(ns: str) -> None:
+    from dataclasses import replace
+
+    from zenoh_robot.image_transport import ImagePublisher, ImageSlice, ImageSubscription, encode_strip
+    from zenoh_robot.qos import IMAGE
+    with linked_nodes(ns) as (a, b):
+        frames: list = []
+        view = ImageSubscription(b, "image", lambda img, info: frames.append((img.height, img.width, info)))
+        cam = ImagePublisher(a, "image", quality=70, pace_s=0.0)
+        evil = a.create_publisher(ImageSlice, "image", IMAGE.replace(history="keep_all", depth=0))
+        time.sleep(0.3)
+        picture = np.full((32, 64, 3), 200, np.uint8)
+        cam.publish(picture)
+        assert b.spin_until(lambda: len(frames) == 1, 5.0)
+        good = cam.encode(picture)[0]          # a valid slice of the next frame, to twist
+        hostile = [replace(good, width=10**6), replace(good, height=10**6, width=10**6), replace(good, count=0),
+                   replace(good, index=5000), replace(good, encoding="bgr16"), replace(good, row=10**6),
+                   replace(good, data=encode_strip(np.zeros((8, 128, 3), np.uint8), 70)),   # wider than the frame
+                   replace(good, data=b"\xff\xd8 not a jpeg")]
+        for s in hostile:
+            evil.publish(s)
+        evil.publish(replace(good, header=Header(good.header.stamp, "", good.header.seq + 500)))
+        for _ in range(4):
+            cam.publish(picture)
+            time.sleep(0.02)
+        assert b.spin_until(lambda: any(info.frame == 4 and info.complete for _, _, info in frames), 5.0), \
+            ([info for _, _, info in frames], view.bad_slices, view.stale_slices)
+        assert {2, 3, 4} <= {info.frame for _, _, info in frames}     # at most one real frame lost to the forgery
+        assert view.bad_slices == len(hostile)
+        assert all((h, w) == (32, 64) for h, w, _ in frames)            # never a frame of the claimed 10**6
