@@ -245,3 +245,20 @@ def test_sensor_rate_is_measured_and_a_shortfall_is_reported(ns: str) -> None:
             (r.op.state.sensor_rate_hz, delivered)
         if delivered < 0.9 * 400:
             assert wait_for(lambda: "sensor_rate_low" in r.op.kinds(), 5)
+
+
+def test_gcs_without_mission_flies_its_pattern_from_where_the_drone_is(ns: str) -> None:
+    with rig(ns) as r:
+        _take_off(r, 2.5)
+        assert r.op.command("hold").success
+        x0, y0, _ = r.sim.position
+        r.op.target = None
+        gcs = Gcs(r.ground, GcsConfig(drones=[ns], pattern="line", altitude=2.5, size=6.0, speed=2.0,
+                                      profile=PROFILE, client_id="op"))
+        drone = gcs.drones[ns]
+        assert wait_for(lambda: drone.setpoints_sent > 5, 10)
+        assert drone.command("offboard_start").success
+        assert wait_for(lambda: r.sim.position[0] > x0 + 3.0, 15), "the pattern was not flown"
+        assert abs(r.sim.position[1] - y0) < 1.5
+        assert r.sim.mode == "OFFBOARD"
+        gcs.streaming = False
