@@ -111,6 +111,7 @@ class GcsExtras:
         if self.recorder is not None:
             if summary is not None:
                 import json
+
                 from zenoh_robot.tools.bag.schemas import jsonable
                 self.recorder.metadata["gcs.summary"] = {"json": json.dumps(jsonable(summary), allow_nan=False,
                                                                             default=str)}

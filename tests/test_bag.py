@@ -10,8 +10,8 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
 
 import pytest
 from conftest import ROOT, linked_configs, wait_for
@@ -98,7 +98,7 @@ def test_record_cli_writes_mcap_that_reads_back(talker, ns, tmp_path):
         # every copy off the wire is kept raw (for replay), each sample once in JSON
         assert counts[f"/_zr/raw/{ns}/setpoint"] > counts[f"/{ns}/setpoint"] * 2
         xs = []
-        for _schema, channel, message in reader.iter_messages(topics=[f"/{ns}/setpoint"]):
+        for _schema, _channel, message in reader.iter_messages(topics=[f"/{ns}/setpoint"]):
             data = json.loads(message.data)
             # log_time = arrival, publish_time = source stamp: same clock, so arrival is not earlier
             assert message.log_time >= message.publish_time
@@ -170,7 +170,7 @@ def test_play_republishes_bit_exact_into_a_live_subscriber(talker, ns, tmp_path)
     t.thread.join()
     records = [r for r in iter_records(path) if isinstance(r, Record) and r.channel.topic == f"/{ns}/setpoint"]
     recorded = [json.loads(r.message.data) for r in records]
-    wire_stamp = {d["header"]["seq"]: r.message.publish_time for d, r in zip(recorded, records)}
+    wire_stamp = {d["header"]["seq"]: r.message.publish_time for d, r in zip(recorded, records, strict=True)}
     assert len(recorded) > 20
     # A typed subscription on the talker's side: the replayed samples must decode as Setpoints.
     got: list[tuple[msgs.Setpoint, int, int]] = []

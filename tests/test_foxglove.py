@@ -58,7 +58,7 @@ async def _client(port: int, want_topics: set[str], timeout: float) -> tuple[dic
         while time.monotonic() < deadline:
             try:
                 raw = await asyncio.wait_for(ws.recv(), max(0.1, deadline - time.monotonic()))
-            except asyncio.TimeoutError:
+            except TimeoutError:
                 break
             if isinstance(raw, str):
                 msg = json.loads(raw)

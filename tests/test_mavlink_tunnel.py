@@ -12,11 +12,11 @@ import time
 
 import pytest
 from conftest import linked_nodes, wait_for
+from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.mavlink_tunnel import MavlinkPolicy, MavlinkTunnel, UdpTee, free_udp_port
 from gcs.mavlink_out import MavlinkOut, parse_udpout
 from px4_link.sim import Simulator
-from pymavlink.dialects.v20 import common as mavlink2
 
 
 class Qgc:
@@ -41,7 +41,7 @@ class Qgc:
         while not self._stop.is_set():
             try:
                 data, addr = self.sock.recvfrom(65535)
-            except (socket.timeout, OSError):
+            except (TimeoutError, OSError):
                 continue
             self.peer = addr
             self.msgs.extend(m for m in (parser.parse_buffer(data) or []) if m.get_type() != "BAD_DATA")

@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from datetime import UTC
 from pathlib import Path
 from typing import Any
 
@@ -121,10 +122,10 @@ def read_info(path: str | Path) -> BagInfo:
 
 
 def format_info(info: BagInfo, show_raw: bool = False) -> str:
-    from datetime import datetime, timezone
+    from datetime import datetime
 
     def when(ns: int) -> str:
-        return datetime.fromtimestamp(ns / 1e9, tz=timezone.utc).isoformat(timespec="milliseconds")
+        return datetime.fromtimestamp(ns / 1e9, tz=UTC).isoformat(timespec="milliseconds")
 
     lines = [f"Files:          {info.path}",
              f"Bag size:       {info.size / 1e6:.2f} MB" + ("" if info.complete else

@@ -73,7 +73,8 @@ class BagPlayer:
                 qos = decode_qos(meta["zr.qos"]) if "zr.qos" in meta else SYSTEM_DEFAULT
             except (ValueError, KeyError):
                 qos = SYSTEM_DEFAULT
-            entry = self._pubs[key] = (declare_publisher(self.node.session, topic[1:], qos), qos, meta.get("zr.hash", ""))
+            zpub = declare_publisher(self.node.session, topic[1:], qos)
+            entry = self._pubs[key] = (zpub, qos, meta.get("zr.hash", ""))
         return entry   # type: ignore[no-any-return]
 
     def _announce(self, topic: str, type_name: str, type_hash: str, qos: QoSProfile, publisher_id: int) -> None:

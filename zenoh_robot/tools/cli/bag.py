@@ -8,8 +8,8 @@ import threading
 import time
 from pathlib import Path
 
-from .main import CliError
 from .common import add_zenoh_arg, cli_node, quiet_exit
+from .main import CliError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
