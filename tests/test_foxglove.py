@@ -70,6 +70,7 @@ async def _client(port: int, want_topics: set[str], timeout: float) -> tuple[dic
                     await ws.send(json.dumps({"op": "subscribe",
                                               "subscriptions": [{"id": 7, "channelId": image["id"]}]}))
                     subscribed = True
+                    deadline = time.monotonic() + timeout    # a frame every 0.1 s: time enough on a busy box
             elif raw and raw[0] == MESSAGE_DATA:
                 sub_id, _log_time = struct.unpack_from("<IQ", raw, 1)
                 assert sub_id == 7
@@ -94,6 +95,8 @@ def test_bridge_advertises_topics_and_streams_camera_frames(ns: str, tmp_path: P
             while not any(f"ws://127.0.0.1:{port}" in x for x in lines) and bridge.poll() is None:
                 lines.append(bridge.stdout.readline())
             assert bridge.poll() is None, "".join(lines)
+            # keep reading the bridge's output so a full pipe never stalls it
+            threading.Thread(target=lambda: lines.extend(bridge.stdout), daemon=True).start()
             want = {f"/{ns}/state", f"/{ns}/state/pose", f"/{ns}/state/fix", "/tf", f"/{ns}/setpoint/pose",
                     f"/{ns}/image/image"}
             channels, payload = asyncio.run(_client(port, want, 20.0))
