@@ -105,3 +105,31 @@ def test_user_message_with_explicit_types() -> None:
     p = Pose3()
     assert p.position == [0.0, 0.0, 0.0]
     assert type_support(Pose3).decode(list(type_support(Pose3).encode(p))) == p
+
+
+@pytest.mark.parametrize("cls, body, field", [
+    (Setpoint, [[1, "", 0], 1.0, 2.0, 3.0, 0.0, 1], "is_velocity"),            # int is not bool
+    (Setpoint, [[1, "", 0], True, 2.0, 3.0, 0.0, False], "x"),                 # bool is not float
+    (Setpoint, [[float("nan"), "", 0], 1.0, 2.0, 3.0, 0.0, False], "header.stamp"),  # NaN only in floats
+    (SensorCombined, [[1, "", 0], 0, [0.0, 0.0], 0, 0, [0.0] * 3, 0, [0.0] * 3, 0.0, 0.0], "gyro_rad"),
+    (SensorCombined, [[1, "", 0], 0, [0.0] * 3, -1, 0, [0.0] * 3, 0, [0.0] * 3, 0.0, 0.0], "gyro_integral_dt"),
+    (SensorCombined, [[1, "", 0], 0, [0.0, "x", 0.0], 0, 0, [0.0] * 3, 0, [0.0] * 3, 0.0, 0.0], "gyro_rad[1]"),
+    (Image, [[1, "", 0], 1, 1, "mono8", 0, 1, [1, 300]], "data"),              # a byte over 255
+    (JointState, [[1, "", 0], ["a", 3], [], [], []], "name[1]"),
+    (Twist, [[1.0, 2.0, 3.0], [0.0, 0.0, "z"]], "angular.z"),
+])
+def test_decoding_checks_every_field_and_names_it(cls, body, field) -> None:
+    from zenoh_robot.message import ValidationError
+    with pytest.raises(ValidationError) as info:
+        cls._from_wire(body)
+    assert info.value.field == field, str(info.value)
+
+
+def test_decoding_accepts_what_the_schema_allows() -> None:
+    sp = Setpoint._from_wire([[5, "map", 2], 1, 2, 3, float("nan"), True])    # ints for floats; NaN in a float
+    assert sp.x == 1.0 and type(sp.x) is float and sp.yaw != sp.yaw
+    img = Image._from_wire([[1, "", 0], 1, 2, "mono8", 0, 2, [7, 255]])          # numpy-style list of bytes
+    assert img.data == bytes([7, 255])
+    from zenoh_robot._wire import validate
+    with pytest.raises(ValueError, match="at most"):
+        String._from_wire(["x" * (validate.MAX_STRING_LEN + 1)])
