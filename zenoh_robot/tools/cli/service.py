@@ -8,12 +8,13 @@ from __future__ import annotations
 import argparse
 import secrets
 import time
-
-import yaml
+from typing import Any
 
 from zenoh_robot.services import SERVICE_PREFIX, ServiceCallError, call_dict, describe_services, service_key
-from .common import add_zenoh_arg, zenoh_config
+
+from .common import add_zenoh_arg, did_you_mean, lookup_type, zenoh_config
 from .main import CliError
+from .values import build_message, parse_values, render_data
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -28,6 +29,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     o.add_argument("service", help="absolute service name, e.g. /uav1/command (see `service list`)")
     o.add_argument("request", nargs="?", default="{}", help="request fields as YAML, e.g. '{altitude: 5}'")
     o.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for the reply (default 5)")
+    o = ops.add_parser("type", help="a service's type (X for an X_Request/X_Response pair, else REQ -> RESP)")
+    o.add_argument("service", help="absolute service name, e.g. /uav1/command")
+    o.add_argument("--timeout", type=float, default=1.5, help="seconds to collect answers (default 1.5)")
+    o = ops.add_parser("find", help="services of a type")
+    o.add_argument("type", help="service type (zenoh_robot/GetParameters, GetParameters) or its request type")
+    o.add_argument("--timeout", type=float, default=1.5, help="seconds to collect answers (default 1.5)")
     p.set_defaults(func=run)
 
 
@@ -35,12 +42,10 @@ def run(args: argparse.Namespace) -> int:
     from zenoh_robot.node import Node
 
     with Node(f"_zr_service_{secrets.token_hex(3)}", config=zenoh_config(args)) as node:
-        if args.op == "list":
-            return _list(node, args)
-        return _call(node, args)
+        return _OPS[args.op](node, args)
 
 
-def _list(node, args: argparse.Namespace) -> int:
+def _list(node: Any, args: argparse.Namespace) -> int:
     time.sleep(0.3)   # let a fresh session learn the network before asking it
     pattern = f"{SERVICE_PREFIX}/**"
     if args.prefix.strip("/"):
@@ -58,21 +63,84 @@ def _list(node, args: argparse.Namespace) -> int:
     return 0
 
 
-def _call(node, args: argparse.Namespace) -> int:
+def service_type(info: dict[str, Any]) -> str:
+    """``zenoh_robot/GetParameters`` for a ``_Request``/``_Response`` pair, else ``REQ -> RESP``."""
+    req, resp = str(info["request"]), str(info["response"])
+    if req.endswith("_Request") and resp == req[:-len("_Request")] + "_Response":
+        return req[:-len("_Request")]
+    return f"{req} -> {resp}"
+
+
+def _others(node: Any, pattern: str, timeout: float) -> list[dict[str, Any]]:
+    time.sleep(0.3)   # let a fresh session learn the network before asking it
+    own = node.fully_qualified_name
+    return [i for i in describe_services(node.session, pattern, timeout) if i.get("node") != own]
+
+
+def _type(node: Any, args: argparse.Namespace) -> int:
+    name = _absolute(args.service)
     try:
-        request = yaml.safe_load(args.request) if args.request.strip() else {}
-    except yaml.YAMLError as exc:
-        raise CliError(f"request is not valid YAML: {exc}".splitlines()[0]) from None
-    if request is None:
-        request = {}
-    if not isinstance(request, dict):
-        raise CliError(f"request must be a mapping of field names to values, got {args.request!r}")
-    name = args.service if args.service.startswith("/") else "/" + args.service
+        key = service_key(name)
+    except ValueError as exc:
+        raise CliError(f"bad service name {args.service!r}: {exc}") from None
+    infos = _others(node, key, args.timeout)
+    if not infos:
+        known = [i["service"] for i in _others(node, f"{SERVICE_PREFIX}/**", args.timeout)]
+        raise CliError(f"service {name} not found: no server answered" + did_you_mean(name, known))
+    for shown in sorted({service_type(i) for i in infos}):   # two servers may disagree: show both
+        print(shown)
+    return 0
+
+
+def _find(node: Any, args: argparse.Namespace) -> int:
+    wanted = args.type.strip()
+    short = "/" not in wanted
+
+    def matches(info: dict[str, Any]) -> bool:
+        names = {service_type(info), str(info["request"])}
+        return wanted in names or (short and any(n.rsplit("/", 1)[-1] == wanted for n in names))
+
+    for name in sorted({i["service"] for i in _others(node, f"{SERVICE_PREFIX}/**", args.timeout) if matches(i)}):
+        print(name)
+    return 0
+
+
+def _absolute(name: str) -> str:
+    return name if name.startswith("/") else "/" + name
+
+
+def _call(node: Any, args: argparse.Namespace) -> int:
+    request = parse_values(args.request)     # the YAML rules `topic pub` has
+    name = _absolute(args.service)
     try:
+        request = _coerced(node, service_key(name), request, args.timeout)
         response = call_dict(node, name, request, timeout=args.timeout)
     except ServiceCallError as exc:
         raise CliError(str(exc)) from None
     except ValueError as exc:
         raise CliError(f"bad service name {args.service!r}: {exc}") from None
-    print(yaml.safe_dump(response, sort_keys=False, default_flow_style=False).rstrip())
+    print(render_data(response))
     return 0
+
+
+def _coerced(node: Any, key: str, request: dict[str, Any], timeout: float) -> dict[str, Any]:
+    """The request through values.build_message when its type is known here (same name and hash):
+    `{altitude: 5}` reaches the server as 5.0 for a float64, and a mistake is one line before the
+    call. A type known only to the server goes as given; the server checks it against its schema."""
+    from zenoh_robot.message import type_support
+
+    infos = describe_services(node.session, key, timeout=min(timeout, 2.0))
+    if not infos:
+        return request          # call_dict says "no server"
+    try:
+        cls = lookup_type(str(infos[0]["request"]))
+    except CliError:
+        return request
+    if type_support(cls).hash != infos[0].get("request_hash"):
+        return request
+    msg, _ = build_message(cls, request)
+    data: dict[str, Any] = msg.to_dict()
+    return data
+
+
+_OPS = {"list": _list, "call": _call, "type": _type, "find": _find}
