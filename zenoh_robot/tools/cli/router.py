@@ -11,7 +11,7 @@ import argparse
 import signal
 import threading
 import time
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from .main import CliError
 
@@ -54,6 +54,19 @@ def router_config(args: argparse.Namespace) -> SessionConfig:
         raise CliError(str(exc)) from None
 
 
+def connected(session: Any) -> list[str]:
+    """One entry per connected node: kind, zid, certificate name (secure) and remote address."""
+    kinds = {str(t.zid): str(t.whatami) for t in session.info.transports()}
+    out = {}
+    for link in session.info.links():
+        zid = str(link.zid)
+        who = f" {link.auth_identifier}" if getattr(link, "auth_identifier", None) else ""
+        out[zid] = f"{kinds.get(zid, '?')} {zid[:8]}{who} {link.dst}"
+    for zid, kind in kinds.items():
+        out.setdefault(zid, f"{kind} {zid[:8]}")
+    return sorted(out.values())
+
+
 def run(args: argparse.Namespace) -> int:
     from zenoh_robot.session_config import SessionConfigError, open_session
 
@@ -68,14 +81,13 @@ def run(args: argparse.Namespace) -> int:
     what = f"secure ({config.name}, {args.secure})" if config.secure else "plain"
     print(f"router {session.info.zid()} {what}, domain {config.domain}, listening on {', '.join(config.listen)}",
           flush=True)
-    last: tuple[list[str], list[str]] | None = None
+    last: list[str] | None = None
     last_print = 0.0
     try:
         while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
-            now = (sorted(str(z) for z in session.info.routers_zid()), sorted(str(z) for z in session.info.peers_zid()))
+            now = connected(session)
             if now != last or (args.status > 0 and time.monotonic() - last_print >= args.status):
-                print(f"router: {len(now[0])} router(s) {' '.join(now[0])} | {len(now[1])} peer(s) "
-                      f"{' '.join(now[1])}", flush=True)
+                print(f"router: {len(now)} connected" + "".join(f" | {x}" for x in now), flush=True)
                 last, last_print = now, time.monotonic()
             stop.wait(0.5)
     except KeyboardInterrupt:

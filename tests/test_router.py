@@ -1,0 +1,80 @@
+"""``zenoh-robot keys`` and ``zenoh-robot router`` as real processes, the secure system end to end."""
+from __future__ import annotations
+
+import signal
+import stat
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from conftest import free_port, python_proc, wait_for
+
+pytest.importorskip("cryptography")
+from zenoh_robot.session_config import SessionConfig  # noqa: E402
+
+CLI = ("-m", "zenoh_robot.tools.cli.main")
+
+
+def cli(*args: str) -> subprocess.CompletedProcess[str]:
+    proc = python_proc(*CLI, *args)
+    out, _ = proc.communicate(timeout=60)
+    return subprocess.CompletedProcess(proc.args, proc.returncode, out, "")
+
+
+def test_keys_cli_then_secure_router_process(tmp_path: Path) -> None:
+    d = tmp_path / "keys"
+    assert cli("keys", "init", str(d)).returncode == 0
+    for args in (("router", "--role", "router"), ("gcs", "--role", "gcs", "--drones", "uav1"),
+                 ("uav1", "--role", "drone")):
+        res = cli("keys", "issue", *args, "--dir", str(d))
+        assert res.returncode == 0, res.stdout
+    assert stat.S_IMODE((d / "uav1.key").stat().st_mode) == 0o600
+    assert (d / "gcs.json5").is_file()
+    listed = cli("keys", "list", str(d)).stdout
+    assert "uav1" in listed and "drone" in listed and "-> uav1" in listed
+    assert cli("keys", "init", str(d)).returncode == 1     # never silently replaces a CA
+
+    port = free_port()
+    router = python_proc(*CLI, "router", "--secure", str(d), "--listen", f"tls/127.0.0.1:{port}",
+                         "--no-scouting", "--status", "0", "--duration", "30")
+    sessions: list[zenoh.Session] = []
+    try:
+        first = router.stdout.readline()
+        assert "secure" in first and f"tls/127.0.0.1:{port}" in first, first
+        ep = f"tls/127.0.0.1:{port}"
+        for name in ("uav1", "gcs"):
+            sessions.append(zenoh.open(SessionConfig(secure=str(d), name=name, mode="client", listen=[],
+                                                     connect=[ep], multicast_scouting=False).to_zenoh()))
+        got: list[bytes] = []
+        sessions[0].declare_subscriber("uav1/setpoint", lambda s: got.append(s.payload.to_bytes()))
+        lines: list[str] = []
+        while not any("router: 2 connected" in x for x in lines):   # bounded by the router's --duration
+            line = router.stdout.readline()
+            if not line:
+                break
+            lines.append(line)
+        status = next(x for x in lines if "router: 2 connected" in x)
+        assert status.count("client") == 2 and "127.0.0.1" in status, status
+        time.sleep(0.3)
+        sessions[1].put("uav1/setpoint", b"go")
+        assert wait_for(lambda: got == [b"go"], 5.0)
+        router.send_signal(signal.SIGINT)
+        out, _ = router.communicate(timeout=15)
+        assert router.returncode == 0 and "router: closed" in out
+    finally:
+        for s in sessions:
+            s.close()
+        if router.poll() is None:
+            router.kill()
+            router.wait()
+
+
+def test_router_refuses_a_plain_endpoint_when_secure(tmp_path: Path) -> None:
+    d = tmp_path / "keys"
+    assert cli("keys", "init", str(d)).returncode == 0
+    assert cli("keys", "issue", "router", "--role", "router", "--dir", str(d)).returncode == 0
+    res = cli("router", "--secure", str(d), "--listen", "tcp/127.0.0.1:0", "--duration", "1")
+    assert res.returncode == 1 and "plain links are refused" in res.stdout
