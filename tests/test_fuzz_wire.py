@@ -18,7 +18,7 @@ import pytest
 from conftest import linked_nodes
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from test_hardening import KEEP_ALL, ArmRequest, ArmResponse
+from test_hardening import KEEP_ALL, ArmRequest, ArmResponse, raw_put
 
 from zenoh_robot import QoSProfile
 from zenoh_robot._wire import envelope
@@ -174,9 +174,10 @@ def test_a_hostile_flood_over_zenoh_does_not_stop_valid_traffic(ns: str) -> None
         pub = a.create_publisher(Setpoint, "sp", QoSProfile(depth=100, redundancy=2))
         time.sleep(0.3)
         hostile = 0
+        put = raw_put(a.session, f"{ns}/sp")
         for i in range(100):
             for _ in range(rng.randrange(0, 12)):
-                a.session.put(f"{ns}/sp", _hostile(rng, pub.publisher_id, pub.sequence))
+                put(_hostile(rng, pub.publisher_id, pub.sequence))
                 hostile += 1
             pub.publish(Setpoint(x=float(i)))
             if i % 10 == 0:
@@ -240,8 +241,9 @@ def test_a_flood_of_big_samples_is_bounded_by_bytes(ns: str, blob_mb: int) -> No
         blob = Image(height=1, width=blob_mb << 20, encoding="mono8", step=blob_mb << 20, data=bytes(blob_mb << 20))
         payload = envelope.pack(Image._type_name, Image._type_hash, 5, 1, time.time_ns(), Image._to_wire(blob))
         n = 30
+        put = raw_put(a.session, f"{ns}/img")
         for _ in range(n):        # not spinning: everything waits in the queue
-            a.session.put(f"{ns}/img", payload)
+            put(payload)
         assert _wait(lambda: sub.counters.received == n, 20.0), sub.counters
         assert sub._queued_bytes <= 16 << 20 and sub.pending <= 4         # 120 MB sent, 16 MB held
         assert sub.counters.dropped >= n - 4
