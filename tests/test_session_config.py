@@ -59,7 +59,7 @@ def test_missing_or_broken_file(tmp_path: Path) -> None:
 def test_resilient_transport_and_its_file_agree(tmp_path: Path) -> None:
     import json
     cfg = SessionConfig.resilient("wlan0")
-    assert cfg.listen == ["udp/224.0.0.251:7460#iface=wlan0"] and not cfg.shared_memory_enabled
+    assert cfg.listen == ["udp/239.255.74.71:7460#iface=wlan0"] and not cfg.shared_memory_enabled
     nested = cfg.to_json5()
     assert nested["transport"]["link"]["tx"] == {"batch_size": 1300, "lease": 10000, "keep_alive": 100}
     assert nested["transport"]["multicast"]["join_interval"] == 250
@@ -68,4 +68,4 @@ def test_resilient_transport_and_its_file_agree(tmp_path: Path) -> None:
     back = SessionConfig.from_file(path)
     assert back.listen == cfg.listen and back.mode == "peer" and not back.multicast_scouting
     shipped = SessionConfig.from_file(ROOT / "configs" / "zenoh" / "resilient.json5")
-    assert shipped.listen[0].startswith("udp/224.0.0.251:7460")
+    assert shipped.listen[0].startswith("udp/239.255.74.71:7460")

@@ -15,6 +15,7 @@ from .message import Message, require_message_type, type_support
 from .qos import QoSProfile
 from .qos_events import PublisherEvents
 from .qos_mapping import declare_publisher
+from .session_config import is_multicast_session
 
 M = TypeVar("M", bound=Message)
 
@@ -59,7 +60,12 @@ class Publisher(Generic[M]):
         self._history = RedundantHistory(qos.redundancy) if qos.redundancy else None
         self._repeats = qos.repeat
         self.events = PublisherEvents(context, self, event_callbacks)
-        self._zpub = declare_publisher(context.session, key, qos)
+        # Express samples in quick succession (a setpoint and its repeats) stall Zenoh 1.10's
+        # multicast transport for good (docs/zenoh-multicast-stall.md): there express is off; the
+        # cost is a batch flush of at most ~1 ms. The graph still shows the QoS asked for.
+        wire_qos = qos.replace(express=False) if qos.express and is_multicast_session(context.session) else qos
+        self.express_on_wire = wire_qos.express
+        self._zpub = declare_publisher(context.session, key, wire_qos)
         try:
             self._token = context.declare_endpoint(PUBLISHER, self)
         except BaseException:

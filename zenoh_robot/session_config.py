@@ -34,6 +34,10 @@ MODES = ("peer", "client", "router")
 PROTOCOLS = ("tcp", "udp", "quic", "tls", "ws", "unixsock-stream", "serial", "unixpipe", "vsock")
 SECURE_PROTOCOLS = ("tls", "quic")
 MAX_DOMAIN = 232            # ROS_DOMAIN_ID's range: one number means the same thing to both worlds
+# The resilient transport's group. Not 224.0.0.251 (mDNS: every printer and phone on the LAN
+# answers there) and not in 224.0.0.0/24 at all (IANA-assigned link-local protocols): 239.255/16
+# is the IPv4 organisation-local scope (RFC 2365), which routers at a site border never forward.
+RESILIENT_GROUP = "239.255.74.71:7460"
 _ENDPOINT = re.compile(r"^(?P<proto>[a-z-]+)/(?P<addr>[^?#]+)(?:\?(?P<meta>[^#]*))?(?:#(?P<cfg>.*))?$")
 
 
@@ -55,6 +59,30 @@ def validate_endpoint(endpoint: str) -> str:
         if not port.isdigit() or not 0 <= int(port) <= 65535:
             raise SessionConfigError(f"invalid endpoint {endpoint!r}: port {port!r} is not 0-65535")
     return endpoint.strip()
+
+
+def _is_multicast(endpoint: str) -> bool:
+    m = _ENDPOINT.match(endpoint)
+    if not m or m["proto"] != "udp":
+        return False
+    try:
+        return ipaddress.ip_address(m["addr"].rpartition(":")[0].strip("[]")).is_multicast
+    except ValueError:
+        return False
+
+
+# Sessions opened on a multicast transport, by zid (a zenoh Session takes no weak reference and
+# exposes no config); bounded, oldest forgotten first: long-closed sessions need no entry.
+_MULTICAST_ZIDS: dict[str, None] = {}
+_MAX_TRACKED = 1024
+
+
+def is_multicast_session(session: zenoh.Session) -> bool:
+    """True if ``session`` was opened by :func:`open_session` on a UDP multicast transport."""
+    try:
+        return str(session.zid()) in _MULTICAST_ZIDS
+    except Exception:     # a closed session: nothing more will be declared on it anyway
+        return False
 
 
 def _is_loopback(endpoint: str) -> bool:
@@ -141,7 +169,7 @@ class SessionConfig:
         return cls(**kw)
 
     @classmethod
-    def resilient(cls, interface: str, group: str = "224.0.0.251:7460", **kw: Any) -> "SessionConfig":
+    def resilient(cls, interface: str, group: str = RESILIENT_GROUP, **kw: Any) -> "SessionConfig":
         """The lossy-link transport of the resilient profile, on network ``interface``.
 
         Zenoh's UDP multicast transport needs no handshake (peers learn of each other from
@@ -149,6 +177,8 @@ class SessionConfig:
         unicast handshake almost never completes; keep-alives every 100 ms hold the 10 s lease
         through long bursts; batches stay under the MTU. Everything on it is best effort:
         pair it with ``qos.RESILIENT`` (redundancy + repeats) for streams that must arrive.
+        Publishers on such a session never use Zenoh's ``express`` (docs/zenoh-multicast-stall.md:
+        express samples in quick succession stall Zenoh 1.10's multicast transport for good).
         """
         kw.setdefault("listen", [f"udp/{group}#iface={interface}"])
         kw.setdefault("multicast_scouting", False)
@@ -169,6 +199,11 @@ class SessionConfig:
                 node = node.setdefault(part, {})
             node[leaf] = value
         return out
+
+    @property
+    def multicast(self) -> bool:
+        """True if the session listens on a UDP multicast group (Zenoh's multicast transport)."""
+        return any(_is_multicast(e) for e in self.listen)
 
     @property
     def shared_memory_enabled(self) -> bool:
@@ -333,7 +368,12 @@ def open_session(config: SessionConfig | str | Path | None = None) -> zenoh.Sess
         config = SessionConfig.from_file(config)
     zconf = config.to_zenoh()
     try:
-        return zenoh.open(zconf)
+        session = zenoh.open(zconf)
     except Exception as exc:
         raise SessionConfigError(f"cannot open Zenoh session ({config.mode}, listen={config.listen}, "
                                  f"connect={config.connect}): {exc}") from None
+    if config.multicast:
+        _MULTICAST_ZIDS[str(session.zid())] = None
+        while len(_MULTICAST_ZIDS) > _MAX_TRACKED:
+            del _MULTICAST_ZIDS[next(iter(_MULTICAST_ZIDS))]
+    return session

@@ -16,14 +16,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from zenoh_robot.session_config import SessionConfig
+from zenoh_robot.session_config import RESILIENT_GROUP, SessionConfig
+
 from ..stream_metrics import StreamRecorder, analyse
 from ..stream_profiles import stream_profile
 from .netns import LossyLink
 
 DRONE_ID = "uav1"
 PORT = 7447
-MCAST = "224.0.0.251:7460"
+MCAST = RESILIENT_GROUP
 OFFBOARD_GAP_MS = 500.0     # PX4 leaves OFFBOARD when setpoints stop for longer (the 2 Hz rule)
 
 
