@@ -286,3 +286,36 @@ class _EndpointToken:
     def undeclare(self) -> None:
         self._forget()
         self._token.undeclare()
+
+
+class DuplicateNodeError(RuntimeError):
+    """A node with this fully qualified name is already alive in this domain."""
+
+
+def live_node_owners(session: zenoh.Session, namespace: str, node_name: str, timeout: float = 0.5) -> list[str]:
+    """Zenoh ids of *other* sessions holding a live node token for ``namespace``/``node_name``."""
+    key = "/".join([GRAPH_PREFIX, "NN", "*", "*", _mangle(namespace), node_name])
+    own = str(session.info.zid())
+    owners = []
+    for reply in session.liveliness().get(key, timeout=timeout):
+        if reply.ok is not None:
+            parts = str(reply.ok.key_expr).split("/")
+            if len(parts) > 3 and parts[3] != own and parts[3] not in owners:
+                owners.append(parts[3])
+    return owners
+
+
+def ensure_unique_node(session: zenoh.Session, namespace: str, node_name: str, timeout: float = 0.5) -> None:
+    """Refuse a second node of the same name: two ``--id uav1`` companions would merge silently.
+
+    Best effort: it sees the nodes this session can reach when it starts (two processes starting
+    in the same instant both pass).
+    """
+    owners = live_node_owners(session, namespace, node_name, timeout)
+    if not owners:
+        return
+    where = {str(link.zid): str(link.dst) for link in session.info.links()}
+    fqn = f"/{namespace}/{node_name}" if namespace else f"/{node_name}"
+    others = ", ".join(f"zid {z} at {where[z]}" if z in where else f"zid {z} (via a router)" for z in owners)
+    raise DuplicateNodeError(f"node {fqn} is already running in this domain ({others}): "
+                             "stop it, or give this one another name/namespace or --domain")

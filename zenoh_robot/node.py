@@ -21,7 +21,7 @@ from . import names
 from ._wire.repeater import Repeater
 from .context import Endpoint, EntityContext
 from .executor import Executor, Timer
-from .graph import EndpointType, Graph, GraphCache, TopicEndpointInfo
+from .graph import EndpointType, Graph, GraphCache, TopicEndpointInfo, ensure_unique_node
 from .message import Message
 from .parameters import (
     Parameter,
@@ -86,6 +86,7 @@ class Node:
         self._services = Services(self._context)
         self._parameters = ParameterStore(parameter_overrides)
         try:
+            ensure_unique_node(self.session, self.namespace, self.name)
             self._graph = Graph(self.session, self.namespace, self.name)
             self._parameter_service = ParameterService(self._parameters, self._services.create_service)
         except BaseException:
