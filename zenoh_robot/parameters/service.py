@@ -148,11 +148,30 @@ class ParameterService:
             try:
                 t, v = pm.value.to_python()
                 res = self._store.set_parameters([Parameter(pm.name, v)])[0] if t is not ParameterType.NOT_SET \
-                    else SetParametersResult(False, f"parameter {pm.name!r}: no value given")
+                    else self._delete(pm.name)
             except ParameterError as exc:
                 res = SetParametersResult(False, str(exc))
             results.append(SetParametersResultMsg(res.successful, res.reason))
         return SetParametersResponse(results)
+
+    def _delete(self, name: str) -> SetParametersResult:
+        """rcl's rule: set to NOT_SET undeclares (``ros2 param delete``). A peer must not take away a
+        parameter the node still reads (its next get would raise): only a node whose on-set callbacks
+        all accept ``Parameter(name, NOT_SET)`` lets it go; with no callback the answer is no."""
+        store = self._store
+        with store._param_lock:
+            decl = store.lookup(name)
+            if decl is None:
+                return SetParametersResult(False, f"parameter {name!r} is not declared")
+            if decl[0].read_only:
+                return SetParametersResult(False, f"parameter {name!r} is read-only")
+            if not store._on_set_callbacks:
+                return SetParametersResult(False, f"parameter {name!r}: this node accepts no remote deletion "
+                                                  "(no on-set callback agreed to it)")
+            result = store._run_on_set_callbacks([Parameter(name, ParameterType.NOT_SET)])
+            if result.successful:
+                store.undeclare_parameter(name)
+            return result
 
     def _describe(self, req: DescribeParametersRequest) -> DescribeParametersResponse:
         out = []

@@ -10,9 +10,15 @@ from typing import Any
 
 import yaml
 
-from zenoh_robot.parameters import (Parameter, ParameterClient, ParameterType,
-                          InvalidParameterValueError, parse_param_value)
+from zenoh_robot.parameters import (
+    InvalidParameterValueError,
+    Parameter,
+    ParameterClient,
+    ParameterType,
+    parse_param_value,
+)
 from zenoh_robot.services import ServiceCallError, ServiceTimeout
+
 from .common import add_zenoh_arg, zenoh_config
 from .main import CliError
 
@@ -42,6 +48,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     o.add_argument("name")
     o = ops.add_parser("dump", help="every parameter as YAML (a launch file's params: block)")
     o.add_argument("node")
+    o = ops.add_parser("load", help="set parameters from a YAML file (ros2's param file, or what dump writes)")
+    o.add_argument("node")
+    o.add_argument("file", help="YAML: '/node: {ros__parameters: {...}}' ('/**' for any node) or dump's output")
+    o = ops.add_parser("delete", help="undeclare a parameter (the node's on-set callbacks must agree)")
+    o.add_argument("node")
+    o.add_argument("name")
     p.set_defaults(func=run)
 
 
@@ -53,7 +65,7 @@ def _node_name(text: str) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from zenoh_robot.node import Node   # imported late so `zenoh-robot --help` stays fast
+    from zenoh_robot.node import Node  # imported late so `zenoh-robot --help` stays fast
 
     target = _node_name(args.node)
     with Node(f"_zr_param_{secrets.token_hex(3)}", config=zenoh_config(args)) as node:
@@ -137,4 +149,80 @@ def _dump(client: ParameterClient, target: str, args: argparse.Namespace) -> int
     return 0
 
 
-_OPS = {"list": _list, "get": _get, "set": _set, "describe": _describe, "dump": _dump}
+def _delete(client: ParameterClient, target: str, args: argparse.Namespace) -> int:
+    (result,) = client.set([Parameter(args.name, ParameterType.NOT_SET)])   # NOT_SET: undeclare (rcl's rule)
+    if not result.successful:
+        raise CliError(f"deleting parameter {args.name!r} failed: {result.reason}")
+    print("Deleted parameter successfully")
+    return 0
+
+
+def _load(client: ParameterClient, target: str, args: argparse.Namespace) -> int:
+    values = file_parameters(args.file, target)
+    failed = 0
+    for name, raw in values.items():
+        ok, reason = _set_one(client, target, name, raw)
+        print(f"Set parameter {name} successful" if ok else f"Set parameter {name} failed: {reason}")
+        failed += not ok
+    if failed:
+        raise CliError(f"{failed} of {len(values)} parameters from {args.file} not set")
+    return 0
+
+
+def _set_one(client: ParameterClient, target: str, name: str, value: Any) -> tuple[bool, str]:
+    (desc,) = client.describe([name])
+    if desc is None:
+        return False, f"node {target} has no parameter {name!r}"
+    if desc.read_only:
+        # A dump holds the read-only ones too: loading it back must not fail on a value it keeps.
+        (current,) = client.get([name])
+        if current is not None and current.value == value:
+            return True, ""
+    if desc.type is ParameterType.STRING and isinstance(value, (bool, int, float)):
+        value = str(value)      # `mode: 5` for a string parameter means the text "5", as `param set` has it
+    try:
+        param = Parameter(name, value=value)
+    except (TypeError, ValueError) as exc:
+        return False, f"bad value {value!r}: {exc}"
+    (result,) = client.set([param])
+    return result.successful, result.reason
+
+
+def file_parameters(path: str, target: str) -> dict[str, Any]:
+    """The parameters a YAML file gives ``target``: dotted names (nested mappings flattened) to values.
+
+    Sections: ``/ns/node``, ``ns/node`` or ``/**`` (every node), each holding ``ros__parameters``
+    (ros2) or ``params`` (``param dump``). A node's own section wins over the wildcard's.
+    """
+    with open(path, encoding="utf-8") as f:
+        data = yaml.safe_load(f)
+    if not isinstance(data, dict):
+        raise CliError(f"{path}: expected a mapping of node names to their parameters")
+    out: dict[str, Any] = {}
+    matched = False
+    for section in ("/**", "**", target.lstrip("/"), target):
+        body = data.get(section)
+        if body is None:
+            continue
+        if not isinstance(body, dict) or not isinstance(body.get("ros__parameters", body.get("params")), dict):
+            raise CliError(f"{path}: section {section!r} needs a 'ros__parameters:' (or 'params:') mapping")
+        matched = True
+        out.update(_flatten(body.get("ros__parameters", body.get("params")), ""))
+    if not matched:
+        raise CliError(f"{path}: no section for {target} (nor '/**'); sections: {', '.join(map(str, data))}")
+    return out
+
+
+def _flatten(mapping: dict[Any, Any], prefix: str) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in mapping.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            out.update(_flatten(value, name + "."))
+        else:
+            out[name] = value
+    return out
+
+
+_OPS = {"list": _list, "get": _get, "set": _set, "describe": _describe, "dump": _dump,
+        "load": _load, "delete": _delete}
