@@ -17,6 +17,7 @@ from zenoh_robot import Node, SessionConfig
 from zenoh_robot.names import validate_node_name
 from zenoh_robot.parameters import add_param_argument, params_from_args
 from zenoh_robot.qos import load_qos
+from zenoh_robot.session_config import add_session_arguments, apply_session_arguments
 from zenoh_robot.tools.stream_profiles import IMAGE_MODES, PROFILES, STREAMS, StreamProfile, stream_profile
 
 from .app import DEFAULT_PARAM_ALLOW, Companion, CompanionConfig
@@ -35,6 +36,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--profile", choices=sorted(PROFILES), default="resilient")
     p.add_argument("--config", type=Path, help="QoS YAML overriding streams (setpoint, sensor, state, image, events)")
     p.add_argument("--zenoh", help="Zenoh session config (JSON5)")
+    add_session_arguments(p)
     p.add_argument("--no-topic-statistics", action="store_true",
                    help="do not publish per-stream statistics (what `zenoh-robot stats` shows)")
     p.add_argument("--deadline", type=float, default=1.0, help="setpoint deadline before HOLD, s (default 1; the GCS offers 0.5, "
@@ -113,6 +115,7 @@ def run(args: argparse.Namespace) -> int:
                              allow_force_disarm=args.allow_force_disarm,
                              param_allow=tuple(n for n in args.param_allow.split(",") if n))
     session = SessionConfig.from_file(args.zenoh) if args.zenoh else SessionConfig(**profile.transport)
+    session = apply_session_arguments(session, args, args.id)
     from zenoh_robot import MultiThreadedExecutor
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())

@@ -14,6 +14,7 @@ from rich.live import Live
 
 from zenoh_robot import Node, SessionConfig
 from zenoh_robot.parameters import add_param_argument, params_from_args
+from zenoh_robot.session_config import add_session_arguments, apply_session_arguments
 from zenoh_robot.tools.stream_profiles import IMAGE_MODES, PROFILES, stream_profile
 
 from .app import Gcs, GcsConfig
@@ -38,6 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "take_control: take over from another GCS")
     c.add_argument("--timeout", type=float, default=8.0)
     c.add_argument("--zenoh", help="Zenoh session config (JSON5)")
+    add_session_arguments(c)
     c.add_argument("--gcs-id", default=None, help="this GCS's id (default user@host, shared with `gcs` runs)")
     p.set_defaults(func=run)
 
@@ -51,6 +53,7 @@ def add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--speed", type=float, default=2.0, help="pattern speed, m/s")
     p.add_argument("--profile", choices=sorted(PROFILES), default="resilient", help="stream QoS/transport profile")
     p.add_argument("--zenoh", help="Zenoh session config (JSON5)")
+    add_session_arguments(p)
     p.add_argument("--image", choices=IMAGE_MODES, help="image path, overriding the profile's (must match the drone's)")
     p.add_argument("--duration", type=float, help="stop after this many seconds")
     p.add_argument("--mission", action="store_true",
@@ -97,7 +100,8 @@ def run(args: argparse.Namespace) -> int:
                        save_every=args.save_every, client_id=client_id, take_control=args.take_control,
                        auto_fly=not args.mission)
     console = Console(stderr=False)
-    with Node("gcs", config=session_config(args, profile.transport), parameter_overrides=params,
+    session = apply_session_arguments(session_config(args, profile.transport), args, "gcs")
+    with Node("gcs", config=session, parameter_overrides=params,
               enable_topic_statistics=not args.no_topic_statistics) as node:
         gcs = Gcs(node, config)
         from .mavlink_out import GcsExtras
@@ -262,6 +266,7 @@ def run_command(args: argparse.Namespace) -> int:
     if client_id is None:
         return 2
     config = SessionConfig.from_file(args.zenoh) if args.zenoh else SessionConfig()
+    config = apply_session_arguments(config, args, "gcs")
     with Node("gcs_cmd", config=config) as node:
         client = node.create_client(f"/{args.drone}/command", Command, CommandResult)
         try:
