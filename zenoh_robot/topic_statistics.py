@@ -22,7 +22,7 @@ previous window's values. ``std_dev`` is the population standard deviation.
 The default statistics topic is ``<namespace>/statistics/<topic>``, ``<topic>`` being
 the subscription's key without the node's namespace prefix (``uav1/setpoint`` in
 namespace ``uav1`` -> ``uav1/statistics/setpoint``; ``chatter`` with no namespace ->
-``statistics/chatter``). ``zenoh_robot.tools.recorder.StatisticsRecorder``
+``statistics/chatter``; ``uav1/sensor`` with no namespace -> ``uav1/statistics/sensor``). ``zenoh_robot.tools.recorder.StatisticsRecorder``
 writes them as CSV or JSON.
 """
 from __future__ import annotations
@@ -133,7 +133,14 @@ def _header_stamp_ns(msg: Any) -> int:
 
 
 def default_statistics_key(namespace: str, sub_key: str) -> str:
-    """``<namespace>/statistics/<topic>`` with ``<topic>`` = ``sub_key`` minus ``namespace/``."""
+    """``<namespace>/statistics/<topic>`` with ``<topic>`` = ``sub_key`` minus ``namespace/``.
+
+    A node at the root (the GCS) takes the topic's first chunk as the namespace, so its
+    statistics of ``uav1/sensor`` sit at ``uav1/statistics/sensor`` beside the companion's of
+    ``uav1/setpoint`` (not ``statistics/uav1/sensor``): one drone, one statistics prefix.
+    """
+    if not namespace and "/" in sub_key:
+        namespace = sub_key.split("/", 1)[0]
     topic = sub_key
     if namespace and sub_key.startswith(namespace + "/"):
         topic = sub_key[len(namespace) + 1:]
