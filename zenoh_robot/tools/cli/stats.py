@@ -1,9 +1,13 @@
 """``zenoh-robot stats [TOPIC]``: every subscription's topic statistics, as a live table.
 
 Subscriptions with statistics enabled publish a ``TopicStatistics`` per window on
-``<namespace>/statistics/<topic>``. This listens to ``**/statistics/**`` with a plain Zenoh
-subscriber (no graph entry, no QoS matching: it hears every publisher of statistics),
-skipping and counting samples there that are not ``TopicStatistics``.
+``<namespace>/statistics/<topic>`` (zenoh_robot.topic_statistics.default_statistics_key).
+``drop`` counts samples the subscriber's own KEEP_LAST queue overwrote before its callback
+ran (the application, or its executor, was slower than the stream); ``lost`` counts samples
+that never arrived. Both are totals since the subscription started.
+
+This listens to ``**/statistics/**`` with a plain Zenoh subscriber (no graph entry, no QoS
+matching: it hears every publisher of statistics), skipping and counting samples there that are not ``TopicStatistics``.
 """
 from __future__ import annotations
 
@@ -31,6 +35,11 @@ STATS_KEY = "**/statistics/**"     # `**` also matches no chunk: "statistics/cha
 REFRESH_PERIOD = 0.25              # seconds between table redraws
 MAX_PENDING_LINES = 10_000         # --plain: lines not yet printed (a stalled pipe must not grow us)
 STALE_WINDOWS = 3                  # a row not updated for this many windows is dimmed
+# lost and drop are counts since the subscription started (TopicStatistics.lost/.dropped), not per window.
+LEGEND = ("lost: samples that never arrived (gaps in the publisher's sequence numbers); "
+          "drop: samples the subscriber's KEEP_LAST queue overwrote before the callback ran: "
+          "the application was slower than the stream (or the stream came in bursts longer than the depth); "
+          "both counted since the subscription started")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -170,8 +179,10 @@ def render_table(board: StatsBoard) -> "Table":
                       str(s.dropped), f"{since:.1f}", style="dim" if stale else None)
     if not table.rows:
         table.caption = "waiting for topic statistics (subscriptions publish them when statistics are enabled)"
-    elif board.skipped:
-        table.caption = f"{board.skipped} sample(s) on statistics keys were not TopicStatistics"
+    else:
+        table.caption = LEGEND + (f"\n{board.skipped} sample(s) on statistics keys were not TopicStatistics"
+                                  if board.skipped else "")
+    table.caption_justify = "left"
     return table
 
 
@@ -182,6 +193,7 @@ def _remaining(deadline: float | None) -> float | None:
 
 def _watch_plain(board: StatsBoard, deadline: float | None) -> None:
     assert board.updates is not None
+    print(f"# {LEGEND}", flush=True)    # a comment line: the data lines all start with the topic
     while True:
         left = _remaining(deadline)
         if left is not None and left <= 0:
