@@ -12,8 +12,8 @@ import time
 from pathlib import Path
 
 import pytest
-
 from conftest import skip_unless_required
+
 from zenoh_robot.tools.experiment.netns import LossyLink, unavailable_reason
 
 ROOT = Path(__file__).resolve().parents[1]
