@@ -12,7 +12,16 @@ Targets start where the drone is: until the drone's offboard session is active u
 GCS, the target follows the drone's reported position (climbing towards the altitude at
 most ``MAX_LEAD_M`` ahead); once active, the pattern is flown relative to that anchor. So
 a restarted GCS, or a resume after a failsafe hold anywhere, never asks for a jump. Each
-drone has its own anchor, so no two drones are sent the same point.
+drone has its own anchor.
+
+Swarms (gcs/formation.py): with a formation (``line``, ``grid``; the CLI's ``auto`` picks
+``line`` for several drones) each drone has its own slot, taken in join order, and all fly
+one pattern clock from the shared origin shifted by their slots, so no two drones are ever
+sent the same point; a drone far from its slot is led there at most ``MAX_LEAD_M`` ahead.
+A drone may fly its own pattern (``GcsConfig.patterns``).
+
+Receive path: telemetry callbacks only record; image slices are filed, not decoded, on
+the executor (gcs/frames.py), so many camera streams cannot starve setpoints and sensors.
 """
 from __future__ import annotations
 
@@ -37,12 +46,14 @@ from companion.interface import (
     VehicleState,
 )
 from zenoh_robot import Node
-from zenoh_robot.image_transport import FrameInfo, ImageSubscription
+from zenoh_robot.image_transport import FrameInfo, ImageSlice
 from zenoh_robot.msgs import Header, Image, SensorCombined
 from zenoh_robot.services import ServiceCallError
 from zenoh_robot.tools.stream_metrics import StreamRecorder
 from zenoh_robot.tools.stream_profiles import StreamProfile, stream_profile
 
+from .formation import lead, slot
+from .frames import FrameKeeper
 from .patterns import Target, make_pattern, path_distance
 
 log = logging.getLogger("gcs")
@@ -71,6 +82,9 @@ class GcsConfig:
     client_id: str = field(default_factory=default_client_id)
     take_control: bool = False       # take control from another GCS at start (explicit takeover)
     auto_fly: bool = True            # fly the pattern as soon as a drone's session is active (no --mission)
+    formation: str = "none"          # none (each drone from its own anchor), line, grid: see gcs/formation.py
+    spacing: float = 5.0             # m between formation slots
+    patterns: dict[str, str] = field(default_factory=dict)   # drone id -> its own pattern
 
 
 @dataclass
@@ -78,7 +92,6 @@ class ImageStats:
     frames: int = 0
     complete: int = 0
     last_age_ms: float = float("nan")
-    ages: list[float] = field(default_factory=list)
 
 
 class DroneLink:
@@ -86,10 +99,14 @@ class DroneLink:
 
     MAX_EVENTS = 20
 
-    def __init__(self, gcs: Gcs, drone_id: str) -> None:
+    def __init__(self, gcs: Gcs, drone_id: str, index: int = 0) -> None:
         self.id = drone_id
         self.gcs = gcs
         node, cfg = gcs.node, gcs.config
+        self.index = index
+        self.slot = slot(index, cfg.formation, cfg.spacing)
+        self.pattern_name = cfg.patterns.get(drone_id, cfg.pattern)
+        self.pattern = make_pattern(self.pattern_name, cfg.altitude, cfg.size, cfg.speed)
         q = cfg.profile.qos
         self.setpoints_sent = 0
         self.state: VehicleState | None = None
@@ -100,7 +117,7 @@ class DroneLink:
         self.streams = {name: StreamRecorder() for name in ("sensor", "state", "image")}
         self.sent = {"setpoint": StreamRecorder()}
         self.image = ImageStats()
-        self.latest_frame: np.ndarray | None = None
+        self.frames = FrameKeeper()
         self.max_path_error = 0.0
         # Targets: see the module docstring.
         self.fly = gcs.config.auto_fly          # fly the pattern once the session is active
@@ -114,7 +131,9 @@ class DroneLink:
         node.create_subscription(VehicleState, f"{ns}/state", self._on_state, q["state"])
         node.create_subscription(FailsafeEvent, f"{ns}/events", self._on_event, q["events"])
         if cfg.profile.image_mode == "sliced":
-            ImageSubscription(node, f"{ns}/image", self._on_frame, q["image"])
+            # A frame's slices come in a burst: the queue holds a frame's worth (as ImageSubscription's).
+            node.create_subscription(ImageSlice, f"{ns}/image", self._on_slice,
+                                     q["image"].replace(depth=max(q["image"].depth, 256)))
         else:   # raw rgb8 or one JPEG per Image message
             node.create_subscription(Image, f"{ns}/image", self._on_raw_image, q["image"])
         self.commands = node.create_client(f"{ns}/command", Command, CommandResult)
@@ -129,7 +148,7 @@ class DroneLink:
         if msg.mode == "OFFBOARD" and self._anchor is not None:
             x, y = msg.position[0] - self._anchor.x, msg.position[1] - self._anchor.y
             self.max_path_error = max(self.max_path_error,
-                                      path_distance(x, y, self.gcs.config.pattern, self.gcs.config.size))
+                                      path_distance(x, y, self.pattern_name, self.gcs.config.size))
 
     @property
     def in_control(self) -> bool:
@@ -154,19 +173,24 @@ class DroneLink:
         else:
             log.warning("%s: %s (%s) -> %s", self.id, msg.kind, msg.detail, msg.action or "no action")
 
-    def _on_frame(self, img: Image, info: FrameInfo) -> None:
-        self.streams["image"].record(info.frame, img.header.stamp)
-        self._frame(img.to_array(), info.age_ms, info.complete)
+    def _on_slice(self, s: ImageSlice, info: Any) -> None:
+        # Executor: file the slice, never decode it here (see gcs/frames.py).
+        if self.frames.add(s):
+            self.streams["image"].record(s.header.seq, s.header.stamp, info.received_stamp_ns)
+            self.image.last_age_ms = info.age_ms
+        self.image.frames, self.image.complete = self.frames.frames, self.frames.complete
 
     def _on_raw_image(self, img: Image, info: Any) -> None:
         self.streams["image"].record(info.seq, info.source_stamp_ns, info.received_stamp_ns)
-        self._frame(img.to_array(), info.age_ms, True)
+        self.frames.add_image(img, FrameInfo(info.seq, 1, 1, info.age_ms))
+        self.image.frames, self.image.complete = self.frames.frames, self.frames.complete
+        self.image.last_age_ms = info.age_ms
 
-    def _frame(self, arr: np.ndarray, age_ms: float, complete: bool) -> None:
-        self.image.frames += 1
-        self.image.complete += complete
-        self.image.last_age_ms = age_ms
-        self.latest_frame = arr
+    @property
+    def latest_frame(self) -> np.ndarray | None:
+        """The newest frame, decoded now on the caller's thread (not the executor's)."""
+        got = self.frames.latest()
+        return None if got is None else got[0]
 
     # -- targets ---------------------------------------------------------------------
     def target(self) -> Target | None:
@@ -188,9 +212,15 @@ class DroneLink:
         if not self.fly:   # session active, pattern not started: hold x, y, keep climbing
             self._hover = Target(self._hover.x, self._hover.y, toward, self._hover.yaw)
             return self._hover
+        if self.gcs.config.formation != "none":
+            # One clock for the whole formation; the slot shifts this drone's copy of the path.
+            self._anchor = Target(*self.slot, 0.0)
+            p0, p = self.pattern(0.0), self.pattern(self.gcs.formation_time())
+            tx, ty = lead(x, y, self.slot[0] + p.x - p0.x, self.slot[1] + p.y - p0.y, MAX_LEAD_M)
+            return Target(tx, ty, min(max(p.z, z - MAX_LEAD_M), z + MAX_LEAD_M), p.yaw)
         if self._anchor is None:
             self._anchor, self._t0 = self._hover, time.monotonic()
-        p0, p = self.gcs.pattern(0.0), self.gcs.pattern(time.monotonic() - self._t0)
+        p0, p = self.pattern(0.0), self.pattern(time.monotonic() - self._t0)
         return Target(self._anchor.x + p.x - p0.x, self._anchor.y + p.y - p0.y,
                       min(max(p.z, z - MAX_LEAD_M), z + MAX_LEAD_M), p.yaw)
 
@@ -230,7 +260,12 @@ class Gcs:
         self.drones: dict[str, DroneLink] = {}
         self._lock = threading.Lock()
         self.pattern = make_pattern(config.pattern, config.altitude, config.size, config.speed)
+        for name in config.patterns.values():
+            make_pattern(name)   # an unknown name fails here, not at the first setpoint
+        slot(0, config.formation, config.spacing)
+        self._formation_t0: float | None = None
         self.streaming = True
+        self._declare_parameters()
         # The companion knows its controller is alive by this token (dropped when the session ends).
         self._token = node.session.liveliness().declare_token(f"{CONTROL_TOKEN_PREFIX}/{config.client_id}")
         for d in config.drones:
@@ -239,8 +274,31 @@ class Gcs:
             # Discovery: any namespace publishing a VehicleState on <id>/state is a drone.
             self._discovery = node.session.declare_subscriber("*/state", self._on_any_state)
         node.create_timer(1.0 / config.rate_hz, self._stream)
+        self._saver: threading.Thread | None = None
+        self.saved_images: dict[str, Path] = {}
         if config.save_image:
             node.create_timer(config.save_every, self._save_images)
+
+    def _declare_parameters(self) -> None:
+        """What this GCS runs with, for `zenoh-robot param list /gcs` (read-only: set at start)."""
+        c = self.config
+        for name, value, what in (
+                ("rate", c.rate_hz, "setpoint rate, Hz"), ("profile", c.profile.name, "stream QoS profile"),
+                ("pattern", c.pattern, "setpoint pattern"), ("altitude", c.altitude, "m above home"),
+                ("size", c.size, "pattern size, m"), ("speed", c.speed, "pattern speed, m/s"),
+                ("formation", c.formation, "none, line or grid"), ("spacing", c.spacing, "m between slots"),
+                ("drones", ",".join(c.drones), "drones given (empty: discovered)"),
+                ("client_id", c.client_id, "id carried by setpoints and commands"),
+                ("image_mode", c.profile.image_mode, "how images arrive")):
+            if not self.node.has_parameter(name):
+                self.node.declare_parameter(name, value, what, read_only=True)
+
+    def formation_time(self) -> float:
+        """Seconds on the formation's shared clock (started by the first drone to fly)."""
+        now = time.monotonic()
+        if self._formation_t0 is None:
+            self._formation_t0 = now
+        return now - self._formation_t0
 
     def _on_any_state(self, sample: Any) -> None:   # Zenoh thread: hand over to the executor
         drone_id = str(sample.key_expr).split("/")[0]
@@ -251,7 +309,7 @@ class Gcs:
         with self._lock:
             if drone_id not in self.drones:
                 log.info("drone %s joined", drone_id)
-                self.drones[drone_id] = DroneLink(self, drone_id)
+                self.drones[drone_id] = DroneLink(self, drone_id, index=len(self.drones))
             return self.drones[drone_id]
 
     def take_control(self) -> dict[str, CommandResult]:
@@ -272,12 +330,33 @@ class Gcs:
             t = drone.target()
             if t is not None:
                 drone.send_setpoint(t)
-    def _save_images(self) -> None:
-        from PIL import Image as PILImage
+
+    def image_path(self, drone_id: str) -> Path:
+        """--save-image FILE: FILE itself for one drone given, FILE_<id> otherwise (told once, in the log)."""
         assert self.config.save_image is not None
+        path = self.config.save_image
+        if len(self.config.drones) == 1 and drone_id == self.config.drones[0]:
+            return path
+        return path.with_name(f"{path.stem}_{drone_id}{path.suffix}")
+
+    def _save_images(self) -> None:
+        # Decoding runs here, on its own thread: the executor is never held up by it.
+        if self._saver is None or not self._saver.is_alive():
+            self._saver = threading.Thread(target=self._save_now, name="gcs-save-image", daemon=True)
+            self._saver.start()
+
+    def _save_now(self) -> None:
+        from PIL import Image as PILImage
         for drone in list(self.drones.values()):
-            if drone.latest_frame is not None:
-                path = self.config.save_image
-                if len(self.drones) > 1:
-                    path = path.with_name(f"{path.stem}_{drone.id}{path.suffix}")
-                PILImage.fromarray(drone.latest_frame).save(path)
+            arr = drone.latest_frame
+            if arr is None:
+                continue
+            path = self.image_path(drone.id)
+            try:
+                PILImage.fromarray(arr).save(path)
+            except (OSError, ValueError) as exc:
+                log.warning("%s: cannot save its frame to %s: %s", drone.id, path, exc)
+                continue
+            if drone.id not in self.saved_images:
+                self.saved_images[drone.id] = path
+                log.warning("%s: frames saved to %s every %g s", drone.id, path, self.config.save_every)

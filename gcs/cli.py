@@ -18,8 +18,9 @@ from zenoh_robot.session_config import add_session_arguments, apply_session_argu
 from zenoh_robot.tools.stream_profiles import IMAGE_MODES, PROFILES, stream_profile
 
 from .app import Gcs, GcsConfig
-from .dashboard import RateMeter, render
-from .mission import run_mission
+from .dashboard import RateMeter, plain_lines, render
+from .formation import FORMATIONS, resolve
+from .mission import ON_FAILURE, run_mission, run_swarm_mission
 from .patterns import PATTERNS
 
 COMMANDS = ("arm", "disarm", "takeoff", "land", "hold", "rtl", "offboard", "offboard_start", "offboard_stop",
@@ -30,8 +31,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("gcs", help="ground control station: setpoints, telemetry, images, commands")
     add_common(p)
     actions = p.add_subparsers(dest="gcs_action", metavar="ACTION")
-    c = actions.add_parser("cmd", help="send one command to a drone: arm, takeoff 5, land, hold, offboard, ...")
-    c.add_argument("drone")
+    c = actions.add_parser("cmd", help="send one command to a drone, or to all: arm, takeoff 5, land, hold, ...")
+    c.add_argument("drone", help="a drone id, or 'all': every drone of --drones, else every drone heard "
+                                 "within --discover s")
     c.add_argument("command", choices=COMMANDS)
     c.add_argument("value", nargs="?", help="takeoff altitude, or NAME=VALUE for set_param")
     c.add_argument("--force", action="store_true",
@@ -41,6 +43,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     c.add_argument("--zenoh", help="Zenoh session config (JSON5)")
     add_session_arguments(c)
     c.add_argument("--gcs-id", default=None, help="this GCS's id (default user@host, shared with `gcs` runs)")
+    c.add_argument("--drones", help="with 'all': comma-separated drone ids (default: discover)")
+    c.add_argument("--discover", type=float, default=2.0, help="with 'all' and no --drones: listen this long, s")
     p.set_defaults(func=run)
 
 
@@ -57,8 +61,17 @@ def add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--image", choices=IMAGE_MODES, help="image path, overriding the profile's (must match the drone's)")
     p.add_argument("--duration", type=float, help="stop after this many seconds")
     p.add_argument("--mission", action="store_true",
-                   help="fly: offboard, arm, pattern for --duration, land (needs one drone); without it the "
-                        "pattern is flown from wherever a drone is once an operator starts its offboard session")
+                   help="fly every drone of --drones at once: offboard, arm, pattern for --duration, land; "
+                        "without it the pattern is flown once an operator starts a drone's offboard session")
+    p.add_argument("--on-failure", choices=ON_FAILURE, default="continue",
+                   help="--mission with several drones: when one fails, the others go on or hold (default continue)")
+    p.add_argument("--formation", choices=FORMATIONS, default="auto",
+                   help="each drone its own slot: line, grid; none: each flies from where it is; "
+                        "auto (default): none for one drone, line for several")
+    p.add_argument("--spacing", type=float, default=5.0, help="m between formation slots (default 5)")
+    p.add_argument("--patterns", default="", metavar="ID=PATTERN,...",
+                   help="per-drone patterns overriding --pattern, e.g. uav2=circle,uav3=hover")
+    p.add_argument("--details", metavar="ID", help="dashboard: show this drone's streams as well")
     p.add_argument("--gcs-id", default=None,
                    help="this GCS's id, carried by its setpoints and commands (default user@host)")
     p.add_argument("--take-control", action="store_true",
@@ -95,11 +108,30 @@ def run(args: argparse.Namespace) -> int:
     client_id = _client_id(args)
     if client_id is None:
         return 2
+    patterns = {}
+    for item in (x for x in args.patterns.split(",") if x):
+        drone, sep, name = item.partition("=")
+        if not sep or name not in PATTERNS:
+            print(f"gcs: --patterns {item!r}: expected ID=PATTERN, PATTERN one of {', '.join(PATTERNS)}",
+                  file=sys.stderr)
+            return 2
+        patterns[drone] = name
+    if len(set(drones)) != len(drones):
+        print(f"gcs: --drones names a drone twice: {args.drones}", file=sys.stderr)
+        return 2
+    if args.spacing <= 0:
+        print("gcs: --spacing must be > 0 m", file=sys.stderr)
+        return 2
     config = GcsConfig(drones=drones, pattern=args.pattern, rate_hz=args.rate, altitude=args.altitude,
                        size=args.size, speed=args.speed, profile=profile, save_image=args.save_image,
                        save_every=args.save_every, client_id=client_id, take_control=args.take_control,
-                       auto_fly=not args.mission)
+                       auto_fly=not args.mission, formation=resolve(args.formation, len(drones) or 2),
+                       spacing=args.spacing, patterns=patterns)
     console = Console(stderr=False)
+    if args.save_image and len(drones) != 1:
+        console.print(f"gcs: --save-image: one file per drone, "
+                      f"{args.save_image.with_name(args.save_image.stem + '_<id>' + args.save_image.suffix)} "
+                      "(each name is printed when first written)")
     session = apply_session_arguments(session_config(args, profile.transport), args, "gcs")
     with Node("gcs", config=session, parameter_overrides=params,
               enable_topic_statistics=not args.no_topic_statistics) as node:
@@ -118,13 +150,18 @@ def run(args: argparse.Namespace) -> int:
             for d, res in gcs.take_control().items():
                 console.print(f"gcs: take_control {d}: {'ok' if res.success else 'FAILED'} {res.message}")
         if args.mission:
-            if len(drones) != 1:
-                console.print("gcs: --mission needs exactly one drone (--drones uav1)")
+            if not drones:
+                console.print("gcs: --mission needs the drones to fly (--drones uav1,uav2)")
                 node.shutdown()
                 return 2
-            mission_thread = threading.Thread(
-                target=lambda: result.update(run_mission(gcs, drones[0], args.duration or 60.0, console.log)),
-                name="mission", daemon=True)
+            say = console.log if console.is_terminal else _say
+
+            def mission() -> None:
+                if len(drones) == 1:
+                    result.update(run_mission(gcs, drones[0], args.duration or 60.0, say))
+                else:
+                    result.update(run_swarm_mission(gcs, drones, args.duration or 60.0, say, args.on_failure))
+            mission_thread = threading.Thread(target=mission, name="mission", daemon=True)
             mission_thread.start()
         deadline = None if args.duration is None or args.mission else time.monotonic() + args.duration
         try:
@@ -169,30 +206,33 @@ def _watch(gcs: Gcs, console: Console, args: argparse.Namespace, deadline: float
 
     rates = RateMeter()
     if args.no_dashboard or not console.is_terminal:
-        last = 0.0
+        # Plain, short, periodic lines: a pipe or a log file gets no padding, no colours, no nan.
+        last = time.monotonic()
         while not done():
             time.sleep(0.2)
+            for d in list(gcs.drones.values()):
+                rates_now = (len(d.streams["sensor"]), d.setpoints_sent)   # keep the windows filled
+                rates.rate(f"{d.id}/sensor", rates_now[0])
+                rates.rate(f"{d.id}/setpoint", rates_now[1])
             if time.monotonic() - last >= 5.0:
                 last = time.monotonic()
-                for d in gcs.drones.values():
-                    s = d.state
-                    sensor = d.streams["sensor"].summary()
-                    console.log(f"{d.id}: mode={s.mode if s else '?'} armed={s.armed if s else '?'} "
-                                f"pos={[round(v, 1) for v in s.position] if s else '?'} "
-                                f"sensor {sensor.rate_hz:.0f} Hz age {sensor.age_avg_ms:.1f} ms, "
-                                f"(PX4 delivers {s.sensor_rate_hz if s else float('nan'):.0f} of "
-                                f"{s.sensor_rate_requested_hz if s else float('nan'):.0f} Hz asked), "
-                                f"frames {d.image.frames}, setpoints sent {d.setpoints_sent}, "
-                                f"offboard {s.offboard_state if s else '?'}, control {s.controller if s else '?'}")
+                for line in plain_lines(gcs, rates):
+                    _say(line)
         return
-    with Live(render(gcs, rates), console=console, refresh_per_second=4, transient=False) as live:
+    # The alternate screen: the view is redrawn whole, so a drone joining leaves no stale header behind.
+    with Live(render(gcs, rates, details=args.details), console=console, refresh_per_second=4, screen=True) as live:
         while not done():
             time.sleep(0.25)
-            live.update(render(gcs, rates))
+            live.update(render(gcs, rates, details=args.details))
+
+
+def _say(line: str) -> None:
+    print(f"{time.strftime('%H:%M:%S')} {line}", flush=True)
 
 
 def summarize(gcs: Gcs, profile: str) -> dict[str, Any]:
-    out: dict[str, Any] = {"profile": profile, "pattern": gcs.config.pattern, "drones": {}}
+    out: dict[str, Any] = {"profile": profile, "pattern": gcs.config.pattern, "formation": gcs.config.formation,
+                           "drones": {}}
     for d in gcs.drones.values():
         streams = {name: rec.summary().as_dict() for name, rec in d.streams.items()}
         for name, rec in d.streams.items():
@@ -200,6 +240,8 @@ def summarize(gcs: Gcs, profile: str) -> dict[str, Any]:
         out["drones"][d.id] = {
             "setpoints_sent": d.setpoints_sent, "streams": streams,
             "frames": d.image.frames, "frames_complete": d.image.complete,
+            "frames_decoded": d.frames.decoded, "decode_cpu_s": d.frames.decode_s,
+            "slot": list(d.slot), "pattern": d.pattern_name,
             "max_path_error_m": d.max_path_error,
             "final_state": d.state.to_dict() if d.state else None,
             "events": [e.to_dict() for e in d.events],
@@ -214,7 +256,7 @@ def summarize(gcs: Gcs, profile: str) -> dict[str, Any]:
 def write_record(summary: dict[str, Any], path: Path) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     if path.suffix.lower() != ".csv":
-        from zenoh_robot.tools.bag.schemas import jsonable   # strict JSON: NaN -> null
+        from zenoh_robot.tools.bag.schemas import jsonable  # strict JSON: NaN -> null
         if path.suffix.lower() == ".mcap":    # the flight log itself was written live (GcsExtras)
             path = path.with_suffix(".summary.json")
         path.write_text(json.dumps(jsonable(summary), indent=2, default=str, allow_nan=False))
@@ -268,11 +310,52 @@ def run_command(args: argparse.Namespace) -> int:
     config = SessionConfig.from_file(args.zenoh) if args.zenoh else SessionConfig()
     config = apply_session_arguments(config, args, "gcs")
     with Node("gcs_cmd", config=config) as node:
-        client = node.create_client(f"/{args.drone}/command", Command, CommandResult)
-        try:
-            res = client.call(Command(name, value, text, args.force, client_id), timeout=args.timeout)
-        except ServiceCallError as exc:
-            print(f"gcs cmd: {args.drone} {name}: {exc}", file=sys.stderr)
-            return 1
-    print(f"{args.drone} {name}: {'ok' if res.success else 'FAILED'} {res.message} (mode {res.mode})")
-    return 0 if res.success else 1
+        if args.drone == "all":
+            targets = [d for d in (args.drones or "").split(",") if d] or discover_drones(node, args.discover)
+            if not targets:
+                print(f"gcs cmd: all: no drone heard within {args.discover:g} s (give --drones)", file=sys.stderr)
+                return 1
+        else:
+            targets = [args.drone]
+        results: dict[str, str] = {}
+        failed: list[str] = []
+
+        def one(drone: str) -> None:
+            client = node.create_client(f"/{drone}/command", Command, CommandResult)
+            try:
+                res = client.call(Command(name, value, text, args.force, client_id), timeout=args.timeout)
+            except ServiceCallError as exc:
+                failed.append(drone)
+                results[drone] = f"{drone} {name}: FAILED {type(exc).__name__}: {exc}"
+                return
+            if not res.success:
+                failed.append(drone)
+            results[drone] = f"{drone} {name}: {'ok' if res.success else 'FAILED'} {res.message} (mode {res.mode})"
+        # All at once: `gcs cmd all land` must not land ten drones one timeout after another.
+        threads = [threading.Thread(target=one, args=(d,), daemon=True) for d in targets]
+        for th in threads:
+            th.start()
+        for th in threads:
+            th.join()
+    for drone in targets:
+        print(results.get(drone, f"{drone} {name}: FAILED no answer"))
+    if len(targets) > 1:
+        print(f"{name}: {len(targets) - len(failed)} of {len(targets)} ok"
+              + (f"; FAILED: {', '.join(sorted(failed))}" if failed else ""))
+    return 1 if failed else 0
+
+
+def discover_drones(node: Node, seconds: float) -> list[str]:
+    """Drone ids heard publishing ``<id>/state`` within ``seconds`` (states come at 5 Hz)."""
+    import re
+    found: set[str] = set()
+    ok = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+    def on(sample: Any) -> None:
+        drone = str(sample.key_expr).split("/")[0]
+        if ok.match(drone) and len(found) < 1000:   # bounded: a flood of names cannot grow it
+            found.add(drone)
+    sub = node.session.declare_subscriber("*/state", on)
+    time.sleep(max(0.0, seconds))
+    sub.undeclare()
+    return sorted(found)

@@ -1,8 +1,15 @@
-"""A live terminal dashboard (rich): per drone its state, per stream its age, period and rate."""
+"""The GCS dashboard: one row per drone (readable at 10-20 drones), one drone's streams on demand.
+
+Rates are counted over a sliding window (``RateMeter``, 3 s) instead of the last refresh:
+at a 4 Hz refresh a 5 Hz stream delivers one or two samples per refresh, which showed as
+3.9 <-> 7.8 Hz. Without a terminal (a pipe, a log file) the GCS prints ``plain_lines``:
+short lines, one per drone, only what is known (no padding, no ``nan``).
+"""
 from __future__ import annotations
 
 import math
 import time
+from collections import deque
 
 from rich.console import Group
 from rich.table import Table
@@ -11,66 +18,117 @@ from companion.interface import VehicleState
 
 from .app import DroneLink, Gcs
 
+WINDOW_S = 3.0
+
 
 def _ms(v: float) -> str:
     return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:7.1f}"
 
 
 class RateMeter:
-    """Rate over the last refresh, from a cumulative counter."""
+    """Rate of a cumulative counter over the last ``window`` seconds (steady at any refresh rate)."""
 
-    def __init__(self) -> None:
-        self._last: dict[str, tuple[float, int]] = {}
+    def __init__(self, window: float = WINDOW_S) -> None:
+        self.window = window
+        self._hist: dict[str, deque[tuple[float, int]]] = {}
 
-    def rate(self, key: str, count: int) -> float:
-        now = time.monotonic()
-        t, c = self._last.get(key, (now, count))
-        self._last[key] = (now, count)
-        return (count - c) / (now - t) if now > t else float("nan")
+    def rate(self, key: str, count: int, now: float | None = None) -> float:
+        now = time.monotonic() if now is None else now
+        hist = self._hist.setdefault(key, deque())
+        hist.append((now, count))
+        while len(hist) > 2 and now - hist[1][0] >= self.window:
+            hist.popleft()   # keep one point at or beyond the window's start
+        t0, c0 = hist[0]
+        return (count - c0) / (now - t0) if now - t0 >= 0.5 else float("nan")
 
 
-def render(gcs: Gcs, rates: RateMeter, title: str = "zenoh-robot GCS") -> Group:
-    drones = Table(title=title, expand=True)
-    for col in ("drone", "mode", "armed", "landed", "position (NED m)", "battery", "PX4", "link", "offboard",
-                "control", "sensor Hz (asked)", "failsafe"):
-        drones.add_column(col)
-    streams = Table(expand=True)
-    for col in ("drone", "stream", "rate Hz", "age avg ms", "age p99 ms", "period avg ms", "period max ms",
-                "received", "lost %"):
-        streams.add_column(col, justify="right" if col not in ("drone", "stream") else "left")
+def _hz(v: float) -> str:
+    return "-" if math.isnan(v) else f"{v:5.1f}"
+
+
+def drone_figures(d: DroneLink, rates: RateMeter) -> dict[str, float]:
+    """Windowed rates of one drone's streams (what the row and the plain line show)."""
+    out = {name: rates.rate(f"{d.id}/{name}", len(rec)) for name, rec in d.streams.items()}
+    out["setpoint"] = rates.rate(f"{d.id}/setpoint", d.setpoints_sent)
+    out["frames"] = rates.rate(f"{d.id}/frames", d.image.frames)
+    return out
+
+
+def render(gcs: Gcs, rates: RateMeter, title: str = "zenoh-robot GCS", details: str | None = None) -> Group:
+    """One table, one title: a row per drone; ``details`` adds that drone's stream table."""
+    drones = Table(title=f"{title}: {len(gcs.drones)} drone(s)", expand=False, pad_edge=False)
+    for col in ("drone", "mode", "arm", "position (NED m)", "batt", "link", "offboard", "control",
+                "sp Hz", "state Hz", "sensor Hz (PX4)", "img fps", "img age ms", "failsafe"):
+        drones.add_column(col, no_wrap=True, justify="right" if "Hz" in col or "fps" in col else "left")
+    shown = None
     for d in sorted(gcs.drones.values(), key=lambda d: d.id):
-        _drone_row(drones, d)
-        drones_sent = {"setpoint": d.setpoints_sent}
-        for name, rec in d.streams.items():
-            s = rec.summary()
-            lost = "-" if math.isnan(rec.lost_pct()) else f"{rec.lost_pct():.1f}"
-            streams.add_row(d.id, name, f"{rates.rate(d.id + name, s.received):6.1f}", _ms(s.age_avg_ms),
-                            _ms(s.age_p99_ms), _ms(s.period_avg_ms), _ms(s.period_max_ms), str(s.received), lost)
-        streams.add_row(d.id, "setpoint (sent)", f"{rates.rate(d.id + 'sp', drones_sent['setpoint']):6.1f}",
-                        "", "", "", "", str(d.setpoints_sent), "")
-        streams.add_row(d.id, "frames shown", f"{rates.rate(d.id + 'frames', d.image.frames):6.1f}",
-                        _ms(d.image.last_age_ms), "", "", "", f"{d.image.complete}/{d.image.frames} whole", "")
-    return Group(drones, streams)
+        f = drone_figures(d, rates)
+        _drone_row(drones, d, f)
+        if d.id == details:
+            shown = d
+    parts: list[Table] = [drones]
+    if shown is not None:
+        parts.append(stream_table(shown, rates))
+    elif details:
+        drones.caption = f"--details {details}: no such drone yet"
+    return Group(*parts)
 
 
-def _drone_row(table: Table, d: DroneLink) -> None:
+def stream_table(d: DroneLink, rates: RateMeter) -> Table:
+    t = Table(title=f"{d.id}: streams", expand=False)
+    for col in ("stream", "rate Hz", "age avg ms", "age p99 ms", "period max ms", "received", "lost %"):
+        t.add_column(col, justify="left" if col == "stream" else "right")
+    for name, rec in d.streams.items():
+        s = rec.summary()
+        lost = "-" if math.isnan(rec.lost_pct()) else f"{rec.lost_pct():.1f}"
+        t.add_row(name, _hz(rates.rate(f"{d.id}/{name}", len(rec))), _ms(s.age_avg_ms), _ms(s.age_p99_ms),
+                  _ms(s.period_max_ms), str(s.received), lost)
+    t.add_row("setpoint (sent)", _hz(rates.rate(f"{d.id}/setpoint", d.setpoints_sent)), "", "", "",
+              str(d.setpoints_sent), "")
+    k = d.frames
+    t.add_row("frames", _hz(rates.rate(f"{d.id}/frames", d.image.frames)), _ms(d.image.last_age_ms), "", "",
+              f"{k.complete}/{k.frames} whole", f"decoded {k.decoded} ({k.decode_s * 1e3:.0f} ms CPU)")
+    return t
+
+
+def _drone_row(table: Table, d: DroneLink, f: dict[str, float]) -> None:
     s = d.state
     if s is None:
-        table.add_row(d.id, "?", "", "", "", "", "", "waiting", "", "", "", "")
+        table.add_row(d.id, "?", "", "", "", "waiting", "", "", _hz(f["setpoint"]), "", "", "", "", "")
         return
-    pos = ", ".join(f"{v:6.1f}" for v in s.position)
+    pos = ",".join(f"{v:5.1f}" for v in s.position)
     batt = "-" if math.isnan(s.battery_remaining) else f"{s.battery_remaining * 100:3.0f}%"
-    link = "ok" if d.link_age < 2.0 else f"silent {d.link_age:.0f}s"
+    link = ("ok" if d.link_age < 2.0 else f"silent {d.link_age:.0f}s") if s.connected else "PX4 DOWN"
     control = "this GCS" if d.in_control else (s.controller or "none")
-    table.add_row(d.id, s.mode, "yes" if s.armed else "no", "yes" if s.landed else "no", pos, batt,
-                  "up" if s.connected else "DOWN", link, s.offboard_state, control, sensor_rate(s),
-                  s.failsafe or (d.failures[-1] if d.failures else ""))
+    table.add_row(d.id, s.mode, "yes" if s.armed else "no", pos, batt, link, s.offboard_state, control[:16],
+                  _hz(f["setpoint"]), _hz(f["state"]), sensor_rate(s, f["sensor"]), _hz(f["frames"]),
+                  _ms(d.image.last_age_ms), (s.failsafe or (d.failures[-1] if d.failures else ""))[:30])
 
 
-def sensor_rate(s: VehicleState) -> str:
-    """Delivered (requested) HIGHRES_IMU rate, flagged LOW below 90 % of the request."""
+def sensor_rate(s: VehicleState, here: float = math.nan) -> str:
+    """Rate received here (PX4's delivered rate), flagged LOW below 90 % of the rate asked of PX4."""
     got, want = s.sensor_rate_hz, s.sensor_rate_requested_hz
-    if math.isnan(got) or math.isnan(want):
-        return "-"
-    flag = " LOW" if got < 0.9 * want else ""
-    return f"{got:.0f} ({want:.0f}){flag}"
+    px4 = "" if math.isnan(got) else f" ({got:.0f})"
+    flag = " LOW" if not math.isnan(want) and not math.isnan(here) and here < 0.9 * want else ""
+    return f"{_hz(here).strip()}{px4}{flag}"
+
+
+def plain_lines(gcs: Gcs, rates: RateMeter) -> list[str]:
+    """One short line per drone, for a pipe or a log file."""
+    lines = []
+    for d in sorted(gcs.drones.values(), key=lambda d: d.id):
+        f = drone_figures(d, rates)
+        s = d.state
+        head = f"{d.id}: waiting for state" if s is None else (
+            f"{d.id}: {s.mode} {'armed' if s.armed else 'disarmed'} pos "
+            f"{','.join(f'{v:.1f}' for v in s.position)} offboard {s.offboard_state or '-'} "
+            f"control {'this GCS' if d.in_control else (s.controller or 'none')}")
+        parts = [head, f"setpoints {_hz(f['setpoint']).strip()} Hz"]
+        if not math.isnan(f["sensor"]):
+            parts.append(f"sensor {f['sensor']:.0f} Hz")
+        if not math.isnan(f["frames"]) and d.image.frames:
+            parts.append(f"images {f['frames']:.1f} fps age {d.image.last_age_ms:.0f} ms")
+        if s is not None and s.failsafe:
+            parts.append(f"FAILSAFE {s.failsafe}")
+        lines.append(", ".join(parts))
+    return lines

@@ -9,50 +9,107 @@ when the drone refused: a refusal is the answer.
 The mission tells the truth: it fails, says why and stops at once when the companion
 reports a failsafe (deadline missed, PX4 left OFFBOARD, control lost) or refuses this
 GCS's setpoints, or when the drone is not doing what the mission asked.
+
+Several drones (``run_swarm_mission``): each flies its own mission on its own thread, at
+the same time. A drone that fails is reported (and put on hold) and, by the policy, the
+others ``continue`` their missions or ``hold`` where they are at once, each told why.
 """
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable
 from typing import Any
 
 from .app import DroneLink, Gcs
 
+ON_FAILURE = ("continue", "hold")
+
 
 class MissionFailed(Exception):
     pass
 
 
-def run_mission(gcs: Gcs, drone_id: str, duration: float, log: Callable[..., None]) -> dict[str, Any]:
+def run_mission(gcs: Gcs, drone_id: str, duration: float, log: Callable[..., None],
+                abort: threading.Event | None = None, why: Callable[[], str] | None = None) -> dict[str, Any]:
+    """One drone's mission; ``abort`` (set by a swarm's ``hold`` policy) stops it as a failure,
+    ``why()`` saying which drone's failure it was."""
     out: dict[str, Any] = {"ok": False, "steps": [], "result": ""}
     drone = gcs.add_drone(drone_id)
     drone.fly = False
     try:
-        _fly(gcs, drone, duration, out, log)
+        _fly(gcs, drone, duration, out, log, abort or threading.Event(), why or (lambda: "aborted"))
         out["ok"] = True
-        out["result"] = (f"ok: flew the {gcs.config.pattern} pattern for {duration:.0f} s, landed and disarmed "
+        out["result"] = (f"ok: flew the {drone.pattern_name} pattern for {duration:.0f} s, landed and disarmed "
                          f"(largest distance from the path {drone.max_path_error:.2f} m)")
     except MissionFailed as exc:
         out["result"] = f"FAILED: {exc}"
         if drone.state is not None and drone.state.armed and drone.in_control:
+            drone.freeze()
             res = drone.command("hold")   # whatever went wrong, do not leave it following a stale plan
             log(f"mission: hold after failure: {'ok' if res.success else 'FAILED'} {res.message}")
     out["max_path_error_m"] = drone.max_path_error
     out["failures"] = list(drone.failures)
-    log(f"mission: {out['result']}")
+    log(f"mission: {drone.id}: {out['result']}")
     return out
 
 
-def _fly(gcs: Gcs, drone: DroneLink, duration: float, out: dict[str, Any], log: Callable[..., None]) -> None:
+def run_swarm_mission(gcs: Gcs, drone_ids: list[str], duration: float, log: Callable[..., None],
+                      on_failure: str = "continue") -> dict[str, Any]:
+    """Every drone's mission at once; ``on_failure``: the others ``continue`` or ``hold``."""
+    if on_failure not in ON_FAILURE:
+        raise ValueError(f"on_failure must be one of {ON_FAILURE}, got {on_failure!r}")
+    if len(set(drone_ids)) != len(drone_ids) or not drone_ids:
+        raise ValueError(f"a swarm mission needs distinct drones, got {drone_ids}")
+    abort = threading.Event()
+    first_failure: list[str] = []
+    lock = threading.Lock()
+    results: dict[str, dict[str, Any]] = {}
+
+    def why() -> str:
+        return f"held: {first_failure[0]} (--on-failure hold)" if first_failure else "held"
+
+    def one(drone_id: str) -> None:
+        res = run_mission(gcs, drone_id, duration, log, abort, why)
+        with lock:
+            results[drone_id] = res
+            if not res["ok"] and not first_failure and not abort.is_set():
+                first_failure.append(f"{drone_id} failed: {res['result']}")
+                if on_failure == "hold":
+                    log(f"mission: {drone_id} failed; holding every other drone")
+                    abort.set()
+                else:
+                    log(f"mission: {drone_id} failed; the others go on (--on-failure continue)")
+
+    threads = [threading.Thread(target=one, args=(d,), name=f"mission-{d}", daemon=True) for d in drone_ids]
+    for th in threads:
+        th.start()
+    for th in threads:
+        th.join()
+    ok = [d for d in drone_ids if results.get(d, {}).get("ok")]
+    failed = [d for d in drone_ids if d not in ok]
+    result = (f"ok: all {len(ok)} drones flew, landed and disarmed" if not failed else
+              f"FAILED: {len(failed)} of {len(drone_ids)} drones did not finish ({', '.join(failed)}); "
+              f"{first_failure[0] if first_failure else ''}")
+    log(f"mission: {result}")
+    return {"ok": not failed, "result": result, "on_failure": on_failure, "drones": results,
+            "failed": failed}
+
+
+def _fly(gcs: Gcs, drone: DroneLink, duration: float, out: dict[str, Any], log: Callable[..., None],
+         abort: threading.Event, why: Callable[[], str]) -> None:
     failures_at_start = len(drone.failures)
+    landing = False   # a drone already landing lands: another drone's failure does not hold it in the air
 
     def step(name: str, ok: bool, detail: str = "") -> None:
         out["steps"].append({"step": name, "ok": ok, "detail": detail, "t": time.time()})
-        log(f"mission: {name}: {'ok' if ok else 'FAILED'} {detail}")
+        log(f"mission: {drone.id}: {name}: {'ok' if ok else 'FAILED'} {detail}")
         if not ok:
             raise MissionFailed(f"{name}: {detail}" if detail else name)
 
     def check() -> None:
+        if abort.is_set() and not landing:
+            step("other drones fine", False, why())
         if len(drone.failures) > failures_at_start:
             step("no failsafe, no refused setpoint", False, drone.failures[-1])
 
@@ -85,7 +142,7 @@ def _fly(gcs: Gcs, drone: DroneLink, duration: float, out: dict[str, Any], log: 
     step("climb", climbed, "" if climbed else f"altitude {-drone.state.position[2] if drone.state else 0:.1f} m "
                                                f"after 30 s (asked {alt:g} m)")
     drone.start_pattern()
-    log(f"mission: flying the {gcs.config.pattern} pattern for {duration:.0f} s")
+    log(f"mission: {drone.id}: flying the {drone.pattern_name} pattern for {duration:.0f} s")
     end = time.monotonic() + duration
     while time.monotonic() < end:
         check()
@@ -95,6 +152,7 @@ def _fly(gcs: Gcs, drone: DroneLink, duration: float, out: dict[str, Any], log: 
                                     f"companion {s.offboard_state or '?'} {s.failsafe}".strip())
         time.sleep(0.2)
     drone.freeze()
+    landing = True
     command("land")
     landed = until(lambda: bool(drone.state and drone.state.landed and not drone.state.armed), 40.0)
     step("landed and disarmed", landed)
