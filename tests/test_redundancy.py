@@ -104,3 +104,35 @@ def test_publisher_table_is_bounded() -> None:
     for pub in range(30_000):
         dedup.fresh(pub, 1, 0, "x", {})
     assert len(dedup) == Deduplicator.MAX_PUBLISHERS
+
+
+def test_deadline_copies_are_spread_and_a_newer_payload_replaces_them() -> None:
+    import threading
+    import time
+
+    from zenoh_robot._wire.repeater import Repeater
+
+    sent: list[tuple[float, bytes]] = []
+    lock = threading.Lock()
+
+    def put(b: bytes) -> None:
+        with lock:
+            sent.append((time.monotonic(), b))
+
+    r = Repeater()
+    try:
+        t0 = time.monotonic()
+        r.schedule_latest(1, put, b"old", copies=10, window=0.2)
+        time.sleep(0.05)
+        r.schedule_latest(1, put, b"new", copies=10, window=0.2)
+        r.schedule_latest(2, put, b"other", copies=2, window=0.2)   # another key is untouched
+        time.sleep(0.45)
+    finally:
+        r.close()
+    with lock:
+        old = [t - t0 for t, b in sent if b == b"old"]
+        new = [b for _, b in sent if b == b"new"]
+        other = [b for _, b in sent if b == b"other"]
+    # Spread over the window, not bunched: before the newer payload only the first ~2 of 10 went.
+    assert 1 <= len(old) <= 4, old
+    assert len(new) == 10 and len(other) == 2

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
 from ._wire import envelope
-from ._wire.redundancy import REPEAT_KEY, RedundantHistory
+from ._wire.redundancy import MAX_HISTORY, REPEAT_KEY, RedundantHistory
 from .context import EntityContext
 from .graph import PUBLISHER, TopicEndpointInfo
 from .message import Message, require_message_type, type_support
@@ -18,6 +18,7 @@ from .qos_mapping import declare_publisher
 from .session_config import is_multicast_session
 
 M = TypeVar("M", bound=Message)
+REPEAT_WINDOW_FRACTION = 0.8
 
 
 @dataclass(frozen=True, slots=True)
@@ -59,6 +60,9 @@ class Publisher(Generic[M]):
         self._closed = False
         self._history = RedundantHistory(qos.redundancy) if qos.redundancy else None
         self._repeats = qos.repeat
+        # With a deadline, copies are spread over most of it (see _wire/repeater.py); the rest
+        # of the deadline is margin for the copy that does arrive to be processed.
+        self._repeat_window = qos.deadline * REPEAT_WINDOW_FRACTION if qos.deadline and qos.repeat else None
         self.events = PublisherEvents(context, self, event_callbacks)
         # Express samples in quick succession (a setpoint and its repeats) stall Zenoh 1.10's
         # multicast transport for good (docs/zenoh-multicast-stall.md): there express is off; the
@@ -106,12 +110,28 @@ class Publisher(Generic[M]):
                 extra = {**(extra or {}), REPEAT_KEY: self._repeats}
             payload = envelope.pack(self.type_name, self.type_hash, self.publisher_id, seq, stamp, body, extra)
             self._zpub.put(payload)
-            if self._repeats:   # loss is per packet: each later copy is another chance
+            if self._repeats and self._repeat_window is not None:
+                self.context.repeater.schedule_latest(self.publisher_id, self._zpub.put, payload, self._repeats,
+                                                      self._repeat_window)
+            elif self._repeats:   # loss is per packet: each later copy is another chance
                 self.context.repeater.schedule(self._zpub.put, payload, self._repeats)
             self.published += 1
             self.last_stamp_ns = stamp
             self.last_publish_mono = time.monotonic()
         return PublishInfo(seq, stamp)
+
+    @property
+    def repeats(self) -> int:
+        """Delayed copies of each sample (the QoS's ``repeat`` unless adapted by :meth:`set_repeats`)."""
+        return self._repeats
+
+    def set_repeats(self, copies: int) -> None:
+        """Adapt the copies per sample to the measured loss (only for a QoS with ``repeat``: subscribers
+        deduplicate only when the QoS says copies follow). Clamped to 1..64."""
+        if not self.qos.repeat:
+            raise ValueError(f"publisher on {self.topic!r} has no repeat in its QoS")
+        with self._lock:
+            self._repeats = max(1, min(MAX_HISTORY, int(copies)))
 
     def assert_liveliness(self) -> None:
         """Tell subscriptions this publisher is alive (MANUAL_BY_TOPIC; publish() also does)."""

@@ -17,6 +17,7 @@ STREAMS = ("setpoint", "sensor", "state", "image", "events")
 # stream that promises less is no use. A companion may request any deadline >= this one.
 SETPOINT_DEADLINE = 0.5
 IMAGE_MODES = ("raw", "jpeg", "sliced")
+SETPOINT_REPEAT_CEILING = 64
 
 
 @dataclass(frozen=True)
@@ -61,12 +62,17 @@ PROFILES: dict[str, StreamProfile] = {
         _all(QoSProfile(ReliabilityPolicy.BEST_EFFORT, **_KEEP_LAST_10)), image_mode="raw"),
     "resilient": StreamProfile(
         "resilient",
-        "setpoints, state and events carry their last samples and go out 4 times 3 ms apart; sensors best "
+        "setpoints carry their last 8 samples and the newest is re-sent 64 times spread over 400 ms; state "
+        "and events carry their last samples and go out 4 times 3 ms apart; sensors best "
         "effort with one delayed copy; images as paced one-datagram JPEG slices with latest-frame "
         "semantics; UDP multicast transport (no handshake to lose), joins every 250 ms, keep-alives "
         "every 100 ms",
         {
-            "setpoint": RESILIENT.replace(deadline=SETPOINT_DEADLINE),
+            # Deadline-driven copies: the newest setpoint re-sent 64 times over 0.8 x the 500 ms
+            # deadline, a newer one replacing them: ~170 packets/s at 10 Hz, so a gap over 500 ms
+            # needs ~85 packets lost in a row (0.9 ** 85 = 1e-4 at 90 % loss). Express off: see
+            # docs/zenoh-multicast-stall.md.
+            "setpoint": RESILIENT.replace(deadline=SETPOINT_DEADLINE, repeat=SETPOINT_REPEAT_CEILING, express=False),
             # One delayed copy: ~99 % of the 200 Hz stream at 10 % loss, no waiting for anything.
             "sensor": QoSProfile(ReliabilityPolicy.BEST_EFFORT, depth=5, priority=Priority.DATA_HIGH, repeat=1),
             "state": QoSProfile(ReliabilityPolicy.BEST_EFFORT, depth=1, priority=Priority.INTERACTIVE_HIGH,
