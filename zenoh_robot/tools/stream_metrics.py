@@ -32,6 +32,8 @@ class StreamSummary:
     period_max_ms: float
     longest_gap_ms: float         # the longest time with nothing new, window edges included
     rate_hz: float                # unique samples per second over the window
+    gap_p99_ms: float = math.nan  # 99th percentile of the times with nothing new (edges included)
+    gaps_over_500ms: int = 0      # how often nothing new came for over 500 ms (PX4's OFFBOARD limit)
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -136,4 +138,6 @@ def analyse(received: StreamRecorder, sent_by: StreamRecorder | None, t0_ns: int
         age_p99_ms=stat(ages, lambda a: np.percentile(a, 99)), age_max_ms=stat(ages, np.max),
         period_avg_ms=stat(periods, np.mean), period_max_ms=stat(periods, np.max),
         longest_gap_ms=float(np.max(np.diff(edges))) / 1e6, rate_hz=in_window.size / duration,
+        gap_p99_ms=float(np.percentile(np.diff(edges), 99)) / 1e6,
+        gaps_over_500ms=int(np.count_nonzero(np.diff(edges) > 500e6)),
     )

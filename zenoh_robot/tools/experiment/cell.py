@@ -73,9 +73,11 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
             time.sleep(spec.warmup)
             if spec.start == "after":
                 link.set_loss(spec.loss)
+            tx0 = {side: link.tx_bytes(side) for side in link.sides}
             t0 = time.time_ns()
             time.sleep(spec.duration)
             t1 = time.time_ns()
+            tx1 = {side: link.tx_bytes(side) for side in link.sides}
             link.set_loss(0)
             for p in procs.values():
                 p.wait(timeout=total + 30 - (time.time() - t_launch))
@@ -84,7 +86,10 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
                 if p.poll() is None:
                     p.kill()
                     p.wait()
-    return analyse_cell(spec, workdir, t0, t1, {k: p.returncode for k, p in procs.items()})
+    result = analyse_cell(spec, workdir, t0, t1, {k: p.returncode for k, p in procs.items()})
+    # Everything each side put on the wire in the window (all streams, copies and joins included).
+    result["bandwidth_kBps"] = {side: (tx1[side] - tx0[side]) / 1000 / spec.duration for side in tx0}
+    return result
 
 
 def _load(path: Path) -> dict[str, Any] | None:

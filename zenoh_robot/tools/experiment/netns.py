@@ -109,6 +109,12 @@ class LossyLink:
                       f"    {rule}\n  }}\n}}\n")
             _run(*self.exec_in(side), "nft", "-f", "-", input=script)
 
+    def tx_bytes(self, side: str) -> int:
+        """Bytes ``side`` has sent on its veth so far (before the peer's loss rule drops any)."""
+        import json
+        out = _run("ip", "-n", self.ns(side), "-s", "-j", "link", "show", self.dev(side)).stdout
+        return int(json.loads(out)[0]["stats64"]["tx"]["bytes"])
+
     def down(self) -> None:
         if not self._up:
             return

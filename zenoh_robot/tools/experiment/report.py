@@ -8,7 +8,7 @@ from typing import Any
 
 TOPICS = ("setpoint", "sensor", "image")
 FIELDS = ("delivered_pct", "age_avg_ms", "age_p50_ms", "age_p99_ms", "age_max_ms", "period_avg_ms",
-          "period_max_ms", "longest_gap_ms", "rate_hz", "sent", "unique")
+          "period_max_ms", "longest_gap_ms", "gap_p99_ms", "gaps_over_500ms", "rate_hz", "sent", "unique")
 
 # The reference (ROS 2 Foxy + Fast DDS over Wi-Fi with netem), setpoint mean age by loss.
 THESIS_SETPOINT = {
@@ -71,6 +71,24 @@ def markdown_table(results: list[dict[str, Any]], start: str = "after") -> str:
     return "\n".join(lines)
 
 
+def setpoint_table(results: list[dict[str, Any]], start: str = "after") -> str:
+    """What keeps PX4 in OFFBOARD, and what it costs: setpoint gaps and the bytes on the wire."""
+    rows = sorted((r for r in results if r.get("start") == start and not r.get("error")),
+                  key=lambda r: (float(r["loss"]), str(r["profile"])))
+    head = ["loss", "profile", "setpoint delivered", "max gap", "p99 gap", "gaps > 500 ms", "p99 age",
+            "GCS -> drone kB/s", "drone -> GCS kB/s"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows:
+        sp = r.get("topics", {}).get("setpoint", {})
+        bw = r.get("bandwidth_kBps", {})
+        lines.append("| " + " | ".join([
+            f"{float(r['loss']):g}%", str(r["profile"]), f"{sp.get('delivered_pct', math.nan):.1f}%",
+            _fmt_ms(sp.get("longest_gap_ms")), _fmt_ms(sp.get("gap_p99_ms")), str(sp.get("gaps_over_500ms", "-")),
+            _fmt_ms(sp.get("age_p99_ms")), f"{bw.get('gcs', math.nan):.1f}", f"{bw.get('drone', math.nan):.1f}",
+        ]) + " |")
+    return "\n".join(lines)
+
+
 def draw_figures(results: list[dict[str, Any]], out_dir: Path) -> list[Path]:
     import matplotlib
     matplotlib.use("Agg")
@@ -86,7 +104,7 @@ def draw_figures(results: list[dict[str, Any]], out_dir: Path) -> list[Path]:
             for profile in sorted({r["profile"] for r in rows}):
                 pts = sorted((float(r["loss"]), r["topics"].get(topic, {})) for r in rows if r["profile"] == profile)
                 loss = [p[0] for p in pts]
-                for ax, key in zip(axes, ("delivered_pct", "age_avg_ms", "period_avg_ms")):
+                for ax, key in zip(axes, ("delivered_pct", "age_avg_ms", "period_avg_ms"), strict=True):
                     ax.plot(loss, [p[1].get(key, math.nan) for p in pts], marker="o", label=profile)
             axes[0].set_ylabel("delivered %")
             axes[0].set_ylim(0, 105)
@@ -113,7 +131,8 @@ def write_report(results: list[dict[str, Any]], out_dir: Path) -> dict[str, Path
     for start in ("after", "startup"):
         if any(r.get("start") == start for r in results):
             md += [f"## Loss {'applied after set-up' if start == 'after' else 'present from start-up'}", "",
-                   markdown_table(results, start), ""]
+                   markdown_table(results, start), "", "### Setpoint gaps and bandwidth", "",
+                   setpoint_table(results, start), ""]
     (out_dir / "results.md").write_text("\n".join(md))
     figures = draw_figures(results, out_dir)
     import json
