@@ -52,6 +52,7 @@ from zenoh_robot.tools.stream_profiles import StreamProfile, stream_profile
 from .camera import RateKeeper, open_source
 from .control import ControlArbiter
 from .offboard import SAFE_MODE, OffboardLifecycle, OffboardState, Refused, VehicleMotion, check_against_vehicle
+from .params import CompanionParameters
 from .reporting import RateLimiter
 
 log = logging.getLogger("companion")
@@ -83,6 +84,7 @@ class CompanionConfig:
     allow_force_disarm: bool = False     # a forced disarm in flight drops the vehicle
     param_allow: tuple[str, ...] = DEFAULT_PARAM_ALLOW
     report_interval_s: float = 2.0       # repeated refusals: one event per key per interval
+    qos_overrides: dict[str, Any] = field(default_factory=dict)   # -p reliability/history/depth, as given
 
 
 @dataclass
@@ -97,6 +99,9 @@ class Companion:
     MAX_CANDIDATES = 16
 
     def __init__(self, node: Node, link: Px4Link, config: CompanionConfig) -> None:
+        # First: every setting below is read from the parameters in force (-p wins over the flag).
+        self.params = CompanionParameters(config)
+        config = self.params.declare(node)
         self.node, self.link, self.config = node, link, config
         q = config.profile.qos
         self.setpoints = StreamRecorder()
@@ -147,6 +152,7 @@ class Companion:
         if config.camera:
             self._camera_thread = threading.Thread(target=self._camera_loop, name="camera", daemon=True)
             self._camera_thread.start()
+        self.params.on_change = self._on_params_changed
         node.add_on_close(self.close)
 
     # -- events ------------------------------------------------------------------------
@@ -262,6 +268,20 @@ class Companion:
             log.error("failsafe HOLD failed: %s", exc)
             self._event("failsafe_failed", str(exc), "")
 
+    def _on_params_changed(self, changes: dict[str, Any]) -> None:   # the parameter service's thread
+        old, self.config = self.config, self.params.config
+        if "control_lease_s" in changes:
+            self.control.lease_s = self.config.control_lease_s
+        if "report_interval_s" in changes:
+            self._limiter.interval_s = self.config.report_interval_s
+        if "sensor_rate_hz" in changes and changes["sensor_rate_hz"] != self.sensor_rate_requested:
+            self.sensor_rate_requested = self.config.sensor_rate_hz
+            self._rate_since = time.monotonic()   # the delivered rate settles again before any warning
+            self._commands.submit(self._guarded, "sensor rate", self.request_rates)   # waits for an ACK
+        for name, value in changes.items():
+            if self._limiter.hit("param_changed", name):
+                self._event("param_changed", f"{name}: {getattr(old, name)!r} -> {value!r}", "applied")
+
     def _on_link_event(self, name: str, details: dict[str, Any]) -> None:   # px4_link's thread: never block
         if name == "offboard_lost":
             new = str(details.get("new_mode", "?"))
@@ -270,6 +290,10 @@ class Companion:
             self._commands.submit(self._guarded, "offboard_lost", lambda: self.lifecycle.px4_left_offboard(new))
         elif name == "armed_changed" and not details.get("armed", True):
             self._commands.submit(self._guarded, "disarmed", self.lifecycle.disarmed)
+        elif name == "connected" and not details.get("reconnect"):
+            # PX4 came up after the companion: px4_link re-asks only after a *re*connect, so ask now.
+            self._rate_since = time.monotonic()
+            self._commands.submit(self._guarded, "sensor rate", self.request_rates)
         elif (name == "connected" and details.get("reconnect")) or name == "rebooted":
             self._rate_since = time.monotonic()   # px4_link asks PX4 for the intervals again
             self._event("px4_reconnected", f"PX4 {'rebooted' if name == 'rebooted' else 'heartbeats back'}: "
@@ -518,5 +542,7 @@ class Companion:
                 "control": vars(self.control.counters), "sensor_rate_hz": self.sensor_rate_hz(),
                 "offboard_state": self.lifecycle.state.value, "events": self.events_sent,
                 "final_mode": self.link.state.mode,
+                "px4": {"ever_connected": self.link.system_id is not None, "connected": self.link.connected},
+                "parameters": {"changed": self.params.changed, "refused": self.params.refused},
                 "logs": {"sent": {k: v.to_dict() for k, v in self.sent.items()},
                          "received": {"setpoint": self.setpoints.to_dict()}}}

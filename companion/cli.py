@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import logging
 import signal
 import threading
@@ -15,15 +14,20 @@ from typing import Any
 from px4_link import CommandError, Px4Link
 from zenoh_robot import Node, SessionConfig
 from zenoh_robot.names import validate_node_name
-from zenoh_robot.parameters import add_param_argument, params_from_args
+from zenoh_robot.parameters import ParameterError, ParameterStore, add_param_argument, params_from_args
 from zenoh_robot.qos import load_qos
 from zenoh_robot.session_config import add_session_arguments, apply_session_arguments
 from zenoh_robot.tools.stream_profiles import IMAGE_MODES, PROFILES, STREAMS, StreamProfile, stream_profile
 
 from .app import DEFAULT_PARAM_ALLOW, Companion, CompanionConfig
+from .params import QOS_PARAMS, CompanionParameters, known_names
+from .summary import summary_line, write_summary
 
 log = logging.getLogger("companion")
-DEFAULT_PX4 = "udpin:0.0.0.0:14540"
+# Loopback: PX4 SITL or a local autopilot bridge. On a drone whose autopilot is another host on the
+# airframe's network, pass its address (e.g. udpin:0.0.0.0:14540 with a firewall): the link locks onto
+# the first autopilot it hears and ignores frames from elsewhere.
+DEFAULT_PX4 = "udpin:127.0.0.1:14540"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -39,7 +43,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_session_arguments(p)
     p.add_argument("--no-topic-statistics", action="store_true",
                    help="do not publish per-stream statistics (what `zenoh-robot stats` shows)")
-    p.add_argument("--deadline", type=float, default=1.0, help="setpoint deadline before HOLD, s (default 1; the GCS offers 0.5, "
+    p.add_argument("--deadline", type=float, default=1.0,
+                   help="setpoint deadline before HOLD, s (default 1; the GCS offers 0.5, "
                         "so a shorter one is an incompatible QoS pair)")
     p.add_argument("--resume-on-setpoints", action="store_true",
                    help="after a failsafe HOLD, resume OFFBOARD by itself when setpoints return")
@@ -60,7 +65,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--duration", type=float, help="stop after this many seconds")
     p.add_argument("--record", type=Path, help="write the setpoint stream's figures here (JSON) at exit")
     p.add_argument("--mavlink-tunnel", action="store_true",
-                   help="forward PX4's MAVLink over Zenoh (<id>/mavlink/down|up) for a QGC on the GCS (gcs --mavlink-out)")
+                   help="forward PX4's MAVLink over Zenoh (<id>/mavlink/down|up) for a QGC on the GCS "
+                        "(gcs --mavlink-out)")
     p.add_argument("--mavlink-tunnel-allow-control", action="store_true",
                    help="let QGC's commands, setpoints and writes through the tunnel (default: read-only, refused)")
     add_param_argument(p)
@@ -113,27 +119,39 @@ def run(args: argparse.Namespace) -> int:
                              camera=None if args.camera == "none" else args.camera, camera_rate_hz=args.camera_rate,
                              max_offset_m=args.max_offset, control_lease_s=args.control_lease,
                              allow_force_disarm=args.allow_force_disarm,
-                             param_allow=tuple(n for n in args.param_allow.split(",") if n))
+                             param_allow=tuple(n for n in args.param_allow.split(",") if n),
+                             qos_overrides={k: params[k] for k in QOS_PARAMS if k in params})
+    unknown = sorted(set(params) - known_names())
+    if unknown:
+        raise CliError(f"-p {', '.join(unknown)}: not a companion parameter; parameters: "
+                       f"{', '.join(sorted(known_names()))}")
+    try:   # every -p value checked now, before PX4 or Zenoh is opened
+        CompanionParameters(config).declare(ParameterStore(params))
+    except ParameterError as exc:
+        raise CliError(f"-p: {exc}") from None
     session = SessionConfig.from_file(args.zenoh) if args.zenoh else SessionConfig(**profile.transport)
     session = apply_session_arguments(session, args, args.id)
     from zenoh_robot import MultiThreadedExecutor
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     from .mavlink_tunnel import MavlinkTunnel, maybe_tee
-    with px4_connection(args.px4, args.sysid) as px4_conn, maybe_tee(args.mavlink_tunnel, px4_conn) as (tee, connection), \
+    with px4_connection(args.px4, args.sysid) as px4_conn, \
+            maybe_tee(args.mavlink_tunnel, px4_conn) as (tee, connection), \
             Px4Link(connection) as link, \
             Node("companion", namespace=args.id, config=session, executor=MultiThreadedExecutor(3),
                  parameter_overrides=params, enable_topic_statistics=not args.no_topic_statistics) as node:
         log.info("companion %s: PX4 at %s, profile %s", args.id, connection, profile.name)
-        if not link.wait_connected(timeout=10.0):
-            log.warning("no PX4 heartbeat yet on %s; waiting in the background", connection)
+        if not link.wait_connected(timeout=3.0):
+            log.warning("no PX4 heartbeat yet on %s; waiting in the background (the sensor rate is asked "
+                        "when PX4 appears)", connection)
         companion = Companion(node, link, config)
         if tee is not None:
             MavlinkTunnel(node, tee, allow_control=args.mavlink_tunnel_allow_control)
-        try:
-            companion.request_rates()   # asked again by the companion after every PX4 reconnect
-        except CommandError as exc:   # PX4 not there yet: its default rate applies until it reconnects
-            log.warning("could not set the HIGHRES_IMU rate: %s", exc)
+        if link.connected:   # else the companion asks on PX4's first heartbeat; px4_link after reconnects
+            try:
+                companion.request_rates()
+            except CommandError as exc:   # PX4's default rate applies until it reconnects
+                log.warning("could not set the HIGHRES_IMU rate: %s", exc)
         spinner = threading.Thread(target=node.spin, name="companion-spin", daemon=True)
         spinner.start()
         try:
@@ -144,10 +162,7 @@ def run(args: argparse.Namespace) -> int:
             node.shutdown()
             spinner.join(timeout=2.0)
         summary = companion.summary()
-        log.info("companion %s: setpoints received %d (lost %.1f %%), rejected %d, final mode %s", args.id,
-                 summary["setpoints"]["unique"], summary["setpoints"]["lost_pct"], summary["setpoints_rejected"],
-                 summary["final_mode"])
+        log.info("%s", summary_line(args.id, connection, summary))
         if args.record:
-            args.record.parent.mkdir(parents=True, exist_ok=True)
-            args.record.write_text(json.dumps(summary, indent=2, default=str))
+            write_summary(args.record, summary)
     return 0

@@ -1,0 +1,204 @@
+"""The companion's node parameters: every setting it reads, visible and (where safe) settable.
+
+Each CompanionConfig field is declared as a node parameter whose default is the command-line
+flag's value; ``-p name:=value`` (or a launch file's ``params:``) wins over the flag, as in
+rclpy. ``zenoh-robot param list|get|describe /uav1/companion`` shows them, and the stream QoS
+in force as ``qos.<stream>.reliability|history|depth``. The thesis's ``reliability``,
+``history`` and ``depth`` (applied to every stream) are declared when given.
+
+Read-only: whatever is built once at start (streams, timers, camera, the deadline) and
+whatever widens what a peer may make the vehicle do (the set_param allow-list, forced
+disarm, resuming by itself): the parameter service has no sender identity, so a live
+change there would let any peer on the network lift a safety rule.
+
+Live (``param set``): limits and rates the companion reads on every use. Every value is
+validated against a bounded range; a refusal goes back to the sender with the reason and is
+counted; an accepted change is logged and published as a ``param_changed`` event.
+"""
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any, Protocol
+
+from zenoh_robot.parameters import Parameter, ParameterType, SetParametersResult
+from zenoh_robot.tools.stream_profiles import STREAMS
+
+if TYPE_CHECKING:
+    from .app import CompanionConfig
+
+QOS_PARAMS = ("reliability", "history", "depth")   # the thesis's node parameters, applied to every stream
+QOS_POLICIES = ("reliability", "history", "depth")
+PX4_PARAM_NAME = re.compile(r"^[A-Za-z0-9_]{1,16}$")   # PX4's param_info: at most 16 characters
+
+
+def _range(lo: float, hi: float, unit: str) -> Callable[[Any], str]:
+    def check(v: Any) -> str:
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi:
+            return f"{v!r} outside {lo:g}..{hi:g} {unit}".rstrip()
+        return ""
+    return check
+
+
+def _any(v: Any) -> str:
+    return ""
+
+
+def _allow_list(v: Any) -> str:
+    bad = [n for n in v if not PX4_PARAM_NAME.match(n)]
+    return f"not PX4 parameter names: {bad}" if bad else ""
+
+
+def _camera(v: Any) -> str:
+    return "" if v and len(v) <= 256 else f"{v!r}: 'test', 'none', a device or a file"
+
+
+@dataclass(frozen=True)
+class Spec:
+    name: str                 # parameter name = CompanionConfig field
+    description: str
+    check: Callable[[Any], str] = _any    # "" when the value is acceptable, else why not
+    live: bool = False        # settable while running (the companion reads it on every use)
+    flag: str = ""            # a value fixed before the node exists: only this flag sets it
+
+
+SPECS: tuple[Spec, ...] = (
+    Spec("drone_id", "drone id, the namespace of the topics", flag="--id"),
+    Spec("profile", "stream profile (QoS per stream, image path, transport)", flag="--profile"),
+    Spec("image_mode", "how images travel: raw, jpeg, sliced", flag="--image"),
+    Spec("jpeg_quality", "JPEG quality of jpeg/sliced images", flag="--jpeg-quality"),
+    Spec("setpoint_deadline", "setpoint QoS deadline before the failsafe HOLD, s (the subscription's)",
+         _range(0.05, 60.0, "s")),
+    Spec("resume_on_setpoints", "after a failsafe HOLD, resume OFFBOARD by itself when setpoints return"),
+    Spec("sensor_rate_hz", "HIGHRES_IMU rate asked of PX4 (MAV_CMD_SET_MESSAGE_INTERVAL), Hz",
+         _range(1.0, 1000.0, "Hz"), live=True),
+    Spec("sensor_rate_tolerance", "a sensor_rate_low event when PX4 delivers less than this share of the rate",
+         _range(0.0, 1.0, ""), live=True),
+    Spec("state_rate_hz", "VehicleState publication rate, Hz", _range(0.1, 100.0, "Hz")),
+    Spec("camera", "camera source: test, none, a device or a video file", _camera),
+    Spec("camera_rate_hz", "camera frame rate, Hz", _range(0.1, 120.0, "Hz")),
+    Spec("image_width", "image width, px", _range(16, 4096, "px")),
+    Spec("image_height", "image height, px", _range(16, 4096, "px")),
+    Spec("max_offset_m", "farthest a position setpoint may lie from the vehicle, m (plus 1 s of its speed)",
+         _range(0.5, 100.0, "m"), live=True),
+    Spec("max_speed", "fastest velocity setpoint accepted, m/s", _range(0.1, 30.0, "m/s"), live=True),
+    Spec("control_lease_s", "a GCS in control without liveliness token loses control after this silence, s",
+         _range(0.5, 60.0, "s"), live=True),
+    Spec("allow_force_disarm", "accept a forced disarm in flight (the vehicle falls)"),
+    Spec("param_allow", "PX4 parameters a GCS may set with set_param", _allow_list),
+    Spec("report_interval_s", "repeated refusals: one event per sender and reason per interval, s",
+         _range(0.1, 60.0, "s"), live=True),
+)
+_BY_NAME = {s.name: s for s in SPECS}
+
+
+def qos_param_names() -> list[str]:
+    return [f"qos.{s}.{p}" for s in STREAMS for p in QOS_POLICIES]
+
+
+def known_names() -> set[str]:
+    """Every name ``-p`` may set on the companion."""
+    return {*_BY_NAME, *qos_param_names(), *QOS_PARAMS}
+
+
+class DeclaresParameters(Protocol):
+    """A Node, or a bare ParameterStore (to check ``-p`` values before anything starts)."""
+
+    def declare_parameter(self, name: str, default: Any = ..., description: str = ..., read_only: bool = ...,
+                          *, type_: ParameterType | None = ...) -> Parameter: ...
+
+    def add_on_set_parameters_callback(self, callback: Any) -> None: ...
+
+
+def config_value(config: CompanionConfig, name: str) -> Any:
+    if name == "profile":
+        return config.profile.name.split("+", 1)[0]
+    if name == "image_mode":
+        return config.profile.image_mode
+    if name == "jpeg_quality":
+        return config.profile.jpeg_quality
+    if name == "camera":
+        return config.camera or "none"
+    if name == "param_allow":
+        return list(config.param_allow)
+    return getattr(config, name)
+
+
+def _qos_values(config: CompanionConfig) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for stream, q in config.profile.qos.items():
+        out[f"qos.{stream}.reliability"] = q.reliability.name.lower()
+        out[f"qos.{stream}.history"] = q.history.name.lower()
+        out[f"qos.{stream}.depth"] = q.depth
+    return out
+
+
+Apply = Callable[[dict[str, Any]], None]
+
+
+class CompanionParameters:
+    """Declares the companion's parameters on ``target`` and guards every change.
+
+    ``declare`` returns the config with the values in force (``-p`` overrides applied);
+    ``on_change`` (set once the companion is built) receives accepted live changes.
+    """
+
+    def __init__(self, config: CompanionConfig) -> None:
+        self.config = config
+        self.on_change: Apply | None = None
+        self.refused = 0
+        self.changed = 0
+        self._declaring = True
+        self._qos = _qos_values(config)
+
+    def declare(self, target: DeclaresParameters) -> CompanionConfig:
+        target.add_on_set_parameters_callback(self.validate)
+        values: dict[str, Any] = {}
+        for spec in SPECS:
+            default = config_value(self.config, spec.name)
+            type_ = ParameterType.STRING_ARRAY if spec.name == "param_allow" else None
+            desc = spec.description + ("" if spec.live else " (read-only)")
+            p = target.declare_parameter(spec.name, default, desc, not spec.live, type_=type_)
+            values[spec.name] = p.value
+        for name, value in self._qos.items():
+            target.declare_parameter(name, value, "QoS in force on this stream (read-only)", True)
+        for name in QOS_PARAMS:
+            if name in self.config.qos_overrides:
+                target.declare_parameter(name, self.config.qos_overrides[name],
+                                         f"QoS {name} applied to every stream at start (read-only)", True)
+        self._declaring = False
+        fields = {k: v for k, v in values.items() if k not in ("profile", "image_mode", "jpeg_quality")}
+        fields["camera"] = None if fields["camera"] == "none" else fields["camera"]
+        fields["param_allow"] = tuple(fields["param_allow"])
+        self.config = replace(self.config, **fields)
+        return self.config
+
+    def validate(self, params: list[Parameter]) -> SetParametersResult:
+        """On-set callback: all or nothing; applies an accepted live change."""
+        changes: dict[str, Any] = {}
+        for p in params:
+            spec = _BY_NAME.get(p.name)
+            if p.name in self._qos and p.value != self._qos[p.name]:
+                return self._refuse(f"{p.name} shows the QoS in force ({self._qos[p.name]!r}): change it with "
+                                    "--config QOS.yaml or -p reliability/history/depth")
+            if spec is None:
+                continue   # qos.* and the thesis's names: read-only, the store refuses live changes
+            if spec.flag and p.value != config_value(self.config, p.name):
+                return self._refuse(f"{p.name} is set by {spec.flag} ({p.value!r} given)")
+            why = spec.check(p.value)
+            if why:
+                return self._refuse(f"{p.name}: {why}")
+            if not self._declaring:
+                changes[p.name] = p.value
+        if changes:
+            self.changed += 1
+            self.config = replace(self.config, **changes)
+            if self.on_change is not None:
+                self.on_change(changes)
+        return SetParametersResult(True)
+
+    def _refuse(self, why: str) -> SetParametersResult:
+        self.refused += 1
+        return SetParametersResult(False, why)
