@@ -66,7 +66,8 @@ class OpenCVSource:
         if not ok:
             return None
         frame = self._cv2.resize(frame, (self.width, self.height))
-        return self._cv2.cvtColor(frame, self._cv2.COLOR_BGR2RGB)
+        rgb: np.ndarray = self._cv2.cvtColor(frame, self._cv2.COLOR_BGR2RGB)   # OpenCV is untyped
+        return rgb
 
     def close(self) -> None:
         self._cap.release()

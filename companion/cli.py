@@ -30,7 +30,7 @@ log = logging.getLogger("companion")
 DEFAULT_PX4 = "udpin:127.0.0.1:14540"
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("companion", help="drone side: PX4 <-> Zenoh, camera, commands, link-loss failsafe")
     p.add_argument("--id", default="uav1", help="drone id, the namespace of its topics (default uav1)")
     p.add_argument("--px4", default=DEFAULT_PX4,
@@ -100,7 +100,8 @@ def _free_udp_port() -> int:
     import socket
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+        port: int = s.getsockname()[1]
+        return port
 
 
 def run(args: argparse.Namespace) -> int:

@@ -30,17 +30,17 @@ class VehicleState(Message):
     landed: bool = True
     connected: bool = False          # PX4 heartbeats seen within the timeout
     offboard_streaming: bool = False
-    position: list[float] = array("float32", 3)      # local NED, m
-    velocity: list[float] = array("float32", 3)      # m/s
-    attitude: list[float] = array("float32", 3)      # roll, pitch, yaw, rad
-    battery_remaining: float = ros_field("float32", float("nan"))  # 0..1
-    battery_voltage: float = ros_field("float32", float("nan"))
+    position: list[float] = array("float32", 3, default=[0.0, 0.0, 0.0])      # local NED, m
+    velocity: list[float] = array("float32", 3, default=[0.0, 0.0, 0.0])      # m/s
+    attitude: list[float] = array("float32", 3, default=[0.0, 0.0, 0.0])      # roll, pitch, yaw, rad
+    battery_remaining: float = ros_field("float32", default=float("nan"))  # 0..1
+    battery_voltage: float = ros_field("float32", default=float("nan"))
     failsafe: str = ""               # "" or why the companion holds (e.g. "setpoint deadline missed")
     setpoints_rejected: int = 0
     offboard_state: str = ""         # the companion's offboard lifecycle: idle, starting, active, failsafe_hold
     controller: str = ""             # client_id of the GCS in control, "" when none
-    sensor_rate_hz: float = ros_field("float32", float("nan"))            # HIGHRES_IMU rate PX4 delivers
-    sensor_rate_requested_hz: float = ros_field("float32", float("nan"))  # what the companion asked
+    sensor_rate_hz: float = ros_field("float32", default=float("nan"))            # HIGHRES_IMU rate PX4 delivers
+    sensor_rate_requested_hz: float = ros_field("float32", default=float("nan"))  # what the companion asked
     commands_refused: int = 0
 
     def __post_init__(self) -> None:
