@@ -1,0 +1,63 @@
+"""``zenoh-robot swarm``: the scaling sweep (one GCS, N drones, peer and router) and swarm launch files."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def _ints(text: str) -> list[int]:
+    try:
+        values = [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated drone counts, got {text!r}") from None
+    if not values or any(not 1 <= v <= 250 for v in values):
+        raise argparse.ArgumentTypeError("drone counts are 1..250")
+    return values
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("swarm", help="scaling sweep: one GCS and N drones with simulators, peer and via a router")
+    p.add_argument("--drones", type=_ints, default=[1, 2, 5, 10], help="drone counts (default 1,2,5,10)")
+    p.add_argument("--modes", default="peer,router", help="peer, router or both (default peer,router)")
+    p.add_argument("--camera", choices=("on", "off", "both"), default="on")
+    p.add_argument("--duration", type=float, default=15.0, help="measured seconds per cell (default 15)")
+    p.add_argument("--warmup", type=float, default=8.0, help="seconds before measuring (default 8)")
+    p.add_argument("--out", type=Path, default=Path("results/swarm"))
+    p.add_argument("--report-only", action="store_true", help="redraw the table and figure from --out")
+    p.add_argument("--launch", type=int, metavar="N",
+                   help="print a launch file for a router, N companions with simulators and a GCS, and exit")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..experiment.swarm import SwarmCell, load_results, run_sweep, swarm_launch
+    from ..experiment.swarm_report import write_report
+    from .main import CliError
+
+    if args.launch is not None:
+        try:
+            print(swarm_launch(args.launch), end="")
+        except ValueError as exc:
+            raise CliError(str(exc)) from None
+        return 0
+    out: Path = args.out
+    if args.report_only:
+        results = load_results(out / "results.jsonl")
+        if not results:
+            raise CliError(f"no results in {out / 'results.jsonl'}")
+    else:
+        modes = [m for m in args.modes.split(",") if m]
+        bad = [m for m in modes if m not in ("peer", "router")]
+        if bad or not modes:
+            raise CliError(f"--modes: peer and/or router, got {args.modes!r}")
+        cams = {"on": [True], "off": [False], "both": [True, False]}[args.camera]
+        cells = [SwarmCell(n, m, c, args.duration, args.warmup) for n in args.drones for m in modes for c in cams]
+        print(f"swarm: {len(cells)} cells, about {len(cells) * (args.duration + args.warmup + 8) / 60:.0f} min; "
+              f"results in {out}", flush=True)
+        run_sweep(out, cells, say=lambda s: print(s, flush=True))
+        results = load_results(out / "results.jsonl")
+    files = write_report(results, out)
+    print((out / "results.md").read_text())
+    for name, path in files.items():
+        print(f"{name}: {path}")
+    return 0

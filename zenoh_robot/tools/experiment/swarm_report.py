@@ -1,0 +1,105 @@
+"""The swarm sweep's report: a markdown table (targets checked in words, not asserted) and a figure."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+COLUMNS = [("drones", "N", "{:d}"), ("mode", "mode", "{}"), ("camera", "camera", "{}"),
+           ("setpoint_hz_min", "setpoint Hz (min)", "{:.1f}"), ("setpoint_delivered_min", "setpoint % (min)", "{:.1f}"),
+           ("sensor_delivered_min", "sensor % (min)", "{:.1f}"), ("sensor_hz_avg", "sensor Hz", "{:.0f}"),
+           ("state_delivered_min", "state % (min)", "{:.1f}"), ("image_fps_avg", "img fps", "{:.1f}"),
+           ("image_sent_fps_avg", "img sent fps", "{:.1f}"),
+           ("sensor_age_p50_ms", "sensor age p50 ms", "{:.1f}"), ("sensor_age_p99_ms", "p99 ms", "{:.1f}"),
+           ("cpu_gcs_pct", "GCS % core", "{:.0f}"), ("cpu_gcs_per_drone_pct", "GCS %/drone", "{:.1f}"),
+           ("cpu_companion_avg_pct", "companion % core", "{:.0f}"), ("cpu_router_pct", "router % core", "{:.0f}"),
+           ("rss_gcs_mb", "GCS MB", "{:.0f}"), ("rss_companion_avg_mb", "companion MB", "{:.0f}")]
+
+
+def _fmt(fmt: str, v: Any) -> str:
+    if isinstance(v, float) and math.isnan(v):
+        return "-"
+    try:
+        return fmt.format(v)
+    except (ValueError, TypeError):
+        return str(v)
+
+
+def table(results: list[dict[str, Any]]) -> str:
+    rows = [r["summary"] for r in results]
+    head = "| " + " | ".join(c[1] for c in COLUMNS) + " |"
+    sep = "|" + "|".join("---" for _ in COLUMNS) + "|"
+    body = ["| " + " | ".join(_fmt(f, r.get(k, float("nan"))) for k, _, f in COLUMNS) + " |" for r in rows]
+    return "\n".join([head, sep, *body])
+
+
+def verdicts(results: list[dict[str, Any]]) -> list[str]:
+    """The issue's targets, said for the largest swarm measured (not asserted: machines differ)."""
+    out = []
+    by = {(r["summary"]["drones"], r["summary"]["mode"], r["summary"]["camera"]): r["summary"] for r in results}
+    for (n, mode, cam), s in sorted(by.items()):
+        if not cam:
+            continue
+        sp_ok = s["setpoint_delivered_min"] >= 99.9 and s["setpoint_hz_min"] >= 9.5
+        se_ok = s["sensor_delivered_min"] >= 99.0
+        gcs_ok = s["cpu_gcs_per_drone_pct"] <= 5.0
+        out.append(f"N={n} {mode}: setpoints 10 Hz 100 % to every drone: {'met' if sp_ok else 'NOT met'} "
+                   f"(min {s['setpoint_hz_min']:.1f} Hz, {s['setpoint_delivered_min']:.1f} %); sensor >= 99 %: "
+                   f"{'met' if se_ok else 'NOT met'} (min {s['sensor_delivered_min']:.1f} %); GCS <= 5 % of a core "
+                   f"per drone: {'met' if gcs_ok else 'NOT met'} ({s['cpu_gcs_per_drone_pct']:.1f} %)")
+        peer = by.get((n, "peer", cam))
+        if mode == "router" and peer is not None:
+            a, b = s["sensor_delivered_avg"], peer["sensor_delivered_avg"]
+            within = abs(a - b) <= 10.0
+            out.append(f"N={n}: router within 10 % of peer (sensor delivered): {'met' if within else 'NOT met'} "
+                       f"({a:.1f} % vs {b:.1f} %)")
+    return out
+
+
+def figure(results: list[dict[str, Any]], path: Path) -> Path | None:
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return None
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    for mode, marker in (("peer", "o"), ("router", "s")):
+        rows = sorted((r["summary"] for r in results if r["summary"]["mode"] == mode and r["summary"]["camera"]),
+                      key=lambda s: s["drones"])
+        if not rows:
+            continue
+        n = [s["drones"] for s in rows]
+        axes[0].plot(n, [s["setpoint_delivered_min"] for s in rows], marker=marker, label=f"setpoint, {mode}")
+        axes[0].plot(n, [s["sensor_delivered_min"] for s in rows], marker=marker, ls="--", label=f"sensor, {mode}")
+        axes[1].plot(n, [s["image_fps_avg"] for s in rows], marker=marker, label=f"received, {mode}")
+        axes[1].plot(n, [s["image_sent_fps_avg"] for s in rows], marker=marker, ls=":", label=f"sent, {mode}")
+        axes[2].plot(n, [s["cpu_gcs_pct"] for s in rows], marker=marker, label=f"GCS, {mode}")
+        axes[2].plot(n, [s["cpu_companion_avg_pct"] for s in rows], marker=marker, ls="--",
+                     label=f"companion (each), {mode}")
+        if mode == "router":
+            axes[2].plot(n, [s["cpu_router_pct"] for s in rows], marker=marker, ls=":", label="router")
+    for ax, title, unit in zip(axes, ("delivered (worst drone)", "image fps per drone", "CPU"),
+                               ("%", "fps", "% of one core"), strict=True):
+        ax.set_title(title)
+        ax.set_xlabel("drones")
+        ax.set_ylabel(unit)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.suptitle("one GCS, N drones with cameras, on a shared 2-core machine")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def write_report(results: list[dict[str, Any]], out: Path) -> dict[str, Path]:
+    out.mkdir(parents=True, exist_ok=True)
+    md = ["# Swarm sweep", "", table(results), "", *[f"- {v}" for v in verdicts(results)], ""]
+    (out / "results.md").write_text("\n".join(md))
+    files = {"table": out / "results.md"}
+    fig = figure(results, out / "swarm.png")
+    if fig is not None:
+        files["figure"] = fig
+    return files
