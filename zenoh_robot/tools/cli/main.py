@@ -23,7 +23,7 @@ from importlib.metadata import PackageNotFoundError, entry_points, version
 
 # Others (security: keys, router) append theirs; a module that does not exist yet is skipped.
 SUBCOMMANDS = ["topic", "node", "interface", "stats", "param", "service", "launch", "doctor", "completion",
-               "bench", "experiment", "demo", "keys", "router", "bag", "foxglove"]
+               "bench", "experiment", "demo", "keys", "router", "bag", "foxglove", "swarm"]
 EXIT_USER_ERROR = 1
 
 
