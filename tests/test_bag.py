@@ -95,8 +95,9 @@ def test_record_cli_writes_mcap_that_reads_back(talker, ns, tmp_path):
         # ~50 Hz for 3 s minus discovery: far more than a handful, at most what was sent
         assert counts[f"/{ns}/setpoint"] > 40
         assert counts[f"/{ns}/setpoint"] == counts[f"/{ns}/setpoint/pose"]
-        # every copy off the wire is kept raw (for replay), each sample once in JSON
-        assert counts[f"/_zr/raw/{ns}/setpoint"] > counts[f"/{ns}/setpoint"] * 2
+        # the recorder's subscription drops repeated copies that bring nothing new: each raw envelope
+        # (kept for replay, redundancy data and all) brought at least one sample, each sample is once in JSON
+        assert 0 < counts[f"/_zr/raw/{ns}/setpoint"] <= counts[f"/{ns}/setpoint"]
         xs = []
         for _schema, _channel, message in reader.iter_messages(topics=[f"/{ns}/setpoint"]):
             data = json.loads(message.data)
@@ -108,7 +109,7 @@ def test_record_cli_writes_mcap_that_reads_back(talker, ns, tmp_path):
 
 def record_in_process(node: Node, path: Path, seconds: float, **kw) -> BagRecorder:
     rec = BagRecorder(node, path, None, **kw).start()
-    time.sleep(seconds)
+    node.spin_until(lambda: False, seconds)    # its subscriptions deliver on the node's executor
     rec.close()
     return rec
 

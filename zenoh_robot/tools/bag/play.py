@@ -2,13 +2,19 @@
 
 The raw channels hold each sample's wire bytes, so replay puts exactly those bytes on
 the topic's key, with the original spacing (scaled by ``rate``), from a Zenoh publisher
-declared with the QoS the original publisher announced, and announces each original
-publisher in the graph (same type, hash, QoS and publisher id): typed subscriptions
-match and decode as if the flight were live. ``restamp`` rewrites the source stamp to
-now (for consumers that check age or lifespan); sequence numbers are kept.
+declared with the QoS the original publisher announced (one per original publisher:
+publishers of one topic that differed in QoS keep their own), and announces each
+original publisher in the graph (same type, hash, QoS and publisher id): typed
+subscriptions match and decode as if the flight were live. ``restamp`` rewrites the
+source stamp to now (for consumers that check age or lifespan); sequence numbers are kept.
+
+``loop``: every pass after the first speaks as new publishers (an id derived from the
+original and the pass number, announced afresh), since subscriptions deliver a
+publisher's sequence number once: the same ids again would be dropped as duplicates.
 """
 from __future__ import annotations
 
+import hashlib
 import logging
 import threading
 import time
@@ -29,6 +35,15 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("zenoh_robot.bag")
 MAX_PUBLISHERS = 1024
+ID_MASK = (1 << 63) - 1      # publisher ids are 63-bit (Publisher.publisher_id)
+
+
+def loop_publisher_id(original: int, loop: int) -> int:
+    """The id the original publisher speaks as on pass ``loop`` (0: its own)."""
+    if loop == 0:
+        return original
+    digest = hashlib.blake2b(f"{original:x}/{loop}".encode(), digest_size=8).digest()
+    return int.from_bytes(digest, "big") & ID_MASK or 1
 
 
 @dataclass
@@ -52,19 +67,19 @@ class BagPlayer:
         self.loop = loop
         self.restamp = restamp
         self.counters = PlayCounters()
-        self._pubs: dict[tuple[str, str], Any] = {}
+        self._pubs: dict[tuple[str, str, int], Any] = {}
         self._tokens: dict[tuple[str, int], Any] = {}
         self._stop = threading.Event()
 
     def stop(self) -> None:
         self._stop.set()
 
-    def _publisher(self, rec: Record) -> tuple[Any, QoSProfile, str] | None:
+    def _publisher(self, rec: Record, publisher_id: int) -> tuple[Any, QoSProfile, str] | None:
         meta = rec.channel.metadata
         topic, type_name = meta.get("zr.topic", ""), meta.get("zr.type", "")
         if not topic.startswith("/") or not type_name:
             return None
-        key = (topic, type_name)
+        key = (topic, type_name, publisher_id)
         entry = self._pubs.get(key)
         if entry is None:
             if len(self._pubs) >= MAX_PUBLISHERS:
@@ -75,7 +90,7 @@ class BagPlayer:
                 qos = SYSTEM_DEFAULT
             zpub = declare_publisher(self.node.session, topic[1:], qos)
             entry = self._pubs[key] = (zpub, qos, meta.get("zr.hash", ""))
-        return entry   # type: ignore[no-any-return]
+        return entry
 
     def _announce(self, topic: str, type_name: str, type_hash: str, qos: QoSProfile, publisher_id: int) -> None:
         tkey = (topic, publisher_id)
@@ -89,13 +104,22 @@ class BagPlayer:
         """Publish until the file ends (or forever with ``loop``); returns the counters."""
         end = None if duration is None else time.monotonic() + duration
         while not self._stop.is_set():
-            self._play_once(end)
+            self._play_once(end, self.counters.loops)
             if not self.loop or self._stop.is_set() or (end is not None and time.monotonic() >= end):
                 break
             self.counters.loops += 1
+            self._forget_tokens()    # last pass's publishers are gone; the next pass announces its own
         return self.counters
 
-    def _play_once(self, end: float | None) -> None:
+    def _forget_tokens(self) -> None:
+        for token in self._tokens.values():
+            try:
+                token.undeclare()
+            except Exception:
+                pass
+        self._tokens.clear()
+
+    def _play_once(self, end: float | None, loop: int = 0) -> None:
         t0_wall: float | None = None
         t0_log = 0
         for rec in iter_records(self.path):
@@ -107,18 +131,19 @@ class BagPlayer:
             if self.topics is not None and topic not in self.topics:
                 self.counters.skipped += 1
                 continue
-            entry = self._publisher(rec)
-            if entry is None:
-                self.counters.skipped += 1
-                continue
-            zpub, qos, type_hash = entry
             data = rec.message.data
             try:
                 env = envelope.unpack(data)
             except envelope.MalformedSample:
                 self.counters.malformed += 1
                 continue
-            self._announce(topic, env.type_name, env.type_hash or type_hash, qos, env.publisher_id)
+            entry = self._publisher(rec, env.publisher_id)
+            if entry is None:
+                self.counters.skipped += 1
+                continue
+            zpub, qos, type_hash = entry
+            pid = loop_publisher_id(env.publisher_id, loop)
+            self._announce(topic, env.type_name, env.type_hash or type_hash, qos, pid)
             if t0_wall is None:
                 t0_wall, t0_log = time.monotonic(), rec.message.log_time
                 # Give subscriptions a moment to see the graph announcement before the first sample.
@@ -128,9 +153,9 @@ class BagPlayer:
             wait = due - time.monotonic()
             if wait > 0 and self._stop.wait(wait):
                 return
-            if self.restamp:
-                data = envelope.pack(env.type_name, env.type_hash, env.publisher_id, env.seq, time.time_ns(),
-                                     env.body, env.extra)
+            if self.restamp or pid != env.publisher_id:
+                data = envelope.pack(env.type_name, env.type_hash, pid, env.seq,
+                                     time.time_ns() if self.restamp else env.stamp_ns, env.body, env.extra)
             zpub.put(data)
             self.counters.published += 1
             self.counters.per_topic[topic] = self.counters.per_topic.get(topic, 0) + 1

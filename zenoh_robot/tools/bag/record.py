@@ -5,9 +5,14 @@ Per topic (and message type) the file holds:
 - ``<topic>``: every sample as JSON, schema = JSON schema of the message fields
   (``raw_fields`` when the type is not known here), deduplicated like a subscription;
 - ``/_zr/raw<topic>``: the wire bytes exactly as they arrived (encoding
-  ``x-zenoh-robot-envelope``), with the type, hash and publisher QoS in the channel
-  metadata, so ``bag play`` republishes them bit-exact;
+  ``x-zenoh-robot-envelope``; repeated copies that brought nothing new are left out),
+  one channel per original publisher with its type, hash, id and QoS in the channel
+  metadata, so ``bag play`` republishes them bit-exact, each publisher with its own QoS;
 - foxglove.* views (``<topic>/fix``, ``<topic>/pose``, ``/tf``, ``<topic>/image``), see schemas.py.
+
+Image slices (``zenoh_robot/ImageSlice``) get no JSON channel unless ``slice_json``: as
+JSON their JPEG bytes would be base64 (a third larger, and the bulk of the file) while
+Foxglove shows the reassembled ``<topic>/image`` view and replay uses the raw channel.
 
 ``log_time`` is when the sample reached the recorder, ``publish_time`` its source stamp.
 Zenoh's thread only appends bytes to a bounded queue (overflow is dropped and counted);
@@ -41,6 +46,8 @@ PROFILE = "zenoh-robot"
 MAX_CHANNELS = 4096
 MAX_DEDUP_TOPICS = 4096
 SUMMARY_NAME = "zenoh_robot.recording"
+# Types whose JSON copy only duplicates bytes held better elsewhere (the raw channel, the image view)
+BULK_TYPES = frozenset({"zenoh_robot/ImageSlice"})
 
 
 @dataclass
@@ -51,6 +58,7 @@ class RecorderCounters:
     malformed: int = 0           # bytes that are no envelope
     duplicates: int = 0          # repeated or redundant copies (kept in the raw channel only)
     channels_refused: int = 0    # beyond MAX_CHANNELS
+    bulk_not_json: int = 0       # image slices kept raw and as views only (slice_json False)
     per_topic: dict[str, int] = field(default_factory=dict)
 
 
@@ -59,11 +67,13 @@ class BagRecorder(Tap):
 
     def __init__(self, node: "Node", path: str | Path, topics: list[str] | None = None, *,
                  views: bool = True, raw: bool = True, chunk_size: int = 1 << 20, flush_period: float = 1.0,
-                 max_queue_bytes: int = MAX_QUEUE_BYTES, compression: str = "zstd") -> None:
-        super().__init__(node, topics, max_queue_bytes=max_queue_bytes, name="bag-writer")
+                 max_queue_bytes: int = MAX_QUEUE_BYTES, compression: str = "zstd", slice_json: bool = False,
+                 exclude: str | None = None) -> None:
+        super().__init__(node, topics, max_queue_bytes=max_queue_bytes, name="bag-writer", exclude=exclude)
         self.path = Path(path)
         self.views = views
         self.raw = raw
+        self.slice_json = slice_json
         self.tick_period = flush_period
         self.counters = RecorderCounters()
         self._dedup: dict[str, Deduplicator] = {}
@@ -127,12 +137,15 @@ class BagRecorder(Tap):
         self.first_log_ns = received_ns if self.first_log_ns is None else self.first_log_ns
         self.last_log_ns = received_ns
         if self.raw:
-            cid = self._channel(topic, "raw", env.type_name, lambda: self._raw_channel(topic, env))
+            cid = self._channel(topic, "raw", f"{env.type_name}#{env.publisher_id:x}",
+                                lambda: self._raw_channel(topic, env))
             if cid is not None:
                 self._writer.add_message(cid, received_ns, data, env.stamp_ns, env.seq & 0xFFFFFFFF)
                 self.counters.raw_written += 1
         cls = schemas.local_type(env.type_name, env.type_hash)
-        cid = self._channel(topic, "json", env.type_name, lambda: self._json_channel(topic, env, cls))
+        json_wanted = self.slice_json or env.type_name not in BULK_TYPES
+        cid = self._channel(topic, "json", env.type_name, lambda: self._json_channel(topic, env, cls)) \
+            if json_wanted else None
         dedup = self._dedup.get(topic)
         if dedup is None and len(self._dedup) < MAX_DEDUP_TOPICS:
             dedup = self._dedup[topic] = Deduplicator()
@@ -141,12 +154,14 @@ class BagRecorder(Tap):
         if not fresh:
             self.counters.duplicates += 1
         for seq, stamp, body in fresh:
-            decoded = schemas.decode_body(cls, body)
+            decoded = schemas.decode_body(cls, body, with_data=json_wanted)
             if cid is not None:
                 self._writer.add_message(cid, received_ns, schemas.encode_json(decoded.data), stamp,
                                          seq & 0xFFFFFFFF)
                 self.counters.written += 1
                 self.counters.per_topic[topic] = self.counters.per_topic.get(topic, 0) + 1
+            elif not json_wanted:
+                self.counters.bulk_not_json += 1
             if self.views:
                 for view in self._view_maker.views(topic, env.type_name, decoded, stamp):
                     self._write_view(view, received_ns, stamp)
@@ -170,7 +185,10 @@ class BagRecorder(Tap):
     def _raw_channel(self, topic: str, env: envelope.Envelope) -> int:
         pubs = [p for p in self.node.graph.endpoints(topic[1:], EndpointType.PUBLISHER)
                 if p.topic_type == env.type_name]
-        meta = {"zr.topic": topic, "zr.type": env.type_name, "zr.hash": env.type_hash}
+        # This publisher's own QoS; one of the same type when its announcement has not arrived yet
+        pubs.sort(key=lambda p: p.endpoint_gid != env.publisher_id)
+        meta = {"zr.topic": topic, "zr.type": env.type_name, "zr.hash": env.type_hash,
+                "zr.publisher": f"{env.publisher_id:x}"}
         if pubs:
             meta["zr.qos"] = encode_qos(pubs[0].qos_profile)
         return self._writer.register_channel(schemas.raw_topic(topic), schemas.RAW_ENCODING, 0, meta)

@@ -101,14 +101,15 @@ class Decoded:
     data: dict[str, Any]
 
 
-def decode_body(cls: Any | None, body: Any) -> Decoded:
+def decode_body(cls: Any | None, body: Any, with_data: bool = True) -> Decoded:
+    """``with_data`` False: the message only (its JSON form, base64 and all, is not needed)."""
     if cls is None:
-        return Decoded(None, {"raw_fields": jsonable(body)})
+        return Decoded(None, {"raw_fields": jsonable(body)} if with_data else {})
     try:
         msg = type_support(cls).decode(body)
     except (TypeError, ValueError, AttributeError):
-        return Decoded(None, {"raw_fields": jsonable(body)})
-    return Decoded(msg, jsonable(msg.to_dict()))
+        return Decoded(None, {"raw_fields": jsonable(body)} if with_data else {})
+    return Decoded(msg, jsonable(msg.to_dict()) if with_data else {})
 
 
 # -- foxglove views -------------------------------------------------------------------------

@@ -1,13 +1,18 @@
 """Listen to topics as raw wire bytes, found through the graph as they appear (recorder and bridge).
 
-Zenoh's thread only appends ``(topic, bytes, receive time)`` to a bounded queue
-(overflow is dropped and counted, never blocks the network); one worker thread
-subscribes to newly announced topics and hands each sample to ``handle``. No decoding
-happens here, so any type, known or not, is carried.
+Each topic is a raw subscription of the node (``create_subscription(None, topic, cb, qos,
+raw=True)``): it shows in the graph (``zenoh-robot topic info -a``), matches publishers of
+every type, and deduplicates redundant/repeated copies like any subscription; its
+callback (on the node's executor, which must be spun) only appends ``(topic, envelope
+bytes, receive time)`` to a bounded queue (overflow is dropped and counted). One worker
+thread subscribes to newly announced topics and hands each sample to ``handle``, so disk
+writes and clients never hold up the executor. No decoding into message classes happens
+here, so any type, known or not, is carried.
 """
 from __future__ import annotations
 
 import logging
+import re
 import threading
 import time
 from collections import deque
@@ -16,10 +21,11 @@ from typing import TYPE_CHECKING, Any
 
 from zenoh_robot.graph import EndpointType, TopicEndpointInfo
 from zenoh_robot.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from zenoh_robot.qos_mapping import declare_subscriber
+from zenoh_robot.qos_compat import Compatibility, check_compatibility
 
 if TYPE_CHECKING:
     from zenoh_robot.node import Node
+    from zenoh_robot.subscription import MessageInfo, RawMessage
 
 log = logging.getLogger("zenoh_robot.bag")
 
@@ -33,6 +39,8 @@ class TapCounters:
     dropped: int = 0             # queue full: the worker (disk, CPU, clients) could not keep up
     handle_errors: int = 0       # samples the worker failed on (counted, never fatal)
     topics_refused: int = 0      # beyond MAX_TOPICS
+    topics_excluded: int = 0     # matched ``exclude``
+    resubscribed: int = 0        # a publisher our request could not match appeared: asked again
 
 
 def reader_qos(publishers: list[TopicEndpointInfo]) -> QoSProfile:
@@ -56,16 +64,20 @@ class Tap:
     tick_period = 1.0
 
     def __init__(self, node: "Node", topics: list[str] | None = None, *,
-                 max_queue_bytes: int = MAX_QUEUE_BYTES, name: str = "tap") -> None:
+                 max_queue_bytes: int = MAX_QUEUE_BYTES, name: str = "tap", exclude: str | None = None) -> None:
         self.node = node
         self.all_topics = topics is None
         self.wanted = {normalize_topic(t) for t in topics or []}
+        # ros2 bag's --exclude: a regular expression searched in each topic name
+        self.exclude = re.compile(exclude) if exclude else None
         self.max_queue_bytes = max_queue_bytes
         self.tap_counters = TapCounters()
         self.subscribed: dict[str, Any] = {}
         self._queue: deque[tuple[str, bytes, int]] = deque()
         self._queue_bytes = 0
         self._pending_topics: deque[str] = deque()
+        self._sub_qos: dict[str, QoSProfile] = {}
+        self._last_data: dict[str, bytes] = {}
         self._announced: set[str] = set()
         self._cond = threading.Condition()
         self._stop = False
@@ -90,13 +102,14 @@ class Tap:
             self.node.graph.listeners.remove(self._on_graph)
         except ValueError:
             pass
+        with self._cond:
+            self._stop = True
         for sub in list(self.subscribed.values()):
             try:
-                sub.undeclare()
+                self.node.destroy_subscription(sub)
             except Exception:
                 pass
         with self._cond:
-            self._stop = True
             self._cond.notify_all()
         if self._thread.is_alive():
             self._thread.join()
@@ -123,6 +136,18 @@ class Tap:
             return
         with self._cond:
             if topic in self._announced:
+                # A publisher our request does not match (a VOLATILE one where we asked for
+                # TRANSIENT_LOCAL) would be blocked: ask again with what every publisher serves.
+                requested = self._sub_qos.get(topic)
+                if requested is not None and check_compatibility(info.qos_profile, requested).compatibility \
+                        is Compatibility.ERROR:
+                    self._pending_topics.append(topic)
+                    self._cond.notify()
+                return
+            if self.exclude is not None and self.exclude.search(topic):
+                if len(self._announced) < MAX_TOPICS:
+                    self._announced.add(topic)      # counted once
+                self.tap_counters.topics_excluded += 1
                 return
             if len(self._announced) >= MAX_TOPICS:
                 self.tap_counters.topics_refused += 1
@@ -132,21 +157,32 @@ class Tap:
             self._cond.notify()
 
     def _subscribe(self, topic: str) -> None:
-        key = topic[1:]
-        pubs = self.node.graph.endpoints(key, EndpointType.PUBLISHER)
-        self.subscribed[topic] = declare_subscriber(self.node.session, key, reader_qos(pubs),
-                                                    lambda sample, t=topic: self._on_sample(t, sample))
+        pubs = self.node.graph.endpoints(topic[1:], EndpointType.PUBLISHER)
+        qos = reader_qos(pubs)
+        old = self.subscribed.get(topic)
+        if old is not None:
+            if old.qos == qos:
+                return
+            self.node.destroy_subscription(old)
+            self.tap_counters.resubscribed += 1
+        self._sub_qos[topic] = qos
+        self.subscribed[topic] = self.node.create_subscription(
+            None, topic, lambda raw, info, t=topic: self._on_raw(t, raw, info), qos, raw=True)
         log.info("listening to %s", topic)
 
-    def _on_sample(self, topic: str, sample: Any) -> None:
-        data = sample.payload.to_bytes()
-        now = time.time_ns()
+    def _on_raw(self, topic: str, raw: "RawMessage", info: "MessageInfo") -> None:
+        # The executor: queue and return. One envelope that brings several fresh samples (a
+        # redundant publisher's recovery) is delivered once per sample but queued once.
+        data = raw.data
+        if self._last_data.get(topic) is data or self._stop:
+            return
+        self._last_data[topic] = data
         with self._cond:
             self.tap_counters.received += 1
             if self._queue_bytes + len(data) > self.max_queue_bytes:
                 self.tap_counters.dropped += 1
                 return
-            self._queue.append((topic, data, now))
+            self._queue.append((topic, data, info.received_stamp_ns))
             self._queue_bytes += len(data)
             self._cond.notify()
 

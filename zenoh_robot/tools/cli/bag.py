@@ -2,14 +2,23 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import re
+import secrets
 import signal
 import sys
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from .common import add_zenoh_arg, cli_node, quiet_exit
+from .common import HIDDEN_PREFIX, _close_uninterrupted, add_zenoh_arg, cli_node, quiet_exit, zenoh_config
 from .main import CliError
+
+if TYPE_CHECKING:
+    from zenoh_robot.node import Node
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -25,6 +34,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     r.add_argument("--no-views", action="store_true", help="no foxglove.* views (poses, fixes, images)")
     r.add_argument("--no-raw", action="store_true", help="no raw wire bytes (the file cannot be replayed)")
+    r.add_argument("--slice-json", action=argparse.BooleanOptionalAction, default=False,
+                   help="also image slices as JSON (base64 JPEG, the bulk of a file); default: no, Foxglove "
+                        "shows the reassembled <topic>/image and replay uses the raw bytes")
+    r.add_argument("-x", "--exclude", metavar="REGEX",
+                   help="leave out topics this regular expression matches (searched in the name)")
+    _add_domain_arg(r)
     r.set_defaults(func=_record)
 
     i = ops.add_parser("info", help="topics, types, counts and rates of a recording")
@@ -42,7 +57,36 @@ def register(sub: argparse._SubParsersAction) -> None:
     pl.add_argument("--restamp", action="store_true",
                     help="source stamps = now (for consumers checking age/lifespan); default: bit-exact")
     pl.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    _add_domain_arg(pl)
     pl.set_defaults(func=_play)
+
+
+def _add_domain_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--domain", metavar="N", default=None,
+                   help="the session's domain 0..232 (env ZR_DOMAIN): only that system's topics are seen")
+
+
+@contextmanager
+def _bag_node(kind: str, args: argparse.Namespace) -> Iterator["Node"]:
+    """``cli_node`` with ``--domain`` applied to the session config."""
+    if getattr(args, "domain", None) is None:
+        with cli_node(kind, args) as node:
+            yield node
+        return
+    from zenoh_robot.node import Node
+    from zenoh_robot.session_config import SessionConfig, SessionConfigError, resolve_domain
+
+    path = zenoh_config(args)
+    try:
+        cfg = SessionConfig.from_file(path) if path else SessionConfig()
+        cfg = dataclasses.replace(cfg, domain=resolve_domain(args.domain))
+        node = Node(f"{HIDDEN_PREFIX}{kind}_{secrets.token_hex(3)}", config=cfg)
+    except SessionConfigError as exc:
+        raise CliError(str(exc).splitlines()[0]) from None
+    try:
+        yield node
+    finally:
+        _close_uninterrupted(node)
 
 
 def _need_logs_extra() -> None:
@@ -69,11 +113,16 @@ def _record(args: argparse.Namespace) -> int:
         raise CliError("name topics to record, or -a for all")
     if args.duration is not None and not args.duration > 0:
         raise CliError(f"--duration must be > 0 seconds, got {args.duration:g}")
+    if args.exclude:
+        try:
+            re.compile(args.exclude)
+        except re.error as exc:
+            raise CliError(f"--exclude {args.exclude!r}: {exc}") from None
     stop = threading.Event()
     _stop_on_sigterm(stop)
-    with cli_node("bag", args) as node:
+    with _bag_node("bag", args) as node:
         rec = BagRecorder(node, args.output, None if args.all else args.topics, views=not args.no_views,
-                          raw=not args.no_raw)
+                          raw=not args.no_raw, slice_json=args.slice_json, exclude=args.exclude)
         try:
             rec.start()
             print(f"recording to {args.output} (Ctrl-C to stop)", file=sys.stderr, flush=True)
@@ -82,7 +131,8 @@ def _record(args: argparse.Namespace) -> int:
                 left = 0.5 if end is None else min(0.5, end - time.monotonic())
                 if left <= 0:
                     break
-                stop.wait(left)
+                # The recorder's subscriptions deliver on this node's executor.
+                node.spin_until(stop.is_set, left)
         except KeyboardInterrupt:
             pass
         finally:
@@ -117,7 +167,7 @@ def _play(args: argparse.Namespace) -> int:
 
     if not args.rate > 0:
         raise CliError(f"--rate must be > 0, got {args.rate:g}")
-    with cli_node("bag_play", args) as node:
+    with _bag_node("bag_play", args) as node:
         player = BagPlayer(node, args.file, args.topics or None, rate=args.rate, loop=args.loop,
                            restamp=args.restamp)
         stop = threading.Event()

@@ -46,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
                 left = 0.5 if end is None else min(0.5, end - time.monotonic())
                 if left <= 0:
                     break
-                stop.wait(left)
+                node.spin_until(stop.is_set, left)    # the bridge's subscriptions deliver on the executor
         except KeyboardInterrupt:
             pass
         finally:
