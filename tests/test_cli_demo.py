@@ -1,0 +1,34 @@
+"""`zenoh-robot demo` interrupted by Ctrl-C: GCS, companion and simulator stop in order and the summary
+is still printed (the `make demo` path)."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import time
+
+from conftest import ROOT
+from test_cli_topic import INTERACTIVE_CLI, Lines, _stop
+
+
+def test_ctrl_c_stops_the_demo_in_order_and_prints_the_summary():
+    proc = subprocess.Popen([*INTERACTIVE_CLI, "demo", "--duration", "25"], cwd=ROOT, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True,
+                            env=dict(os.environ, COLUMNS="200", PYTHONUNBUFFERED="1"))
+    try:
+        out = Lines(proc)
+        assert out.wait_for(r"^demo: simulator, companion and GCS on localhost", 20.0), out.text()
+        time.sleep(12)                                # flying by now: take-off takes a few seconds
+        assert proc.poll() is None, out.text()        # --duration 25: still running, Ctrl-C ends it
+        os.killpg(proc.pid, signal.SIGINT)            # the terminal's Ctrl-C: the whole foreground group
+        rc = proc.wait(timeout=45)
+        time.sleep(0.2)                               # the reader thread takes the last lines
+        text = out.text()
+        assert rc in (0, 130), text
+        assert "demo: interrupted; stopping (GCS, then companion, then simulator)" in text
+        assert "demo summary" in text and "setpoint ->" in text and "sensor <-" in text, text
+        assert "no summary" not in text and "Traceback" not in text, text
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+        _stop(proc)
