@@ -59,6 +59,7 @@ from .patterns import Target, make_pattern, path_distance
 log = logging.getLogger("gcs")
 _DRONE_ID = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 MAX_LEAD_M = 5.0     # how far ahead of the drone a target may lie (the companion refuses > 10 m)
+MAX_TARGET_SPEED = 5.0   # m/s a formation target may move (the companion refuses jumps faster than 10 m/s)
 
 
 def default_client_id() -> str:
@@ -125,6 +126,7 @@ class DroneLink:
         self._anchor: Target | None = None
         self._t0 = 0.0
         self._frozen: Target | None = None
+        self._led: Target | None = None     # the last formation target (see target())
         ns = f"/{drone_id}"
         self.setpoint_pub = node.create_publisher(DroneSetpoint, f"{ns}/setpoint", q["setpoint"])
         node.create_subscription(SensorCombined, f"{ns}/sensor", self._on_sensor, q["sensor"])
@@ -204,7 +206,7 @@ class DroneLink:
         alt = -abs(self.gcs.config.altitude)
         toward = min(max(alt, z - MAX_LEAD_M), z + MAX_LEAD_M)   # climb (or descend) from where it is
         if not self.session_active:
-            self._anchor = None
+            self._anchor = self._led = None
             self._hover = Target(x, y, toward, self._hover.yaw if self._hover else 0.0)
             return self._hover
         if self._hover is None:
@@ -217,7 +219,11 @@ class DroneLink:
             self._anchor = Target(*self.slot, 0.0)
             p0, p = self.pattern(0.0), self.pattern(self.gcs.formation_time())
             tx, ty = lead(x, y, self.slot[0] + p.x - p0.x, self.slot[1] + p.y - p0.y, MAX_LEAD_M)
-            return Target(tx, ty, min(max(p.z, z - MAX_LEAD_M), z + MAX_LEAD_M), p.yaw)
+            # Led from the last target, never faster than MAX_TARGET_SPEED: no jump to refuse.
+            prev = self._led or self._hover
+            tx, ty = lead(prev.x, prev.y, tx, ty, MAX_TARGET_SPEED / self.gcs.config.rate_hz)
+            self._led = Target(tx, ty, min(max(p.z, z - MAX_LEAD_M), z + MAX_LEAD_M), p.yaw)
+            return self._led
         if self._anchor is None:
             self._anchor, self._t0 = self._hover, time.monotonic()
         p0, p = self.pattern(0.0), self.pattern(time.monotonic() - self._t0)
