@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed
 DURATION ?= 60
 ARGS ?=
 
-.PHONY: install sysdeps demo test lint bench experiment clean
+.PHONY: install sysdeps demo test lint bench experiment swarm clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -39,6 +39,10 @@ bench: install
 
 experiment: install sysdeps
 	$(BIN)/zenoh-robot experiment $(ARGS)
+
+# One GCS and N = 1, 2, 5, 10 drones with simulators and cameras, peer and via a router (docs/swarm.md).
+swarm: install
+	$(BIN)/zenoh-robot swarm --out docs/results/swarm $(ARGS)
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache
