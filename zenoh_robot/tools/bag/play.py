@@ -57,9 +57,13 @@ class PlayCounters:
 
 class BagPlayer:
     def __init__(self, node: "Node", path: str | Path, topics: list[str] | None = None, *, rate: float = 1.0,
-                 loop: bool = False, restamp: bool = False) -> None:
+                 loop: bool = False, restamp: bool = False, passes: int | None = None) -> None:
+        """``passes``: with ``loop``, stop after that many passes through the file (None: until stopped)."""
         if not rate > 0:
             raise ValueError(f"rate must be > 0, got {rate}")
+        if passes is not None and passes < 1:
+            raise ValueError(f"passes must be >= 1, got {passes}")
+        self.passes = passes
         self.node = node
         self.path = Path(path)
         self.topics = {"/" + t.strip("/") for t in topics} if topics else None
@@ -105,7 +109,8 @@ class BagPlayer:
         end = None if duration is None else time.monotonic() + duration
         while not self._stop.is_set():
             self._play_once(end, self.counters.loops)
-            if not self.loop or self._stop.is_set() or (end is not None and time.monotonic() >= end):
+            if not self.loop or self._stop.is_set() or (end is not None and time.monotonic() >= end) or \
+                    (self.passes is not None and self.counters.loops + 1 >= self.passes):
                 break
             self.counters.loops += 1
             self._forget_tokens()    # last pass's publishers are gone; the next pass announces its own

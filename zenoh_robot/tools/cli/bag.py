@@ -53,7 +53,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     pl.add_argument("file")
     pl.add_argument("topics", nargs="*", metavar="TOPIC", help="only these topics")
     pl.add_argument("--rate", type=float, default=1.0, help="speed factor (2 = twice as fast)")
-    pl.add_argument("--loop", action="store_true", help="start again at the end")
+    pl.add_argument("--loop", action="store_true",
+                    help="start again at the end (each pass as new publisher ids: subscriptions take it as new)")
+    pl.add_argument("--passes", type=int, metavar="N", help="with --loop: stop after N passes")
     pl.add_argument("--restamp", action="store_true",
                     help="source stamps = now (for consumers checking age/lifespan); default: bit-exact")
     pl.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
@@ -168,8 +170,11 @@ def _play(args: argparse.Namespace) -> int:
     if not args.rate > 0:
         raise CliError(f"--rate must be > 0, got {args.rate:g}")
     with _bag_node("bag_play", args) as node:
-        player = BagPlayer(node, args.file, args.topics or None, rate=args.rate, loop=args.loop,
-                           restamp=args.restamp)
+        try:
+            player = BagPlayer(node, args.file, args.topics or None, rate=args.rate, loop=args.loop,
+                               restamp=args.restamp, passes=args.passes)
+        except ValueError as exc:
+            raise CliError(str(exc)) from None
         stop = threading.Event()
         _stop_on_sigterm(stop)
         threading.Thread(target=lambda: (stop.wait(), player.stop()), daemon=True).start()
