@@ -201,7 +201,7 @@ def _who(e: "TopicEndpointInfo") -> str:
 def _verdict(pub: "TopicEndpointInfo", sub: "TopicEndpointInfo") -> str:
     from zenoh_robot.qos_compat import Compatibility, check_compatibility
 
-    if pub.topic_type_hash != sub.topic_type_hash:
+    if pub.topic_type_hash != sub.topic_type_hash and sub.topic_type_hash != "any":   # raw subscriptions take all
         return (f"incompatible (TYPE): publisher sends {pub.topic_type} ({pub.topic_type_hash}), "
                 f"subscription expects {sub.topic_type} ({sub.topic_type_hash})")
     v = check_compatibility(pub.qos_profile, sub.qos_profile)
