@@ -8,6 +8,7 @@ ACL when it opens) without the tools' ``cryptography`` dependency, hence its own
 """
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -59,8 +60,11 @@ def load_roles(keys_dir: str | Path) -> dict[str, NodeEntry]:
 def save_roles(d: Path, nodes: dict[str, NodeEntry]) -> None:
     data = {"nodes": {n.name: ({"role": n.role, "drones": n.drones} if n.drones else {"role": n.role})
                       for n in sorted(nodes.values(), key=lambda n: n.name)}}
-    (d / "roles.yaml").write_text("# Who is what; the ACL of every secure session is generated from this.\n"
-                                  + yaml.safe_dump(data, sort_keys=False))
+    # Written aside and renamed: a session opening meanwhile reads the old file or the new, never half.
+    tmp = d / f".roles.yaml.{os.getpid()}"
+    tmp.write_text("# Who is what; the ACL of every secure session is generated from this.\n"
+                   + yaml.safe_dump(data, sort_keys=False))
+    os.replace(tmp, d / "roles.yaml")
 
 
 
@@ -69,6 +73,13 @@ def save_roles(d: Path, nodes: dict[str, NodeEntry]) -> None:
 _ALL = ["put", "delete", "declare_subscriber", "query", "declare_queryable", "reply",
         "liveliness_token", "declare_liveliness_subscriber", "liveliness_query"]
 _GRAPH_READ = ["declare_liveliness_subscriber", "liveliness_query"]
+# Key families the library and apps use besides topics (each one's writer is restricted below).
+_GRAPH = "@zr/lv"            # graph tokens: @zr/lv/<kind>/<zid>/<gid>/<namespace>/<node>/...
+_ALIVE = "@zr/alive"         # MANUAL_BY_TOPIC / leased publishers' heartbeats: @zr/alive/<topic key>
+_CONTROL = "zr_gcs"          # a GCS's liveliness token zr_gcs/<client id> (companion.interface)
+# Nodes a GCS runs in the root namespace (gcs app, `gcs cmd`): their parameter services live at
+# @srv/<node>/... whatever the certificate's name.
+_GCS_NODES = ("gcs", "gcs_cmd")
 
 
 def domain_prefix(domain: int) -> str:
@@ -81,12 +92,11 @@ def acl_config(nodes: dict[str, NodeEntry], domain: int = 0) -> dict[str, Any]:
 
     Enforced by each session on its own links, by the certificate CN of the node at the other
     end (so a router enforces it for its clients; a client trusts the router it authenticated).
-    - gcs: reads anything; puts only on ``<drone>/setpoint`` and ``<drone>/**`` of its drones'
-      command topics, and queries their services (``@srv/<drone>/**``: command, parameters).
-    - drone ``<id>``: publishes only under ``<id>/``, subscribes under ``<id>/``, serves and replies
-      only ``@srv/<id>/**``, and declares graph tokens only for its own namespace.
-    - router: everything (it has been authenticated; it relays what its own rules admitted).
-    Egress to any known node is allowed: what reaches a node was admitted on its way in.
+    Each rule below says why it exists; tests/test_secure_apps.py runs the real companion and
+    GCS through a router with these rules and fails on any message the router drops for them.
+    Keys beginning with ``@`` are verbatim in Zenoh: ``**`` never matches ``@srv/...`` or
+    ``@zr/...``, so those families are granted by name. Egress to any known node is allowed:
+    what reaches a node was admitted on its way in.
     """
     p = domain_prefix(domain)
     rules: list[dict[str, Any]] = []
@@ -101,30 +111,65 @@ def acl_config(nodes: dict[str, NodeEntry], domain: int = 0) -> dict[str, Any]:
 
     everything = [f"{p}**", f"{p}@srv/**", f"{p}@zr/**"]
     egress = rule("egress_all", _ALL, everything, ["egress"])
-    graph_read = rule("graph_read", _GRAPH_READ, [f"{p}@zr/**"])
-    router_all = rule("router_all", _ALL, everything)
+    # Every node keeps the graph (node list, matching, QoS checks, duplicate-name refusal).
+    graph_read = rule("graph_read", _GRAPH_READ, [f"{p}{_GRAPH}/**"])
+    router_all = rule("router_all", _ALL, everything + [f"{p}{_CONTROL}/**"])
     for node in sorted(nodes.values(), key=lambda n: n.name):
         subjects.append({"id": f"cn_{node.name}", "cert_common_names": [node.name]})
         if node.role == "router":
             own = [router_all, egress]
         elif node.role == "drone":
-            ns = f"{p}{node.name}"
-            own = [egress, graph_read,
-                   rule(f"drone_{node.name}_data", ["put", "delete", "declare_subscriber"], [f"{ns}/**"]),
-                   rule(f"drone_{node.name}_srv", ["declare_queryable", "reply"], [f"{p}@srv/{node.name}/**"]),
-                   rule(f"drone_{node.name}_graph", ["liveliness_token"], [f"{p}@zr/lv/*/*/*/{node.name}/**"]),
-                   # Its own setpoints come from a GCS only: a compromised drone must not steer itself
-                   # (or a second drone process with its certificate). Zenoh: deny beats allow.
-                   rule(f"drone_{node.name}_no_setpoint", ["put", "delete"], [f"{ns}/setpoint"], permission="deny")]
+            own = [egress, graph_read, *_drone_rules(rule, p, node.name)]
         else:
-            own = [egress, graph_read,
-                   rule(f"gcs_{node.name}_read", ["declare_subscriber"], [f"{p}**"]),
-                   rule(f"gcs_{node.name}_own", ["put", "delete", "declare_queryable", "reply", "query"],
-                        [f"{p}{node.name}/**", f"{p}@srv/{node.name}/**"]),
-                   rule(f"gcs_{node.name}_graph", ["liveliness_token"], [f"{p}@zr/lv/**"])]
-            if node.drones:
-                own.append(rule(f"gcs_{node.name}_command", ["put", "query"],
-                                [k for d in node.drones for k in (f"{p}{d}/setpoint", f"{p}@srv/{d}/**")]))
+            own = [egress, graph_read, *_gcs_rules(rule, p, node)]
         policies.append({"id": f"policy_{node.name}", "rules": own, "subjects": [f"cn_{node.name}"]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
             "policies": policies}
+
+
+def _drone_rules(rule: Any, p: str, name: str) -> list[str]:
+    ns = f"{p}{name}"
+    return [
+        # Its telemetry, images, events, statistics, MAVLink tunnel: all under its own namespace,
+        # so a drone can neither spoof another's state nor read another's (unless a GCS relays it).
+        rule(f"drone_{name}_data", ["put", "delete", "declare_subscriber"], [f"{ns}/**"]),
+        # Its command and parameter services (@srv/<id>/command, @srv/<id>/companion/...).
+        rule(f"drone_{name}_srv", ["declare_queryable", "reply"], [f"{p}@srv/{name}/**"]),
+        # Graph tokens only for nodes in its own namespace.
+        rule(f"drone_{name}_graph", ["liveliness_token"], [f"{p}{_GRAPH}/*/*/*/{name}/**"]),
+        # Heartbeats of its own publishers, and the GCS's heartbeats on its setpoint subscription.
+        rule(f"drone_{name}_alive", ["put", "declare_subscriber"], [f"{p}{_ALIVE}/{name}/**"]),
+        # The companion watches which GCSs are alive (control passes on when the holder's token goes).
+        rule(f"drone_{name}_control_watch", _GRAPH_READ, [f"{p}{_CONTROL}/**"]),
+        # Its own setpoints (and their liveliness) come from a GCS only: a compromised drone must not
+        # steer itself or keep a dead GCS's stream looking alive. Zenoh: deny beats allow.
+        rule(f"drone_{name}_no_setpoint", ["put", "delete"], [f"{ns}/setpoint", f"{p}{_ALIVE}/{name}/setpoint"],
+             permission="deny"),
+    ]
+
+
+def _gcs_rules(rule: Any, p: str, node: NodeEntry) -> list[str]:
+    name = node.name
+    own_srv = [f"{p}@srv/{name}/**", *(f"{p}@srv/{n}/**" for n in _GCS_NODES)]
+    out = [
+        # An operator's station sees everything: telemetry of every drone, statistics, heartbeats.
+        rule(f"gcs_{name}_read", ["declare_subscriber"], [f"{p}**", f"{p}{_ALIVE}/**"]),
+        # Its own topics and services; its root-namespace nodes' parameter services.
+        rule(f"gcs_{name}_own", ["put", "delete", "declare_queryable", "reply", "query"],
+             [f"{p}{name}/**", *own_srv]),
+        # Graph tokens of its nodes: root namespace (gcs, gcs_cmd) or its own.
+        rule(f"gcs_{name}_graph", ["liveliness_token"], [f"{p}{_GRAPH}/*/*/*/%/**", f"{p}{_GRAPH}/*/*/*/{name}/**"]),
+        # The liveliness token by which drones know it is alive (zr_gcs/<client id>), and the others'.
+        # The client id is free text: any authorised GCS may use any id (docs/security.md, limits).
+        rule(f"gcs_{name}_control", ["liveliness_token", *_GRAPH_READ], [f"{p}{_CONTROL}/*", f"{p}{_CONTROL}/**"]),
+    ]
+    if node.drones:
+        keys = []
+        for d in node.drones:
+            keys += [f"{p}{d}/setpoint",            # the setpoint stream
+                     f"{p}{_ALIVE}/{d}/setpoint",   # its heartbeats (leased / manual liveliness)
+                     f"{p}{d}/statistics/**",       # its subscriptions' statistics, filed under the drone
+                     f"{p}{d}/mavlink/up",          # QGC's MAVLink through the tunnel (companion decides)
+                     f"{p}@srv/{d}/**"]             # commands and the companion's parameter services
+        out.append(rule(f"gcs_{name}_command", ["put", "query"], keys))
+    return out

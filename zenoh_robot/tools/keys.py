@@ -18,6 +18,7 @@ ImportError that says so.
 from __future__ import annotations
 
 import datetime as dt
+import fcntl
 import ipaddress
 import json
 import os
@@ -25,16 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from zenoh_robot._acl import (  # noqa: F401 - acl_config, domain_prefix re-exported for the CLI
-    ROLES,
-    KeysError,
-    NodeEntry,
-    _check_name,
-    acl_config,
-    domain_prefix,
-    load_roles,
-    save_roles,
-)
+from zenoh_robot._acl import ROLES, KeysError, NodeEntry, _check_name, acl_config, domain_prefix, load_roles, save_roles  # noqa: F401 - re-exported for the CLI
 
 try:
     from cryptography import x509
@@ -140,9 +132,13 @@ def issue(keys_dir: str | Path, name: str, role: str, drones: list[str] | None =
             .sign(ca_key, hashes.SHA256()))
     _write_private(d / f"{name}.key", _key_pem(key))
     (d / f"{name}.pem").write_bytes(cert.public_bytes(serialization.Encoding.PEM))
-    nodes = load_roles(d)
-    nodes[name] = NodeEntry(name, role, drones)
-    save_roles(d, nodes)
+    # Read-modify-write under a lock: two `keys issue` run at once (a script issuing a fleet)
+    # must not lose each other's entry, or a node with a valid certificate has no role at all.
+    with open(d / ".roles.lock", "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        nodes = load_roles(d)
+        nodes[name] = NodeEntry(name, role, drones)
+        save_roles(d, nodes)
     return d / f"{name}.pem"
 
 
