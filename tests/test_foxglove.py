@@ -117,6 +117,7 @@ def test_bridge_advertises_topics_and_streams_camera_frames(ns: str, tmp_path: P
     assert channels["/tf"]["schemaName"] == "foxglove.FrameTransform"
     image = channels[f"/{ns}/image/image"]
     assert image["schemaName"] == "foxglove.CompressedImage" and image["encoding"] == "protobuf"
+    assert f"/{ns}/image" not in channels, "the slices are sent as frames only, not as base64 JSON"
     # The frame, reassembled from its slices, re-encoded as one JPEG inside the protobuf message.
     assert b"\xff\xd8\xff" in payload and b"jpeg" in payload, payload[:40]
     assert bridge.returncode == 0, out

@@ -5,7 +5,8 @@
 advertised as it appears: as JSON with a JSON schema from its message fields (plots,
 raw messages), plus the foxglove.* views of tools/bag/schemas.py (map fix, 3D pose and
 ``/tf`` of each vehicle, setpoint poses, camera frames as CompressedImage/RawImage).
-The same mapping writes the MCAP flight logs, so a recording looks like the live view.
+The same mapping writes the MCAP flight logs, so a recording looks like the live view
+(image slices, too, are sent as the reassembled frames only unless ``slice_json``).
 
 The server binds 127.0.0.1 unless told otherwise: a bridge exposes every topic, so
 reaching it from another machine is a decision (``--host``), not a default.
@@ -17,25 +18,20 @@ import logging
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from zenoh_robot._wire import envelope
-from zenoh_robot._wire.redundancy import Deduplicator
-
 from .bag import schemas
-from .bag.tap import MAX_QUEUE_BYTES, Tap
+from .bag.tap import MAX_QUEUE_BYTES, Tap, TapSample
 
 if TYPE_CHECKING:
     from zenoh_robot.node import Node
 
 log = logging.getLogger("zenoh_robot.foxglove")
 MAX_CHANNELS = 4096
-MAX_DEDUP_TOPICS = 4096
 
 
 @dataclass
 class BridgeCounters:
     forwarded: int = 0           # JSON messages logged
     views: int = 0               # foxglove.* messages logged
-    malformed: int = 0
     channels_refused: int = 0
 
 
@@ -43,8 +39,9 @@ class FoxgloveBridge(Tap):
     """``FoxgloveBridge(node, port=8765).start()``; ``close()`` stops the server too."""
 
     def __init__(self, node: "Node", topics: list[str] | None = None, *, host: str = "127.0.0.1",
-                 port: int = 8765, max_queue_bytes: int = MAX_QUEUE_BYTES) -> None:
+                 port: int = 8765, max_queue_bytes: int = MAX_QUEUE_BYTES, slice_json: bool = False) -> None:
         super().__init__(node, topics, max_queue_bytes=max_queue_bytes, name="foxglove-bridge")
+        self.slice_json = slice_json
         import foxglove
 
         self._foxglove = foxglove
@@ -54,7 +51,6 @@ class FoxgloveBridge(Tap):
         self.host, self.port = host, self.server.port
         self.counters = BridgeCounters()
         self._channels: dict[tuple[str, str], Any] = {}
-        self._dedup: dict[str, Deduplicator] = {}
         self._view_maker = schemas.ViewMaker()
 
     @property
@@ -83,36 +79,27 @@ class FoxgloveBridge(Tap):
             ch = self._channels[key] = make()
         return ch
 
-    def handle(self, topic: str, data: bytes, received_ns: int) -> None:
-        try:
-            env = envelope.unpack(data)
-        except envelope.MalformedSample:
-            self.counters.malformed += 1
-            return
-        cls = schemas.local_type(env.type_name, env.type_hash)
+    def handle(self, sample: TapSample) -> None:
+        topic, received_ns = sample.topic, sample.received_ns
+        cls = schemas.local_type(sample.type_name, sample.type_hash)
         fx = self._foxglove
 
         def json_channel() -> Any:
             schema = schemas.object_schema(cls) if cls is not None else schemas.RAW_FIELDS_SCHEMA
-            name = env.type_name if cls is not None else f"{env.type_name}#raw"
+            name = sample.type_name if cls is not None else f"{sample.type_name}#raw"
             return fx.Channel(topic, schema=fx.Schema(name=name, encoding=schemas.JSON_SCHEMA,
                                                       data=json.dumps(schema).encode()),
                               message_encoding="json", context=self.context,
-                              metadata={"zr.type": env.type_name, "zr.hash": env.type_hash})
+                              metadata={"zr.type": sample.type_name, "zr.hash": sample.type_hash})
 
-        ch = self._channel(topic, env.type_name, json_channel)
-        dedup = self._dedup.get(topic)
-        if dedup is None and len(self._dedup) < MAX_DEDUP_TOPICS:
-            dedup = self._dedup[topic] = Deduplicator()
-        fresh = dedup.fresh(env.publisher_id, env.seq, env.stamp_ns, env.body, env.extra) if dedup is not None else \
-            [(env.seq, env.stamp_ns, env.body)]
-        for _seq, stamp, body in fresh:
-            decoded = schemas.decode_body(cls, body)
-            if ch is not None:
-                ch.log(schemas.encode_json(decoded.data), log_time=received_ns)
-                self.counters.forwarded += 1
-            for view in self._view_maker.views(topic, env.type_name, decoded, stamp):
-                self._log_view(view, received_ns)
+        json_wanted = self.slice_json or sample.type_name not in schemas.BULK_TYPES
+        ch = self._channel(topic, sample.type_name, json_channel) if json_wanted else None
+        decoded = schemas.decode_body(cls, sample.fields, with_data=json_wanted)
+        if ch is not None:
+            ch.log(schemas.encode_json(decoded.data), log_time=received_ns)
+            self.counters.forwarded += 1
+        for view in self._view_maker.views(topic, sample.type_name, decoded, sample.stamp_ns):
+            self._log_view(view, received_ns)
 
     def _log_view(self, view: schemas.View, received_ns: int) -> None:
         schema = view.message.get_schema()

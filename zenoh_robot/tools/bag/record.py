@@ -15,10 +15,11 @@ JSON their JPEG bytes would be base64 (a third larger, and the bulk of the file)
 Foxglove shows the reassembled ``<topic>/image`` view and replay uses the raw channel.
 
 ``log_time`` is when the sample reached the recorder, ``publish_time`` its source stamp.
-Zenoh's thread only appends bytes to a bounded queue (overflow is dropped and counted);
-one writer thread decodes and writes. Chunks are closed at least every ``flush_period``
-so a recorder killed mid-flight loses at most that much: the file still reads up to its
-last chunk (see ``info.iter_records``).
+The topics are raw subscriptions of the node (see tap.py): their callbacks only queue the
+samples (bounded; overflow is dropped and counted); one writer thread decodes and writes.
+Chunks are closed at least every ``flush_period`` so a recorder killed mid-flight loses at
+most that much: the file still reads up to its last chunk (see ``info.iter_records``).
+A raw record's ``publish_time``/``sequence`` are those of the first new sample its envelope brought.
 """
 from __future__ import annotations
 
@@ -30,12 +31,10 @@ from typing import TYPE_CHECKING, Any
 
 from mcap.writer import CompressionType, Writer
 
-from zenoh_robot._wire import envelope
-from zenoh_robot._wire.redundancy import Deduplicator
 from zenoh_robot.graph import EndpointType, encode_qos
 
 from . import schemas
-from .tap import MAX_QUEUE_BYTES, Tap
+from .tap import MAX_QUEUE_BYTES, Tap, TapSample
 
 if TYPE_CHECKING:
     from zenoh_robot.node import Node
@@ -44,10 +43,8 @@ log = logging.getLogger("zenoh_robot.bag")
 
 PROFILE = "zenoh-robot"
 MAX_CHANNELS = 4096
-MAX_DEDUP_TOPICS = 4096
 SUMMARY_NAME = "zenoh_robot.recording"
-# Types whose JSON copy only duplicates bytes held better elsewhere (the raw channel, the image view)
-BULK_TYPES = frozenset({"zenoh_robot/ImageSlice"})
+BULK_TYPES = schemas.BULK_TYPES
 
 
 @dataclass
@@ -55,8 +52,6 @@ class RecorderCounters:
     written: int = 0             # JSON messages written (after deduplication)
     raw_written: int = 0
     views_written: int = 0
-    malformed: int = 0           # bytes that are no envelope
-    duplicates: int = 0          # repeated or redundant copies (kept in the raw channel only)
     channels_refused: int = 0    # beyond MAX_CHANNELS
     bulk_not_json: int = 0       # image slices kept raw and as views only (slice_json False)
     per_topic: dict[str, int] = field(default_factory=dict)
@@ -76,7 +71,6 @@ class BagRecorder(Tap):
         self.slice_json = slice_json
         self.tick_period = flush_period
         self.counters = RecorderCounters()
-        self._dedup: dict[str, Deduplicator] = {}
         self._schemas: dict[str, int] = {}
         self._channels: dict[tuple[str, str, str], int] = {}
         self._view_maker = schemas.ViewMaker()
@@ -128,43 +122,31 @@ class BagRecorder(Tap):
             cid = self._channels[key] = make()
         return cid
 
-    def handle(self, topic: str, data: bytes, received_ns: int) -> None:
-        try:
-            env = envelope.unpack(data)
-        except envelope.MalformedSample:
-            self.counters.malformed += 1
-            return
+    def handle(self, sample: TapSample) -> None:
+        topic, received_ns = sample.topic, sample.received_ns
         self.first_log_ns = received_ns if self.first_log_ns is None else self.first_log_ns
         self.last_log_ns = received_ns
-        if self.raw:
-            cid = self._channel(topic, "raw", f"{env.type_name}#{env.publisher_id:x}",
-                                lambda: self._raw_channel(topic, env))
+        if self.raw and sample.data is not None:
+            cid = self._channel(topic, "raw", f"{sample.type_name}#{sample.publisher_id:x}",
+                                lambda: self._raw_channel(topic, sample))
             if cid is not None:
-                self._writer.add_message(cid, received_ns, data, env.stamp_ns, env.seq & 0xFFFFFFFF)
+                self._writer.add_message(cid, received_ns, sample.data, sample.stamp_ns, sample.seq & 0xFFFFFFFF)
                 self.counters.raw_written += 1
-        cls = schemas.local_type(env.type_name, env.type_hash)
-        json_wanted = self.slice_json or env.type_name not in BULK_TYPES
-        cid = self._channel(topic, "json", env.type_name, lambda: self._json_channel(topic, env, cls)) \
+        cls = schemas.local_type(sample.type_name, sample.type_hash)
+        json_wanted = self.slice_json or sample.type_name not in BULK_TYPES
+        cid = self._channel(topic, "json", sample.type_name, lambda: self._json_channel(topic, sample, cls)) \
             if json_wanted else None
-        dedup = self._dedup.get(topic)
-        if dedup is None and len(self._dedup) < MAX_DEDUP_TOPICS:
-            dedup = self._dedup[topic] = Deduplicator()
-        fresh = dedup.fresh(env.publisher_id, env.seq, env.stamp_ns, env.body, env.extra) if dedup is not None else \
-            [(env.seq, env.stamp_ns, env.body)]
-        if not fresh:
-            self.counters.duplicates += 1
-        for seq, stamp, body in fresh:
-            decoded = schemas.decode_body(cls, body, with_data=json_wanted)
-            if cid is not None:
-                self._writer.add_message(cid, received_ns, schemas.encode_json(decoded.data), stamp,
-                                         seq & 0xFFFFFFFF)
-                self.counters.written += 1
-                self.counters.per_topic[topic] = self.counters.per_topic.get(topic, 0) + 1
-            elif not json_wanted:
-                self.counters.bulk_not_json += 1
-            if self.views:
-                for view in self._view_maker.views(topic, env.type_name, decoded, stamp):
-                    self._write_view(view, received_ns, stamp)
+        decoded = schemas.decode_body(cls, sample.fields, with_data=json_wanted)
+        if cid is not None:
+            self._writer.add_message(cid, received_ns, schemas.encode_json(decoded.data), sample.stamp_ns,
+                                     sample.seq & 0xFFFFFFFF)
+            self.counters.written += 1
+            self.counters.per_topic[topic] = self.counters.per_topic.get(topic, 0) + 1
+        elif not json_wanted:
+            self.counters.bulk_not_json += 1
+        if self.views:
+            for view in self._view_maker.views(topic, sample.type_name, decoded, sample.stamp_ns):
+                self._write_view(view, received_ns, sample.stamp_ns)
 
     def _write_view(self, view: schemas.View, received_ns: int, stamp_ns: int) -> None:
         schema = view.message.get_schema()
@@ -175,14 +157,14 @@ class BagRecorder(Tap):
             self._writer.add_message(cid, received_ns, bytes(view.message.encode()), stamp_ns)
             self.counters.views_written += 1
 
-    def _json_channel(self, topic: str, env: envelope.Envelope, cls: Any) -> int:
+    def _json_channel(self, topic: str, env: TapSample, cls: Any) -> int:
         schema = schemas.object_schema(cls) if cls is not None else schemas.RAW_FIELDS_SCHEMA
         name = env.type_name if cls is not None else f"{env.type_name}#raw"
         sid = self._schema_id(name, schemas.JSON_SCHEMA, json.dumps(schema).encode())
         return self._writer.register_channel(topic, "json", sid, {"zr.type": env.type_name,
                                                                   "zr.hash": env.type_hash})
 
-    def _raw_channel(self, topic: str, env: envelope.Envelope) -> int:
+    def _raw_channel(self, topic: str, env: TapSample) -> int:
         pubs = [p for p in self.node.graph.endpoints(topic[1:], EndpointType.PUBLISHER)
                 if p.topic_type == env.type_name]
         # This publisher's own QoS; one of the same type when its announcement has not arrived yet

@@ -264,6 +264,10 @@ class ViewMaker:
                 for stamp, jpeg in frames.add(msg)]
 
 
+# Types whose JSON copy only duplicates bytes held better elsewhere (the raw channel, the image view)
+BULK_TYPES = frozenset({"zenoh_robot/ImageSlice"})
+
+
 def raw_topic(topic: str) -> str:
     return RAW_PREFIX + topic
 

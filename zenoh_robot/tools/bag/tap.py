@@ -4,10 +4,12 @@ Each topic is a raw subscription of the node (``create_subscription(None, topic,
 raw=True)``): it shows in the graph (``zenoh-robot topic info -a``), matches publishers of
 every type, and deduplicates redundant/repeated copies like any subscription; its
 callback (on the node's executor, which must be spun) only appends ``(topic, envelope
-bytes, receive time)`` to a bounded queue (overflow is dropped and counted). One worker
-thread subscribes to newly announced topics and hands each sample to ``handle``, so disk
-writes and clients never hold up the executor. No decoding into message classes happens
-here, so any type, known or not, is carried.
+bytes, envelope header and msgpack fields, receive time)`` to a bounded queue (overflow is
+dropped and counted). One worker thread subscribes to newly announced topics and hands each
+sample (a :class:`TapSample`) to ``handle``, so disk writes and clients never hold up the
+executor. The subscription has already unpacked, checked and deduplicated the envelope: the
+worker neither unpacks it again nor keeps its own deduplication. No decoding into message
+classes happens here, so any type, known or not, is carried.
 """
 from __future__ import annotations
 
@@ -33,14 +35,33 @@ MAX_TOPICS = 512                 # a peer inventing topics cannot grow a tap wit
 MAX_QUEUE_BYTES = 64 << 20       # samples waiting for the worker thread
 
 
+@dataclass(slots=True)
+class TapSample:
+    """One fresh sample of ``topic``. ``data``: the envelope that brought it, or None when that
+    envelope came with the previous sample (one envelope can bring several: recovered ones)."""
+    topic: str
+    data: bytes | None
+    received_ns: int
+    type_name: str
+    type_hash: str
+    publisher_id: int
+    seq: int
+    stamp_ns: int
+    fields: Any                  # the body as msgpack decoded it
+
+
 @dataclass
 class TapCounters:
-    received: int = 0            # samples off the wire
+    received: int = 0            # samples delivered by the subscriptions
     dropped: int = 0             # queue full: the worker (disk, CPU, clients) could not keep up
     handle_errors: int = 0       # samples the worker failed on (counted, never fatal)
     topics_refused: int = 0      # beyond MAX_TOPICS
     topics_excluded: int = 0     # matched ``exclude``
     resubscribed: int = 0        # a publisher our request could not match appeared: asked again
+    # the subscriptions' own counts (see Subscription): bytes that were no envelope, queue overflow
+    sub_malformed: int = 0
+    sub_dropped: int = 0
+    sub_lost: int = 0
 
 
 def reader_qos(publishers: list[TopicEndpointInfo]) -> QoSProfile:
@@ -58,7 +79,7 @@ def normalize_topic(topic: str) -> str:
 
 
 class Tap:
-    """Base: ``start()``, then ``handle(topic, data, received_ns)`` on the worker; ``tick()`` every
+    """Base: ``start()``, then ``handle(sample)`` on the worker; ``tick()`` every
     ``tick_period`` s there too; ``close()`` drains the queue and calls ``finish()`` on the worker."""
 
     tick_period = 1.0
@@ -73,7 +94,7 @@ class Tap:
         self.max_queue_bytes = max_queue_bytes
         self.tap_counters = TapCounters()
         self.subscribed: dict[str, Any] = {}
-        self._queue: deque[tuple[str, bytes, int]] = deque()
+        self._queue: deque[tuple[TapSample, int]] = deque()    # (sample, bytes it holds)
         self._queue_bytes = 0
         self._pending_topics: deque[str] = deque()
         self._sub_qos: dict[str, QoSProfile] = {}
@@ -102,13 +123,14 @@ class Tap:
             self.node.graph.listeners.remove(self._on_graph)
         except ValueError:
             pass
-        with self._cond:
-            self._stop = True
-        for sub in list(self.subscribed.values()):
+        for sub in list(self.subscribed.values()):     # counted before finish() writes the counters
             try:
+                self._count_subscription(sub)
                 self.node.destroy_subscription(sub)
             except Exception:
                 pass
+        with self._cond:
+            self._stop = True
         with self._cond:
             self._cond.notify_all()
         if self._thread.is_alive():
@@ -117,8 +139,14 @@ class Tap:
             self._drain()
             self.finish()
 
+    def _count_subscription(self, sub: Any) -> None:
+        c = self.tap_counters
+        c.sub_malformed += sub.counters.malformed
+        c.sub_dropped += sub.counters.dropped
+        c.sub_lost += sub.counters.lost
+
     # -- hooks ----------------------------------------------------------------------------
-    def handle(self, topic: str, data: bytes, received_ns: int) -> None:
+    def handle(self, sample: TapSample) -> None:
         raise NotImplementedError
 
     def tick(self) -> None:
@@ -163,6 +191,7 @@ class Tap:
         if old is not None:
             if old.qos == qos:
                 return
+            self._count_subscription(old)
             self.node.destroy_subscription(old)
             self.tap_counters.resubscribed += 1
         self._sub_qos[topic] = qos
@@ -172,18 +201,25 @@ class Tap:
 
     def _on_raw(self, topic: str, raw: "RawMessage", info: "MessageInfo") -> None:
         # The executor: queue and return. One envelope that brings several fresh samples (a
-        # redundant publisher's recovery) is delivered once per sample but queued once.
-        data = raw.data
-        if self._last_data.get(topic) is data or self._stop:
+        # redundant publisher's recovery) is delivered once per sample: its bytes go with the first.
+        if self._stop:
             return
-        self._last_data[topic] = data
+        data: bytes | None = raw.data
+        size = len(raw.data)     # a bound for each sample it brought too
+        if self._last_data.get(topic) is data:
+            data = None
+        else:
+            self._last_data[topic] = raw.data
+        sample = TapSample(topic, data, info.received_stamp_ns, raw.type_name, raw.type_hash, info.publisher_id,
+                           info.seq, info.source_stamp_ns, raw.fields)
         with self._cond:
             self.tap_counters.received += 1
-            if self._queue_bytes + len(data) > self.max_queue_bytes:
+            if self._queue_bytes + size > self.max_queue_bytes:
                 self.tap_counters.dropped += 1
+                self._last_data.pop(topic, None)     # the envelope's bytes go with its next sample, if any
                 return
-            self._queue.append((topic, data, info.received_stamp_ns))
-            self._queue_bytes += len(data)
+            self._queue.append((sample, size))
+            self._queue_bytes += size
             self._cond.notify()
 
     # -- worker thread --------------------------------------------------------------------
@@ -221,10 +257,10 @@ class Tap:
                 self._pending_topics.clear()
                 item = self._queue.popleft() if self._queue else None
                 if item is not None:
-                    self._queue_bytes -= len(item[1])
+                    self._queue_bytes -= item[1]
             for topic in topics:
                 if not self._stop:
                     self._safe(self._subscribe, topic)
             if item is None:
                 return
-            self._safe(self.handle, *item)
+            self._safe(self.handle, item[0])

@@ -144,7 +144,8 @@ def _record(args: argparse.Namespace) -> int:
     cpu = resource.getrusage(resource.RUSAGE_SELF)
     size = Path(args.output).stat().st_size
     print(f"wrote {args.output}: {size / 1e6:.2f} MB, {c.written} messages on {len(c.per_topic)} topics "
-          f"({c.raw_written} raw, {c.views_written} views, {t.dropped} dropped, {c.malformed} malformed); "
+          f"({c.raw_written} raw, {c.views_written} views, {t.dropped + t.sub_dropped} dropped, "
+          f"{t.sub_malformed} malformed); "
           f"cpu {cpu.ru_utime + cpu.ru_stime:.1f} s, max rss {cpu.ru_maxrss / 1024:.0f} MB",
           file=sys.stderr, flush=True)
     return 0
