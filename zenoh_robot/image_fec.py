@@ -1,0 +1,323 @@
+"""Images that arrive whole or not at all: one JPEG per frame, cut into shares plus parity.
+
+Cutting a frame into independent JPEG strips (``image_transport``) turns one lost packet
+into one stale strip, but a frame then depends on ~8 packets and is whole only if all of
+them arrive: at 30 % loss ~1 % of frames are. Here a frame is one JPEG (smaller than the
+strips' sum: every strip repeats the JPEG headers), split into ``k`` MTU-sized shares,
+and Reed-Solomon parity (zfec, as wfb-ng does) brings the block to ``n`` shares of which
+*any* ``k`` rebuild the frame. A frame is whole iff >= k of its n shares arrive, and a
+shown frame is always entirely fresh.
+
+``n`` follows the loss: the smallest n with P(>= k of n arrive) >= ``target`` under
+independent loss p (binomial tail), clamped to ``max_expansion`` x k (a bandwidth ceiling)
+and zfec's 256. p is a configured value or the receiver's measurement fed back
+(``_wire/feedback.LinkMonitor``: ``monitor.adapt(image_pub.set_loss)``).
+
+Usage::
+
+    pub = FecImagePublisher(node, "image", qos.IMAGE, loss=0.1)
+    pub.publish(frame)                                   # HxW or HxWx3 uint8
+    FecImageSubscription(node, "image", on_image)        # on_image(Image, FecFrameInfo)
+"""
+from __future__ import annotations
+
+import math
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .message import Message, message, ros_field
+from .msgs import Header, Image
+from .qos import IMAGE, QoSProfile
+
+DEFAULT_SHARE_BYTES = 1100    # one UDP datagram with Zenoh's headers at a 1500-byte MTU
+MAX_SHARES = 256              # zfec's limit on n
+MAX_SHARE_BYTES = 64 << 10    # receive-side bound, checked before anything is stored
+MAX_JPEG_BYTES = 16 << 20
+MAX_SIDE = 16384
+STALE_FRAMES_TO_RESTART = 2   # as image_transport: older frames that keep coming are a restarted stream
+LOSS_WINDOW_FRAMES = 60       # frames over which the receiver measures share loss
+
+
+@message(name="zenoh_robot/ImageShare")
+class ImageShare(Message):
+    header: Header = None  # type: ignore[assignment]    # capture stamp; header.seq is the frame number
+    index: int = ros_field("uint16", 0)     # share number: < k data, >= k parity
+    k: int = ros_field("uint16", 0)         # shares needed to rebuild the frame
+    n: int = ros_field("uint16", 0)         # shares sent for the frame
+    size: int = ros_field("uint32", 0)      # bytes of the frame's JPEG (the last data share is padded)
+    height: int = ros_field("uint32", 0)
+    width: int = ros_field("uint32", 0)
+    encoding: str = "rgb8"                  # of the decoded frame: rgb8 or mono8
+    data: bytes = b""
+
+    def __post_init__(self) -> None:
+        if self.header is None:
+            self.header = Header()
+
+
+@dataclass(slots=True)
+class FecFrameInfo:
+    """What the viewer is shown: a FEC frame is whole or not delivered, so always fully fresh."""
+    frame: int
+    shares_received: int      # when the frame was rebuilt (== k)
+    k: int
+    n: int
+    age_ms: float             # delivery time - capture stamp
+    complete: bool = True
+    fresh_fraction: float = 1.0
+
+    @property
+    def oldest_strip_age_ms(self) -> float:
+        return self.age_ms
+
+
+def shares_for(k: int, loss: float, target: float = 0.99, max_expansion: float = 3.0) -> int:
+    """Smallest n >= k with P(at least k of n arrive) >= ``target`` at independent loss ``loss``,
+    clamped to ceil(max_expansion * k) and MAX_SHARES."""
+    if not 1 <= k <= MAX_SHARES:
+        raise ValueError(f"k must be 1..{MAX_SHARES}, got {k}")
+    p = min(max(float(loss), 0.0), 0.99)
+    ceiling = max(k, min(MAX_SHARES, math.ceil(max_expansion * k)))
+    if p == 0.0:
+        return min(ceiling, k + 1) if k < ceiling else k   # one spare share: loss is rarely exactly 0
+    q = 1.0 - p
+    for n in range(k, ceiling + 1):
+        # P(X >= k), X ~ Binomial(n, q): sum of the upper tail.
+        tail = sum(math.comb(n, i) * q ** i * p ** (n - i) for i in range(k, n + 1))
+        if tail >= target:
+            return n
+    return ceiling
+
+
+def split(blob: bytes, share_bytes: int, loss: float, target: float = 0.99,
+          max_expansion: float = 3.0) -> tuple[int, int, list[bytes]]:
+    """``blob`` as (k, n, n shares); any k of them rebuild it (:func:`join`)."""
+    import zfec   # the [image] extra
+
+    k = max(1, min(MAX_SHARES - 1, math.ceil(len(blob) / share_bytes)))
+    size = math.ceil(len(blob) / k)
+    padded = blob + bytes(k * size - len(blob))
+    blocks = [padded[i * size:(i + 1) * size] for i in range(k)]
+    n = shares_for(k, loss, target, max_expansion)
+    if n == k:
+        return k, n, blocks
+    return k, n, [bytes(b) for b in zfec.Encoder(k, n).encode(blocks)]
+
+
+def join(k: int, n: int, size: int, shares: dict[int, bytes]) -> bytes:
+    """The blob back from any ``k`` shares (index -> bytes) of the ``n``; ValueError if fewer."""
+    import zfec
+
+    if len(shares) < k:
+        raise ValueError(f"{len(shares)} of {k} shares")
+    if all(i in shares for i in range(k)):      # every data share: no decoding needed
+        blob = b"".join(shares[i] for i in range(k))
+    else:
+        nums = sorted(shares)[:k]
+        blob = b"".join(zfec.Decoder(k, n).decode([shares[i] for i in nums], nums))
+    return blob[:size]
+
+
+def encode_jpeg(arr: np.ndarray, quality: int) -> bytes:
+    from .image_transport import encode_strip
+    return encode_strip(arr, quality)
+
+
+class FecImagePublisher:
+    """Publishes frames as one JPEG each, in k shares + parity sized from the loss."""
+
+    def __init__(self, node: Any, topic: str, qos: QoSProfile = IMAGE, *, quality: int = 70,
+                 share_bytes: int = DEFAULT_SHARE_BYTES, loss: float = 0.1, target: float = 0.99,
+                 max_expansion: float = 3.0, pace_s: float = 0.0015) -> None:
+        if not 1 <= quality <= 95:
+            raise ValueError(f"JPEG quality must be 1..95, got {quality}")
+        if not 64 <= share_bytes <= MAX_SHARE_BYTES:
+            raise ValueError(f"share_bytes must be 64..{MAX_SHARE_BYTES}")
+        self.quality = quality
+        self.share_bytes = share_bytes
+        self.target = target
+        self.max_expansion = max_expansion
+        self.loss = loss
+        # As ImagePublisher: a frame is a burst; BLOCK makes the camera wait instead of Zenoh dropping
+        # most of it, and pacing past Zenoh's 1 ms batching window keeps each share in its own datagram
+        # (a batch lost whole would take several shares with it: correlated loss defeats the parity).
+        self.publisher = node.create_publisher(ImageShare, topic, qos.replace(history="keep_all", depth=0))
+        self.pace_s = pace_s
+        self.frames = 0
+        self.last_k = 0
+        self.last_n = 0
+        self.shares_sent = 0
+
+    def set_loss(self, loss: float) -> None:
+        """The packet loss to size parity for (0..1): a configured value or the receiver's feedback."""
+        self.loss = min(max(float(loss), 0.0), 0.99)
+
+    def publish(self, frame: Image | np.ndarray, header: Header | None = None) -> int:
+        """Send one frame; returns its frame number (the shares' header.seq)."""
+        shares = self.encode(frame, header)
+        for i, share in enumerate(shares):
+            if i and self.pace_s:
+                time.sleep(self.pace_s)
+            self.publisher.publish(share)
+        self.shares_sent += len(shares)
+        self.frames += 1
+        return shares[0].header.seq
+
+    def encode(self, frame: Image | np.ndarray, header: Header | None = None) -> list[ImageShare]:
+        if isinstance(frame, Image):
+            header = header or frame.header
+            arr = frame.to_array()
+        else:
+            arr = frame
+        if arr.dtype != np.uint8 or arr.ndim not in (2, 3) or (arr.ndim == 3 and arr.shape[2] != 3):
+            raise ValueError(f"FecImagePublisher takes HxW or HxWx3 uint8 frames, got {arr.dtype} {arr.shape}")
+        h, w = arr.shape[:2]
+        blob = encode_jpeg(arr, self.quality)
+        k, n, parts = split(blob, self.share_bytes, self.loss, self.target, self.max_expansion)
+        self.last_k, self.last_n = k, n
+        head = header or Header()
+        head = Header(head.stamp or time.time_ns(), head.frame_id, self.frames)
+        enc = "mono8" if arr.ndim == 2 else "rgb8"
+        return [ImageShare(head, i, k, n, len(blob), h, w, enc, part) for i, part in enumerate(parts)]
+
+
+@dataclass(slots=True)
+class RebuiltFrame:
+    jpeg: bytes
+    height: int
+    width: int
+    encoding: str
+    stamp: int
+    info: FecFrameInfo
+
+
+class FecAssembler:
+    """Shares in, whole frames out (latest-frame semantics); no Zenoh, no decoding of pixels.
+
+    Bounded: holds the shares of one frame (at most n <= 256 of at most MAX_SHARE_BYTES each,
+    all of one size); a share that cannot belong to any frame is counted and dropped first.
+    Measures share loss over the last LOSS_WINDOW_FRAMES frames (:attr:`loss`), frames that
+    sent nothing at all included, for the publisher's feedback.
+    """
+
+    def __init__(self) -> None:
+        self._frame = -1
+        self._shares: dict[int, bytes] = {}
+        self._first: ImageShare | None = None
+        self._done = True
+        self._seen = 0                    # shares of the current frame seen, rebuilt or not
+        self._window: deque[tuple[int, int]] = deque(maxlen=LOSS_WINDOW_FRAMES)   # (seen, sent)
+        self._stale_run = 0
+        self._stale_last = -1
+        self.frames_rebuilt = 0
+        self.frames_seen = 0              # frames of which at least one share arrived
+        self.frames_missed = 0            # frame numbers skipped entirely
+        self.bad_shares = 0
+        self.stale_shares = 0
+        self.decode_errors = 0
+
+    @staticmethod
+    def share_error(s: ImageShare) -> str | None:
+        if s.encoding not in ("rgb8", "mono8"):
+            return f"encoding {s.encoding!r}"
+        if not (1 <= s.k <= s.n <= MAX_SHARES and 0 <= s.index < s.n):
+            return f"share {s.index} of k={s.k} n={s.n}"
+        if not (1 <= s.width <= MAX_SIDE and 1 <= s.height <= MAX_SIDE):
+            return f"frame of {s.width}x{s.height}"
+        if not (1 <= len(s.data) <= MAX_SHARE_BYTES and 1 <= s.size <= min(MAX_JPEG_BYTES, s.k * len(s.data))
+                and s.size > (s.k - 1) * len(s.data)):
+            return f"{len(s.data)}-byte share of a {s.size}-byte frame in {s.k}"
+        return None
+
+    @property
+    def loss(self) -> float:
+        """Share loss measured over the recent frames (0..1; NaN before any)."""
+        sent = sum(n for _, n in self._window)
+        return 1.0 - sum(s for s, _ in self._window) / sent if sent else math.nan
+
+    def add(self, s: ImageShare, now_ns: int | None = None) -> RebuiltFrame | None:
+        """File one share; the frame it completes (once, at its k-th share), else None."""
+        if self.share_error(s) is not None:
+            self.bad_shares += 1
+            return None
+        frame = s.header.seq
+        if frame < self._frame:
+            if frame > self._stale_last:
+                self._stale_run += 1
+                self._stale_last = frame
+            if self._stale_run < STALE_FRAMES_TO_RESTART:
+                self.stale_shares += 1
+                return None
+        if frame != self._frame:
+            self._close(frame)
+            self._frame, self._first, self._shares, self._done, self._seen = frame, s, {}, False, 0
+            self._stale_run, self._stale_last = 0, -1
+            self.frames_seen += 1
+        first = self._first
+        assert first is not None
+        if (s.k, s.n, s.size, len(s.data), s.height, s.width, s.encoding) != (
+                first.k, first.n, first.size, len(first.data), first.height, first.width, first.encoding):
+            self.bad_shares += 1     # disagrees with the frame's first share
+            return None
+        if s.index in self._shares:
+            return None              # a duplicate
+        self._seen += 1
+        if self._done:
+            return None              # already rebuilt: counted for the loss figure only
+        self._shares[s.index] = s.data
+        if len(self._shares) < s.k:
+            return None
+        self._done = True
+        try:
+            jpeg = join(s.k, s.n, s.size, self._shares)
+        except Exception:
+            self.decode_errors += 1
+            return None
+        finally:
+            self._shares = {}        # keep only counts once rebuilt
+        self.frames_rebuilt += 1
+        now_ns = now_ns or time.time_ns()
+        stamp = first.header.stamp
+        age = (now_ns - stamp) / 1e6 if stamp else math.nan
+        return RebuiltFrame(jpeg, s.height, s.width, s.encoding, stamp,
+                            FecFrameInfo(frame, s.k, s.k, s.n, age))
+
+    def _close(self, next_frame: int) -> None:
+        """The current frame is over: file its share counts, and whole frames skipped."""
+        if self._first is not None:
+            n = self._first.n
+            self._window.append((self._seen, n))
+            skipped = next_frame - self._frame - 1
+            if 0 < skipped <= LOSS_WINDOW_FRAMES:   # a forged jump must not flood the window
+                self.frames_missed += skipped
+                self._window.extend([(0, n)] * skipped)
+
+
+class FecImageSubscription:
+    """Rebuilds frames from shares; ``callback(Image, FecFrameInfo)`` with each whole frame (decoded)."""
+
+    def __init__(self, node: Any, topic: str, callback: Callable[[Image, FecFrameInfo], None],
+                 qos: QoSProfile = IMAGE) -> None:
+        self.callback = callback
+        self.assembler = FecAssembler()
+        self.sub = node.create_subscription(ImageShare, topic, self._on_share,
+                                            qos.replace(depth=max(qos.depth, 512)))
+
+    def _on_share(self, s: ImageShare, info: Any = None) -> None:
+        got = self.assembler.add(s)
+        if got is None:
+            return
+        try:
+            img = Image(Header(got.stamp, "", got.info.frame), got.height, got.width, "jpeg", 0, 0, got.jpeg)
+            arr = img.to_array()
+            if arr.shape[:2] != (got.height, got.width):
+                raise ValueError(f"JPEG of {arr.shape} in a {got.width}x{got.height} frame")
+        except Exception:
+            self.assembler.decode_errors += 1
+            return
+        self.callback(Image.from_array(arr, header=Header(got.stamp, "", got.info.frame)), got.info)
