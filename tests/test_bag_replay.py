@@ -215,3 +215,26 @@ def test_image_slices_are_a_view_and_raw_bytes_not_json_unless_asked(ns, tmp_pat
     assert f"/{ns}/image/image" in t_lean and f"/_zr/raw/{ns}/image" in t_lean, "the frames and the bytes are kept"
     assert f"/{ns}/image" in t_full and full.counters.written > 0
     assert (tmp_path / "lean.mcap").stat().st_size < (tmp_path / "full.mcap").stat().st_size
+
+
+def test_bytes_that_are_no_envelope_are_counted_and_the_recording_goes_on(ns, tmp_path):
+    listen, connect = linked_configs()
+    path = tmp_path / "g.mcap"
+    with Node("src", namespace=ns, config=listen) as snode, Node("rec", config=connect) as rnode, Spinning(rnode):
+        pub = snode.create_publisher(msgs.Setpoint, "sp")
+        rec = BagRecorder(rnode, path, [f"/{ns}/sp"]).start()
+        assert wait_for(lambda: f"/{ns}/sp" in rec.subscribed, 10.0)
+        time.sleep(0.3)     # the subscription's Zenoh subscriber reaches the source's session
+        for i in range(20):
+            snode.session.put(f"{ns}/sp", b"\x00garbage" * i)    # a peer writing junk on the topic's key
+            pub.publish(msgs.Setpoint(msgs.Header.now(seq=i), x=float(i)))
+            time.sleep(0.01)
+        assert wait_for(lambda: rec.counters.written >= 15, 10.0)
+        rec.close()
+    assert rec.tap_counters.sub_malformed >= 15
+    with open(path, "rb") as f:
+        meta = {m.name: dict(m.metadata) for m in make_reader(f).iter_metadata()}
+    assert int(meta["zenoh_robot.recording"]["sub_malformed"]) == rec.tap_counters.sub_malformed
+    xs = [json.loads(r.message.data)["x"] for r in iter_records(path)
+          if isinstance(r, Record) and r.channel.topic == f"/{ns}/sp"]
+    assert xs == sorted(xs) and len(xs) >= 15
