@@ -28,7 +28,7 @@ from .publisher import Publisher
 from .qos import (Durability, DurabilityPolicy, History, HistoryPolicy, Liveliness, LivelinessPolicy, Priority,
                   QoSError, QoSProfile, Reliability, ReliabilityPolicy)
 from .qos_compat import Compatibility, PolicyKind, check_compatibility
-from .services import Client, Service, ServiceCallError, ServiceError, ServiceTimeout, ServiceUnavailable
+from .services import Client, RetryPolicy, Service, ServiceCallError, ServiceError, ServiceTimeout, ServiceUnavailable
 from .session_config import SessionConfig, SessionConfigError
 from .subscription import MessageInfo, Subscription
 from .topic_statistics import TopicStatisticsOptions
@@ -38,7 +38,7 @@ __version__ = "0.2.0"
 __all__ = [
     # nodes, entities, executors
     "Node", "Publisher", "Subscription", "MessageInfo", "Timer", "Executor", "MultiThreadedExecutor",
-    "Service", "Client", "ServiceCallError", "ServiceError", "ServiceTimeout", "ServiceUnavailable",
+    "Service", "Client", "RetryPolicy", "ServiceCallError", "ServiceError", "ServiceTimeout", "ServiceUnavailable",
     # messages
     "Message", "message", "array", "ros_field", "load_msg", "msgs",
     # QoS

@@ -35,6 +35,7 @@ from .parameters import (
 from .publisher import Publisher
 from .qos import SYSTEM_DEFAULT, QoSProfile
 from .qos_monitor import QoSMonitor
+from .services import _DEFAULT as _DEFAULT_RETRY
 from .services import Client, Service, Services
 from .session_config import SessionConfig, open_session
 from .subscription import RawMessage, Subscription
@@ -270,8 +271,10 @@ class Node:
                        handler: Callable[[Req], Resp]) -> Service[Req, Resp]:
         return self._services.create_service(name, request_type, response_type, handler)
 
-    def create_client(self, name: str, request_type: type[Req], response_type: type[Resp]) -> Client[Req, Resp]:
-        return self._services.create_client(name, request_type, response_type)
+    def create_client(self, name: str, request_type: type[Req], response_type: type[Resp],
+                      retry: Any = _DEFAULT_RETRY) -> Client[Req, Resp]:
+        """``retry``: a services.RetryPolicy or None; default: retried on multicast sessions (services.py)."""
+        return self._services.create_client(name, request_type, response_type, retry=retry)
 
     def destroy_service(self, srv: Service[Any, Any]) -> None:
         self._services.destroy_service(srv)

@@ -20,17 +20,46 @@ services whose Python types it does not have).
 Threads: the queryable callback runs on Zenoh's thread and only hands the query
 to the node's executor; the handler runs and replies there, then the query is
 dropped so the querier sees it finalised at once.
+
+At-least-once delivery, at-most-once execution (lossy links):
+- Request id: every request envelope carries the client's random ``client_id`` (as
+  ``publisher_id``) and a per-client counter (``seq``); a retry re-sends the very same bytes.
+- Retries: ``Client.call(req, timeout, retry=RetryPolicy(...))`` re-sends the request with
+  backoff (first after ``interval_s``, each gap ``multiplier`` times the last, at most
+  ``max_interval_s``) until a reply arrives or ``timeout`` passes; a reply to any attempt
+  completes the call. A client's default (``create_client(..., retry=...)``) is no retry on a
+  unicast session (queries ride Zenoh's reliable channel) and :data:`RESILIENT_RETRY` on a
+  multicast session, where everything is best effort. A ``busy`` refusal is retried; handler,
+  type and bad-request errors are final.
+- Idempotency: the server keeps a bounded (entries, bytes) LRU, time-limited cache of recent
+  requests (keyed by a digest of the request bytes: same client, same counter, same body) ->
+  reply. A duplicate of a finished request gets the cached reply and never runs the handler
+  again; a duplicate of a request still running waits for (joins) the first and gets its reply.
+  Handler errors are cached too (the handler ran); busy, type and bad-request refusals are not.
+  ``Service.executions`` / ``duplicates`` / ``cache_evictions`` count what happened.
+- Multicast sessions (``SessionConfig.resilient``): Zenoh 1.10 routes no queries, and propagates no
+  liveliness tokens or declarations, over its UDP multicast transport (measured: a ``get`` gets no
+  reply, docs/lossy-link.md), but plain puts cross it. There a service also listens on the key
+  ``<service key>/@rq`` and a client puts its request there; the server puts the reply on
+  ``<service key>/@rp/<client_id>/<seq>`` (attachment ``e`` marks an error payload), which only
+  that client subscribes to. ``@rq``/``@rp`` are verbatim chunks, so ``@srv/**`` (service listing)
+  never matches them. Without discovery, a call that gets no answer ends in ServiceTimeout
+  (never ServiceUnavailable), and ``service_is_ready()`` is True once a server has answered.
 """
 from __future__ import annotations
 
+import hashlib
+import heapq
 import itertools
 import logging
 import secrets
 import threading
 import time
-from collections.abc import Callable
+from collections import OrderedDict
+from collections.abc import Callable, Iterator
 from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeout
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 import msgpack
@@ -41,6 +70,7 @@ from ._ratelimit import RateLimitedLog
 from ._wire import envelope
 from .context import EntityContext
 from .message import Message, TypeSupport, require_message_type, type_support, validated
+from .session_config import is_multicast_session
 
 if TYPE_CHECKING:
     from .node import Node
@@ -107,8 +137,159 @@ def decode_error(payload: bytes) -> tuple[str, str] | None:
     return None
 
 
+REQUEST_CHUNK = "@rq"    # multicast sessions: requests are put on <service key>/@rq
+REPLY_CHUNK = "@rp"      # ... and replies on <service key>/@rp/<client_id>/<seq>
+_ERR_ATTACHMENT = b"e"
+
+
+@dataclass(frozen=True)
+class RetryPolicy:
+    """When a call re-sends its request (same request id) while no reply came, until its timeout.
+
+    Gaps: ``interval_s``, then each ``multiplier`` times the previous, never over ``max_interval_s``.
+    """
+    interval_s: float = 0.1
+    multiplier: float = 1.5
+    max_interval_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not (self.interval_s > 0 and self.multiplier >= 1.0 and self.max_interval_s >= self.interval_s):
+            raise ValueError(f"RetryPolicy needs interval_s > 0, multiplier >= 1, max_interval_s >= interval_s: {self}")
+
+    def delays(self) -> Iterator[float]:
+        gap = self.interval_s
+        while True:
+            yield gap
+            gap = min(self.max_interval_s, gap * self.multiplier)
+
+
+# The multicast default. At 50 % loss each way one attempt is answered with p = 0.25, so what
+# matters is attempts within the caller's deadline: 50 ms growing 10 % per try, capped at 200 ms,
+# is ~17 attempts in 2 s (0.75^17 < 1 % unanswered). A command is ~100 bytes: the cost is nothing.
+RESILIENT_RETRY = RetryPolicy(interval_s=0.05, multiplier=1.1, max_interval_s=0.2)
+_DEFAULT: Any = object()     # "the client's own retry policy" (None means no retry)
+
+
+class _Scheduler:
+    """One daemon thread running due callbacks (retries, deadlines) for every client in the process."""
+
+    def __init__(self) -> None:
+        self._heap: list[tuple[float, int, Callable[[], None]]] = []
+        self._cv = threading.Condition()
+        self._ids = itertools.count()
+        self._thread: threading.Thread | None = None
+
+    def at(self, when: float, fn: Callable[[], None]) -> None:
+        with self._cv:
+            heapq.heappush(self._heap, (when, next(self._ids), fn))
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._run, name="zr-service-retries", daemon=True)
+                self._thread.start()
+            self._cv.notify()
+
+    def _run(self) -> None:
+        while True:
+            with self._cv:
+                while not self._heap or self._heap[0][0] > time.monotonic():
+                    self._cv.wait(None if not self._heap else max(0.0, self._heap[0][0] - time.monotonic()))
+                _, _, fn = heapq.heappop(self._heap)
+            try:
+                fn()
+            except Exception as exc:     # a retry must never kill the thread every client shares
+                log.debug("service retry callback failed: %s", exc)
+
+
+_scheduler = _Scheduler()
+
+Reply = tuple[bool, bytes]            # (ok, payload): a response envelope or an error payload
+Responder = Callable[[bool, bytes], None]
+
+
+@dataclass
+class _CacheEntry:
+    at: float
+    reply: Reply | None = None                  # None while the first copy is still running
+    waiters: list[Responder] = field(default_factory=list)
+
+
+class IdempotencyCache:
+    """Recent request digests -> reply: a duplicate is answered, never executed (see the module doc).
+
+    Bounded three ways: ``max_entries`` (LRU), ``max_bytes`` of cached replies, ``ttl_s``; a running
+    request holds at most ``max_waiters`` joined duplicates (more are dropped: their copies are
+    retries of the same call, the earlier ones will get the answer).
+    """
+
+    def __init__(self, max_entries: int = 1024, max_bytes: int = 8 << 20, ttl_s: float = 120.0,
+                 max_waiters: int = 32) -> None:
+        self.max_entries, self.max_bytes, self.ttl_s, self.max_waiters = max_entries, max_bytes, ttl_s, max_waiters
+        self._entries: OrderedDict[bytes, _CacheEntry] = OrderedDict()
+        self._bytes = 0
+        self._lock = threading.Lock()
+        self.evictions = 0
+        self.dropped_waiters = 0
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    @property
+    def nbytes(self) -> int:
+        return self._bytes
+
+    def begin(self, key: bytes, respond: Responder) -> tuple[str, Reply | None]:
+        """("new", None): run it and call finish(); ("done", reply): answer with it; ("joined", None)."""
+        now = time.monotonic()
+        with self._lock:
+            self._expire(now)
+            entry = self._entries.get(key)
+            if entry is None:
+                self._entries[key] = _CacheEntry(now)
+                self._trim()
+                return "new", None
+            self._entries.move_to_end(key)
+            if entry.reply is not None:
+                return "done", entry.reply
+            if len(entry.waiters) < self.max_waiters:
+                entry.waiters.append(respond)
+            else:
+                self.dropped_waiters += 1
+            return "joined", None
+
+    def finish(self, key: bytes, reply: Reply, keep: bool = True) -> list[Responder]:
+        """Record the reply (or forget the request when ``keep`` is False); the joined waiters to answer."""
+        with self._lock:
+            entry = self._entries.get(key)
+            if entry is None:
+                return []
+            waiters, entry.waiters = entry.waiters, []
+            if keep:
+                entry.reply, entry.at = reply, time.monotonic()
+                self._bytes += len(reply[1])
+                self._trim()
+            else:
+                del self._entries[key]
+            return waiters
+
+    def _expire(self, now: float) -> None:
+        while self._entries:
+            key, entry = next(iter(self._entries.items()))
+            if now - entry.at < self.ttl_s or entry.reply is None and now - entry.at < 2 * self.ttl_s:
+                break
+            self._drop(key)
+
+    def _trim(self) -> None:
+        while len(self._entries) > self.max_entries or self._bytes > self.max_bytes:
+            self._drop(next(iter(self._entries)))
+            self.evictions += 1
+
+    def _drop(self, key: bytes) -> None:
+        entry = self._entries.pop(key)
+        if entry.reply is not None:
+            self._bytes -= len(entry.reply[1])
+
+
 class Service(Generic[Req, Resp]):
-    """A server: ``handler(request) -> response`` run on the node's executor."""
+    """A server: ``handler(request) -> response`` run on the node's executor, at most once per request id."""
 
     def __init__(self, context: EntityContext, name: str, key: str, request_type: type[Req],
                  response_type: type[Resp], handler: Callable[[Req], Resp]) -> None:
@@ -128,11 +309,21 @@ class Service(Generic[Req, Resp]):
         self.server_id = secrets.randbits(63)
         self.served = 0
         self.errors = 0
+        self.executions = 0       # handler runs (a duplicate request never adds one)
+        self.duplicates = 0       # requests answered from, or joined to, an earlier copy
+        self.cache = IdempotencyCache()
         self._lock = threading.Lock()
         self._destroyed = False
         self.bad_requests = 0     # refused before the handler: malformed, oversize, a field off its schema
         self._rlog = RateLimitedLog(log)
         self._queryable = context.session.declare_queryable(key, self._on_query, complete=True)
+        self._request_sub: Any = None
+        if is_multicast_session(context.session):
+            self._request_sub = context.session.declare_subscriber(f"{key}/{REQUEST_CHUNK}", self._on_put_request)
+
+    @property
+    def cache_evictions(self) -> int:
+        return self.cache.evictions
 
     # Zenoh's thread: only hand over.
     def _on_query(self, query: zenoh.Query) -> None:
@@ -141,55 +332,109 @@ class Service(Generic[Req, Resp]):
             return
         if DESCRIBE_PARAM in str(query.parameters):
             # No user code involved: answer at once, so listing works even if the node does not spin.
-            self._serve(query)
+            self._describe(query)
             return
-        if not self.context.executor.call_soon(lambda: self._serve(query)):
-            self._reply_err(query, "busy", f"service {self.service_name}: server queue full, request dropped")
-            query.drop()
+
+        def respond(ok: bool, data: bytes) -> None:
+            try:
+                if ok:
+                    query.reply(self.key, data)
+                else:
+                    query.reply_err(data)
+            except Exception as exc:  # a reply can fail once the querier gave up
+                log.debug("service %s: reply failed: %s", self.service_name, exc)
+            finally:
+                try:
+                    query.drop()     # the querier sees this attempt finalised at once
+                except Exception:
+                    pass
+        payload = query.payload
+        self._on_request(payload, respond)
+
+    def _on_put_request(self, sample: zenoh.Sample) -> None:
+        """Multicast sessions: a request put on ``<key>/@rq``; the reply goes to the client's own key."""
+        if self._destroyed:
+            return
+        data = sample.payload
+        try:
+            peek = envelope.unpack(data.to_bytes()) if len(data) <= MAX_REQUEST_BYTES else None
+        except envelope.MalformedSample:
+            peek = None
+        if peek is None:    # no client to answer: count and drop
+            with self._lock:
+                self.bad_requests += 1
+            self._rlog.warning("bad_request", "service %s: dropped a malformed or oversize multicast request",
+                               self.service_name)
+            return
+        reply_key = f"{self.key}/{REPLY_CHUNK}/{peek.publisher_id}/{peek.seq}"
+        session = self.context.session
+
+        def respond(ok: bool, payload: bytes) -> None:
+            try:
+                session.put(reply_key, payload, attachment=None if ok else _ERR_ATTACHMENT,
+                            priority=zenoh.Priority.INTERACTIVE_HIGH)
+            except Exception as exc:
+                log.debug("service %s: reply put failed: %s", self.service_name, exc)
+        self._on_request(data, respond)
+
+    def _on_request(self, payload: zenoh.ZBytes | None, respond: Responder) -> None:
+        size = len(payload) if payload is not None else 0
+        if size > MAX_REQUEST_BYTES:     # refused before it is copied
+            respond(False, self._bad_request(f"request of {size} bytes is over the limit of {MAX_REQUEST_BYTES}"))
+            return
+        data = payload.to_bytes() if payload is not None else b""
+        key = hashlib.blake2b(data, digest_size=16).digest()
+        state, cached = self.cache.begin(key, respond)
+        if state != "new":
+            with self._lock:
+                self.duplicates += 1
+            if cached is not None:
+                respond(*cached)
+            return
+        if not self.context.executor.call_soon(lambda: self._run(key, data, respond)):
+            busy = _error_payload("busy", f"service {self.service_name}: server queue full, request dropped")
+            for waiter in [respond, *self.cache.finish(key, (False, busy), keep=False)]:
+                waiter(False, busy)
+
+    def _run(self, key: bytes, data: bytes, respond: Responder) -> None:
+        try:
+            ok, reply, executed = self._execute(data)
+        except Exception as exc:   # never kill the executor, never leave joined duplicates hanging
+            ok, reply, executed = False, _error_payload("handler", f"internal error: {exc}"), False
+        for waiter in [respond, *self.cache.finish(key, (ok, reply), keep=executed)]:
+            waiter(ok, reply)
 
     def describe(self) -> dict[str, Any]:
         return {"service": service_name_of_key(self.key), "node": self.context.fully_qualified_name,
                 "request": self._req.name, "request_hash": self._req.hash,
                 "response": self._resp.name, "response_hash": self._resp.hash}
 
-    def _serve(self, query: zenoh.Query) -> None:
+    def _describe(self, query: zenoh.Query) -> None:
         try:
-            if DESCRIBE_PARAM in str(query.parameters):
-                query.reply(self.key, msgpack.packb(self.describe(), use_bin_type=True))
-                return
-            self._call(query)
-        except Exception as exc:  # a reply can fail once the querier gave up; never kill the executor
-            log.debug("service %s: reply failed: %s", self.service_name, exc)
+            query.reply(self.key, msgpack.packb(self.describe(), use_bin_type=True))
+        except Exception as exc:
+            log.debug("service %s: describe reply failed: %s", self.service_name, exc)
         finally:
             try:
                 query.drop()
             except Exception:
                 pass
 
-    def _call(self, query: zenoh.Query) -> None:
-        payload = query.payload
-        size = len(payload) if payload is not None else 0
-        if size > MAX_REQUEST_BYTES:     # refused before it is copied
-            self._bad_request(query, f"request of {size} bytes is over the limit of {MAX_REQUEST_BYTES}")
-            return
+    def _execute(self, data: bytes) -> tuple[bool, bytes, bool]:
+        """(ok, reply payload, whether the handler ran) for one request's bytes."""
         try:
-            env = envelope.unpack(payload.to_bytes() if payload is not None else b"")
+            env = envelope.unpack(data)
         except envelope.MalformedSample as exc:
-            self._bad_request(query, f"malformed request ({exc})")
-            return
+            return False, self._bad_request(f"malformed request ({exc})"), False
         rt, resp_t = self._req, self._resp
         dict_form = env.extra.get("form") == "dict"
         if env.type_hash != rt.hash or env.type_name != rt.name:
-            self._reply_err(query, "type",
-                            f"service {self.service_name} takes {rt.name} ({rt.hash}), "
-                            f"got {env.type_name} ({env.type_hash})")
-            return
+            return False, _error_payload("type", f"service {self.service_name} takes {rt.name} ({rt.hash}), "
+                                                 f"got {env.type_name} ({env.type_hash})"), False
         want_name, want_hash = env.extra.get("rt"), env.extra.get("rh")
         if want_hash is not None and (want_hash != resp_t.hash or want_name != resp_t.name):
-            self._reply_err(query, "type",
-                            f"service {self.service_name} returns {resp_t.name} "
-                            f"({resp_t.hash}), client expects {want_name} ({want_hash})")
-            return
+            return False, _error_payload("type", f"service {self.service_name} returns {resp_t.name} "
+                                                 f"({resp_t.hash}), client expects {want_name} ({want_hash})"), False
         try:
             # Both forms are checked field by field (types, ranges, lengths): a handler never sees
             # force='yes' or a NaN where an int belongs; the caller gets a ServiceError naming the field.
@@ -198,8 +443,9 @@ class Service(Generic[Req, Resp]):
             else:
                 request = rt.decode(env.body)
         except Exception as exc:
-            self._bad_request(query, f"cannot decode {rt.name}: {str(exc)[:500]}")
-            return
+            return False, self._bad_request(f"cannot decode {rt.name}: {str(exc)[:500]}"), False
+        with self._lock:
+            self.executions += 1
         try:
             response = self.handler(request)
             if not isinstance(response, self.response_type):
@@ -211,74 +457,130 @@ class Service(Generic[Req, Resp]):
                 self.errors += 1
             self._rlog.warning("handler", "service %s: handler raised %s: %s", self.service_name,
                                type(exc).__name__, exc)
-            self._reply_err(query, "handler", f"{type(exc).__name__}: {exc}")
-            return
-        query.reply(self.key, envelope.pack(resp_t.name, resp_t.hash,
-                                            self.server_id, env.seq, time.time_ns(), body,
-                                            {"form": "dict"} if dict_form else None))
+            return False, _error_payload("handler", f"{type(exc).__name__}: {exc}"), True
         with self._lock:
             self.served += 1
+        return True, envelope.pack(resp_t.name, resp_t.hash, self.server_id, env.seq, time.time_ns(), body,
+                                   {"form": "dict"} if dict_form else None), True
 
-    def _bad_request(self, query: zenoh.Query, why: str) -> None:
+    def _bad_request(self, why: str) -> bytes:
         with self._lock:
             self.bad_requests += 1
         self._rlog.warning("bad_request", "service %s: refused a request: %s", self.service_name, why)
-        self._reply_err(query, "bad_request", f"service {self.service_name}: {why}")
-
-    @staticmethod
-    def _reply_err(query: zenoh.Query, kind: str, text: str) -> None:
-        try:
-            query.reply_err(_error_payload(kind, text))
-        except Exception as exc:
-            log.debug("error reply failed: %s", exc)
+        return _error_payload("bad_request", f"service {self.service_name}: {why}")
 
     def destroy(self) -> None:
         self._destroyed = True
-        try:
-            self._queryable.undeclare()
-        except Exception:
-            pass  # already closed with the session
+        for handle in (self._queryable, self._request_sub):
+            try:
+                if handle is not None:
+                    handle.undeclare()
+            except Exception:
+                pass  # already closed with the session
 
 
 class _Call:
-    """One outstanding query: collects replies on Zenoh's thread, completes the future at the end."""
+    """One call: its attempts (same bytes), the replies they collect, the future completed once."""
 
-    def __init__(self, client: Client[Any, Any], future: Future[Any], timeout: float, dict_form: bool) -> None:
+    def __init__(self, client: Client[Any, Any], future: Future[Any], timeout: float, dict_form: bool,
+                 seq: int, payload: bytes, retry: RetryPolicy | None) -> None:
         self.client = client
         self.future = future
         self.timeout = timeout
         self.dict_form = dict_form
+        self.seq = seq
+        self.payload = payload
         self.started = time.monotonic()
+        self.deadline = self.started + timeout
         self.errors: list[tuple[str, str] | None] = []
+        self.attempts = 0
+        self._delays = retry.delays() if retry is not None else None
+        self._outstanding = 0       # queries in flight (unicast path)
+        self._more = True           # another attempt may still be sent
+        self._lock = threading.Lock()
+
+    def start(self) -> None:
+        if self.client._multicast:
+            _scheduler.at(self.deadline, self.on_deadline)
+        self.attempt()
+
+    def attempt(self) -> None:
+        if self.future.done() or self.client.context.closed:
+            return
+        now = time.monotonic()
+        remaining = self.deadline - now
+        if remaining <= 0.005:
+            with self._lock:
+                self._more = False
+            return
+        gap = next(self._delays) if self._delays is not None else None
+        with self._lock:
+            self.attempts += 1
+            self._more = gap is not None and now + gap < self.deadline
+            self._outstanding += 0 if self.client._multicast else 1
+        if self._more and gap is not None:
+            _scheduler.at(now + gap, self.attempt)
+        try:
+            self.client._transmit(self, remaining)
+        except Exception as exc:    # a closed session: the call fails, it does not hang
+            with self._lock:
+                self._outstanding -= 0 if self.client._multicast else 1
+            self._finish(exc=ServiceCallError(f"service {self.client.service_name}: cannot send: {exc}"))
+
+    def on_ok(self, data: bytes) -> None:
+        if self.future.done():
+            return
+        try:
+            result = self.client._decode_response(data, self.dict_form)
+        except ServiceCallError as exc:
+            self._finish(exc=exc)
+            return
+        self.client._answered = True
+        self._finish(result=result)
+
+    def on_err(self, err: tuple[str, str] | None) -> None:
+        if err is not None:
+            self.client._answered = True
+        if err is not None and err[0] != "busy":    # final: retrying would get the same answer
+            self._finish(exc=ServiceError(err[1], err[0]))
+            return
+        with self._lock:
+            self.errors.append(err)
 
     def on_reply(self, reply: zenoh.Reply) -> None:
-        if self.future.done():
-            return
         if reply.ok is not None:
-            try:
-                result = self.client._decode_response(reply.ok.payload.to_bytes(), self.dict_form)
-            except ServiceCallError as exc:
-                self._finish(exc=exc)
-                return
-            self._finish(result=result)
+            self.on_ok(reply.ok.payload.to_bytes())
         else:
             err = reply.err
-            self.errors.append(decode_error(err.payload.to_bytes()) if err is not None else None)
+            self.on_err(decode_error(err.payload.to_bytes()) if err is not None else None)
 
     def on_done(self) -> None:
+        with self._lock:
+            self._outstanding -= 1
+            last = self._outstanding <= 0 and not self._more
+        if last:
+            self.conclude()
+
+    def on_deadline(self) -> None:
+        self.conclude(timed_out=True)
+
+    def conclude(self, timed_out: bool = False) -> None:
         if self.future.done():
             return
+        self.client._forget(self)
         name = self.client.service_name
         ours = [e for e in self.errors if e is not None]
         if ours:
-            kind, text = ours[0]
+            kind, text = ours[-1]
             self._finish(exc=ServiceError(text, kind))
-        elif self.errors or time.monotonic() - self.started >= self.timeout * 0.9:
-            self._finish(exc=ServiceTimeout(f"service {name}: no reply within {self.timeout:g} s"))
+        elif timed_out or self.errors or time.monotonic() - self.started >= self.timeout * 0.9:
+            self._finish(exc=ServiceTimeout(f"service {name}: no reply within {self.timeout:g} s "
+                                            f"({self.attempts} attempt{'s' if self.attempts != 1 else ''})"))
         else:
             self._finish(exc=ServiceUnavailable(f"service {name}: no server"))
 
     def _finish(self, result: Any = None, exc: BaseException | None = None) -> None:
+        self.client._forget(self)
         try:
             if exc is not None:
                 self.future.set_exception(exc)
@@ -289,10 +591,13 @@ class _Call:
 
 
 class Client(Generic[Req, Resp]):
-    """``client.call(request, timeout)`` -> response, or a ServiceCallError subclass."""
+    """``client.call(request, timeout, retry=...)`` -> response, or a ServiceCallError subclass."""
+
+    MAX_PENDING = 1024      # multicast path: calls awaiting a reply (older ones are failed first)
 
     def __init__(self, context: EntityContext, name: str, key: str, request_type: type[Req],
-                 response_type: type[Resp] | None, *, request_support: TypeSupport | None = None) -> None:
+                 response_type: type[Resp] | None, *, request_support: TypeSupport | None = None,
+                 retry: RetryPolicy | None | Any = _DEFAULT) -> None:
         # request_support: a request type known only by name and hash (call_dict); else request_type's.
         if request_support is None:
             require_message_type(request_type, f"create_client {name!r}: request type")
@@ -308,10 +613,26 @@ class Client(Generic[Req, Resp]):
         self.response_type = response_type
         self.client_id = secrets.randbits(63)
         self._seq = itertools.count(1)
+        self._multicast = is_multicast_session(context.session)
+        if retry is _DEFAULT:
+            retry = RESILIENT_RETRY if self._multicast else None
+        if retry is not None and not isinstance(retry, RetryPolicy):
+            raise TypeError(f"create_client {name!r}: retry must be a RetryPolicy or None, got {retry!r}")
+        self.retry: RetryPolicy | None = retry
+        self.attempts = 0           # requests sent, retries included
+        self._answered = False      # a server replied once (readiness on multicast, where nothing is discovered)
+        self._pending: OrderedDict[int, _Call] = OrderedDict()
+        self._pending_lock = threading.Lock()
         self._querier = context.session.declare_querier(key)
+        self._reply_sub: Any = None
+        if self._multicast:
+            self._reply_sub = context.session.declare_subscriber(
+                f"{key}/{REPLY_CHUNK}/{self.client_id}/*", self._on_reply_sample)
 
     # -- discovery -------------------------------------------------------------------
     def service_is_ready(self) -> bool:
+        if self._multicast:
+            return self._answered
         try:
             status: Any = self._querier.matching_status   # a MatchingStatus (the stubs say bool)
             return bool(status.matching)
@@ -330,47 +651,89 @@ class Client(Generic[Req, Resp]):
         return True
 
     # -- calls -----------------------------------------------------------------------
-    def call(self, request: Req, timeout: float = 2.0) -> Resp:
-        """Send ``request`` and wait for the response.
+    def call(self, request: Req, timeout: float = 2.0, retry: RetryPolicy | None | Any = _DEFAULT) -> Resp:
+        """Send ``request`` and wait for the response (retried per ``retry``, default the client's policy).
 
         Blocks only this thread: replies arrive on Zenoh's threads, so calling this from a
         callback of a single-threaded executor does not deadlock (unless the server is a
         service of the same executor, which then cannot run: ServiceTimeout).
         """
-        if not self.service_is_ready():
+        if not self._multicast and not self.service_is_ready():
             started = self.context.started
             grace = max(MATCH_WAIT_S, DISCOVERY_GRACE_S - (time.monotonic() - started))
             if not self.wait_for_service(min(timeout, grace)):
                 raise ServiceUnavailable(f"service {self.service_name}: no server")
-        future = self.call_async(request, timeout)
+        future = self.call_async(request, timeout, retry=retry)
         try:
             return future.result(timeout + 2.0)  # Zenoh finalises at `timeout`; the margin is a backstop
         except FutureTimeout:
             raise ServiceTimeout(f"service {self.service_name}: no reply within {timeout:g} s") from None
 
-    def call_async(self, request: Req, timeout: float = 2.0) -> "Future[Resp]":
+    def call_async(self, request: Req, timeout: float = 2.0,
+                   retry: RetryPolicy | None | Any = _DEFAULT) -> "Future[Resp]":
         """Send ``request``; the Future completes on a Zenoh thread (keep done-callbacks short)."""
         if not isinstance(request, self.request_type):
             raise TypeError(f"service {self.service_name} client takes {self._req.name}, "
                             f"got {type(request).__name__}")
-        return self._send(self._req.encode(request), timeout, dict_form=False)
+        return self._send(self._req.encode(request), timeout, dict_form=False, retry=retry)
 
-    def _send(self, body: Any, timeout: float, dict_form: bool) -> Future[Any]:
+    def _send(self, body: Any, timeout: float, dict_form: bool,
+              retry: RetryPolicy | None | Any = _DEFAULT) -> Future[Any]:
         if not timeout > 0:
             raise ValueError(f"timeout must be > 0 seconds, got {timeout!r}")
+        if retry is _DEFAULT:
+            retry = self.retry
         self.context.check_open()
         future: Future[Any] = Future()
-        call = _Call(self, future, timeout, dict_form)
         extra: dict[str, Any] = {}
         if self._resp is not None:
             extra = {"rt": self._resp.name, "rh": self._resp.hash}
         if dict_form:
             extra["form"] = "dict"
-        payload = envelope.pack(self._req.name, self._req.hash, self.client_id,
-                                next(self._seq), time.time_ns(), body, extra)
-        self.context.session.get(self.key, zenoh.handlers.Callback(call.on_reply, call.on_done),
-                              payload=payload, timeout=timeout, priority=zenoh.Priority.INTERACTIVE_HIGH)
+        seq = next(self._seq)
+        # Packed once: every retry carries the same bytes, so the server recognises the duplicate.
+        payload = envelope.pack(self._req.name, self._req.hash, self.client_id, seq, time.time_ns(), body, extra)
+        call = _Call(self, future, timeout, dict_form, seq, payload, retry)
+        if self._multicast:
+            with self._pending_lock:
+                self._pending[seq] = call
+                overflow = [self._pending.popitem(last=False)[1] for _ in range(len(self._pending) - self.MAX_PENDING)]
+            for old in overflow:
+                old._finish(exc=ServiceTimeout(f"service {self.service_name}: too many calls in flight"))
+        call.start()
         return future
+
+    def _transmit(self, call: _Call, remaining: float) -> None:
+        self.attempts += 1
+        if self._multicast:
+            self.context.session.put(f"{self.key}/{REQUEST_CHUNK}", call.payload,
+                                     priority=zenoh.Priority.INTERACTIVE_HIGH)
+        else:
+            self.context.session.get(self.key, zenoh.handlers.Callback(call.on_reply, call.on_done),
+                                     payload=call.payload, timeout=remaining,
+                                     priority=zenoh.Priority.INTERACTIVE_HIGH)
+
+    def _on_reply_sample(self, sample: zenoh.Sample) -> None:
+        """Multicast path: a reply on ``<key>/@rp/<client_id>/<seq>``."""
+        try:
+            seq = int(str(sample.key_expr).rsplit("/", 1)[1])
+        except (ValueError, IndexError):
+            return
+        with self._pending_lock:
+            call = self._pending.get(seq)
+        if call is None:
+            return        # a late duplicate of an answered call
+        data = sample.payload.to_bytes()
+        attachment = sample.attachment
+        if attachment is not None and attachment.to_bytes() == _ERR_ATTACHMENT:
+            call.on_err(decode_error(data))
+        else:
+            call.on_ok(data)
+
+    def _forget(self, call: _Call) -> None:
+        if self._multicast:
+            with self._pending_lock:
+                self._pending.pop(call.seq, None)
 
     def _decode_response(self, data: bytes, dict_form: bool) -> Any:
         try:
@@ -390,10 +753,12 @@ class Client(Generic[Req, Resp]):
                                "bad_response") from None
 
     def destroy(self) -> None:
-        try:
-            self._querier.undeclare()
-        except Exception:
-            pass
+        for handle in (self._querier, self._reply_sub):
+            try:
+                if handle is not None:
+                    handle.undeclare()
+            except Exception:
+                pass
 
 
 def _dict_form(name: str, hash_: str) -> TypeSupport:
@@ -461,11 +826,14 @@ class Services:
             self.services.append(srv)
         return srv
 
-    def create_client(self, name: str, request_type: type[Req], response_type: type[Resp]) -> Client[Req, Resp]:
+    def create_client(self, name: str, request_type: type[Req], response_type: type[Resp],
+                      retry: RetryPolicy | None | Any = _DEFAULT) -> Client[Req, Resp]:
+        """``retry``: the calls' RetryPolicy (None: one attempt); default: RESILIENT_RETRY on a multicast session."""
         self._context.check_open()
         if not (isinstance(response_type, type) and issubclass(response_type, Message)):
             raise TypeError(f"create_client {name!r}: response type {response_type!r} is not a message type")
-        client = Client(self._context, name, self.resolve_service_name(name), request_type, response_type)
+        client = Client(self._context, name, self.resolve_service_name(name), request_type, response_type,
+                        retry=retry)
         with self._lock:
             self.clients.append(client)
         return client
