@@ -46,9 +46,11 @@ from companion.interface import (
     VehicleState,
 )
 from zenoh_robot import Node
-from zenoh_robot.image_transport import FrameInfo, ImageSlice
+from zenoh_robot._wire.feedback import LinkMonitor, apply_repeat_plan
+from zenoh_robot.image_fec import FecAssembler, ImageShare
+from zenoh_robot.image_transport import MAX_SLICES, FrameInfo, ImageSlice
 from zenoh_robot.msgs import Header, Image, SensorCombined
-from zenoh_robot.services import ServiceCallError
+from zenoh_robot.services import ServiceCallError, command_retry
 from zenoh_robot.tools.stream_metrics import StreamRecorder
 from zenoh_robot.tools.stream_profiles import StreamProfile, stream_profile
 
@@ -115,7 +117,10 @@ class DroneLink:
         self.events: list[FailsafeEvent] = []
         self.failures: list[str] = []     # failsafes and refusals addressed to this GCS (bounded)
         self.events_seen = 0
-        self.streams = {name: StreamRecorder() for name in ("sensor", "state", "image")}
+        # image: frames shown (sliced: begun, possibly with stale strips); image_whole: frames whose every
+        # strip is fresh; image_strip: fresh strips (FEC: whole frames), as frame * MAX_SLICES + index.
+        self.streams = {name: StreamRecorder() for name in ("sensor", "state", "image", "image_whole", "image_strip")}
+        self.fec = FecAssembler()
         self.sent = {"setpoint": StreamRecorder()}
         self.image = ImageStats()
         self.frames = FrameKeeper()
@@ -136,9 +141,13 @@ class DroneLink:
             # A frame's slices come in a burst: the queue holds a frame's worth (as ImageSubscription's).
             node.create_subscription(ImageSlice, f"{ns}/image", self._on_slice,
                                      q["image"].replace(depth=max(q["image"].depth, 256)))
+        elif cfg.profile.image_mode == "fec":   # shares + parity: rebuilt JPEG filed, decoded on demand
+            node.create_subscription(ImageShare, f"{ns}/image", self._on_share,
+                                     q["image"].replace(depth=max(q["image"].depth, 512)))
         else:   # raw rgb8 or one JPEG per Image message
             node.create_subscription(Image, f"{ns}/image", self._on_raw_image, q["image"])
-        self.commands = node.create_client(f"{ns}/command", Command, CommandResult)
+        # Retried with one request id until the deadline; the companion runs each call once (services.py).
+        self.commands = node.create_client(f"{ns}/command", Command, CommandResult, retry=command_retry(node))
 
     # -- telemetry -------------------------------------------------------------------
     def _on_sensor(self, msg: SensorCombined, info: Any) -> None:
@@ -177,10 +186,29 @@ class DroneLink:
 
     def _on_slice(self, s: ImageSlice, info: Any) -> None:
         # Executor: file the slice, never decode it here (see gcs/frames.py).
+        complete = self.frames.complete
         if self.frames.add(s):
             self.streams["image"].record(s.header.seq, s.header.stamp, info.received_stamp_ns)
             self.image.last_age_ms = info.age_ms
+        if 0 <= s.index < MAX_SLICES:
+            self.streams["image_strip"].record(s.header.seq * MAX_SLICES + s.index, s.header.stamp,
+                                               info.received_stamp_ns)
+        if self.frames.complete > complete:
+            self.streams["image_whole"].record(s.header.seq, s.header.stamp, info.received_stamp_ns)
         self.image.frames, self.image.complete = self.frames.frames, self.frames.complete
+
+    def _on_share(self, s: ImageShare, info: Any) -> None:
+        # Executor: file the share; a rebuilt frame is kept as JPEG and decoded only when looked at.
+        got = self.fec.add(s, info.received_stamp_ns)
+        if got is None:
+            return
+        frame, now = got.info.frame, info.received_stamp_ns
+        for name, seq in (("image", frame), ("image_whole", frame), ("image_strip", frame * MAX_SLICES)):
+            self.streams[name].record(seq, got.stamp, now)
+        img = Image(Header(got.stamp, "", frame), got.height, got.width, "jpeg", 0, 0, got.jpeg)
+        self.frames.add_image(img, FrameInfo(frame, 1, 1, got.info.age_ms))
+        self.image.frames, self.image.complete = self.frames.frames, self.frames.complete
+        self.image.last_age_ms = got.info.age_ms
 
     def _on_raw_image(self, img: Image, info: Any) -> None:
         self.streams["image"].record(info.seq, info.source_stamp_ns, info.received_stamp_ns)
@@ -280,10 +308,20 @@ class Gcs:
             # Discovery: any namespace publishing a VehicleState on <id>/state is a drone.
             self._discovery = node.session.declare_subscriber("*/state", self._on_any_state)
         node.create_timer(1.0 / config.rate_hz, self._stream)
+        # Loss feedback (_wire/feedback.py): setpoint copies follow the loss the drones measure.
+        self.link_monitor = LinkMonitor(node) if config.profile.loss_feedback else None
+        if self.link_monitor is not None:
+            self.link_monitor.adapt(self._adapt_copies)
+            node.add_on_close(self.link_monitor.close)
         self._saver: threading.Thread | None = None
         self.saved_images: dict[str, Path] = {}
         if config.save_image:
             node.create_timer(config.save_every, self._save_images)
+
+    def _adapt_copies(self, loss: float) -> None:
+        for d in list(self.drones.values()):
+            if d.setpoint_pub.qos.repeat and d.setpoint_pub.qos.deadline:
+                apply_repeat_plan(d.setpoint_pub, loss)
 
     def _declare_parameters(self) -> None:
         """What this GCS runs with, for `zenoh-robot param list /gcs` (read-only: set at start)."""

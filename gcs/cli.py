@@ -14,6 +14,7 @@ from rich.live import Live
 
 from zenoh_robot import Node, SessionConfig
 from zenoh_robot.parameters import add_param_argument, params_from_args
+from zenoh_robot.services import command_retry
 from zenoh_robot.session_config import add_session_arguments, apply_session_arguments
 from zenoh_robot.tools.stream_profiles import IMAGE_MODES, PROFILES, stream_profile
 
@@ -321,7 +322,7 @@ def run_command(args: argparse.Namespace) -> int:
         failed: list[str] = []
 
         def one(drone: str) -> None:
-            client = node.create_client(f"/{drone}/command", Command, CommandResult)
+            client = node.create_client(f"/{drone}/command", Command, CommandResult, retry=command_retry(node))
             try:
                 res = client.call(Command(name, value, text, args.force, client_id), timeout=args.timeout)
             except ServiceCallError as exc:

@@ -122,13 +122,10 @@ def _fly(gcs: Gcs, drone: DroneLink, duration: float, out: dict[str, Any], log: 
             time.sleep(0.1)
         return pred()
 
-    def command(name: str, value: float = 0.0, tries: int = 3) -> None:
+    def command(name: str, value: float = 0.0) -> None:
+        # One call: the client retries it under one request id and the companion runs it once
+        # (services.py); a second call here would be a new command that could run twice.
         res = drone.command(name, value)
-        for _ in range(tries - 1):
-            if res.success or not res.message.startswith(("ServiceCallError", "ServiceTimeout", "Timeout")):
-                break
-            time.sleep(0.5)
-            res = drone.command(name, value)
         step(name, res.success, res.message)
 
     step("drone connected", until(lambda: bool(drone.state and drone.state.connected

@@ -140,6 +140,9 @@ def decode_error(payload: bytes) -> tuple[str, str] | None:
 REQUEST_CHUNK = "@rq"    # multicast sessions: requests are put on <service key>/@rq
 REPLY_CHUNK = "@rp"      # ... and replies on <service key>/@rp/<client_id>/<seq>
 _ERR_ATTACHMENT = b"e"
+# A reply on a multicast session goes out twice: each request copy that got through is then
+# answered with p = 1 - loss^2 instead of 1 - loss (the client drops the second copy it gets).
+MULTICAST_REPLY_COPIES = 2
 
 
 @dataclass(frozen=True)
@@ -168,6 +171,13 @@ class RetryPolicy:
 # is ~17 attempts in 2 s (0.75^17 < 1 % unanswered). A command is ~100 bytes: the cost is nothing.
 RESILIENT_RETRY = RetryPolicy(interval_s=0.05, multiplier=1.1, max_interval_s=0.2)
 _DEFAULT: Any = object()     # "the client's own retry policy" (None means no retry)
+# Unicast: queries ride a reliable link, so a retry only covers a link that broke and came back.
+UNICAST_COMMAND_RETRY = RetryPolicy(interval_s=0.5, multiplier=2.0, max_interval_s=2.0)
+
+
+def command_retry(node: "Node") -> RetryPolicy:
+    """The retry policy for commands (must arrive, must run once) on ``node``'s session."""
+    return RESILIENT_RETRY if is_multicast_session(node.session) else UNICAST_COMMAND_RETRY
 
 
 class _Scheduler:
@@ -371,8 +381,9 @@ class Service(Generic[Req, Resp]):
 
         def respond(ok: bool, payload: bytes) -> None:
             try:
-                session.put(reply_key, payload, attachment=None if ok else _ERR_ATTACHMENT,
-                            priority=zenoh.Priority.INTERACTIVE_HIGH)
+                for _ in range(MULTICAST_REPLY_COPIES):
+                    session.put(reply_key, payload, attachment=None if ok else _ERR_ATTACHMENT,
+                                priority=zenoh.Priority.INTERACTIVE_HIGH)
             except Exception as exc:
                 log.debug("service %s: reply put failed: %s", self.service_name, exc)
         self._on_request(data, respond)
