@@ -42,8 +42,10 @@ from px4_link.commands import CommandError
 from px4_link.setpoints import PositionSetpoint, Setpoint, SetpointRejected, VelocitySetpoint
 from px4_link.telemetry import Attitude, Battery, Imu, LocalPosition
 from zenoh_robot import Node
+from zenoh_robot._wire.feedback import LinkMonitor
 from zenoh_robot.events import SubscriptionEventCallbacks
-from zenoh_robot.image_transport import ImagePublisher, encode_strip
+from zenoh_robot.image_fec import FecImagePublisher
+from zenoh_robot.image_transport import MAX_SLICES, ImagePublisher, encode_strip
 from zenoh_robot.msgs import Header, Image, SensorCombined
 from zenoh_robot.publisher import PublisherClosed
 from zenoh_robot.tools.stream_metrics import StreamRecorder
@@ -105,7 +107,9 @@ class Companion:
         self.node, self.link, self.config = node, link, config
         q = config.profile.qos
         self.setpoints = StreamRecorder()
-        self.sent = {name: StreamRecorder() for name in ("sensor", "state", "image")}
+        # image_strip: every strip (FEC: every frame) sent, as frame * MAX_SLICES + index, for the
+        # experiment's fresh-strip fraction.
+        self.sent = {name: StreamRecorder() for name in ("sensor", "state", "image", "image_strip")}
         self.setpoints_rejected = 0
         self.setpoints_ignored = 0        # valid but outside a session: kept as candidate only
         self.commands_refused = 0
@@ -133,8 +137,14 @@ class Companion:
         if config.camera:
             if config.profile.image_mode == "sliced":
                 self.image_pub = ImagePublisher(node, "image", q["image"], quality=config.profile.jpeg_quality)
+            elif config.profile.image_mode == "fec":
+                self.image_pub = FecImagePublisher(node, "image", q["image"], quality=config.profile.jpeg_quality)
             else:
                 self.image_pub = node.create_publisher(Image, "image", q["image"])
+        # Loss feedback (_wire/feedback.py): image parity follows the loss the GCS measures.
+        self.link_monitor = LinkMonitor(node) if config.profile.loss_feedback else None
+        if self.link_monitor is not None and isinstance(self.image_pub, FecImagePublisher):
+            self.link_monitor.adapt(self.image_pub.set_loss)
         self.setpoint_sub = node.create_subscription(
             DroneSetpoint, "setpoint", self._on_setpoint, q["setpoint"].replace(deadline=config.setpoint_deadline),
             event_callbacks=SubscriptionEventCallbacks(deadline=self._on_deadline_missed))
@@ -512,7 +522,15 @@ class Companion:
         head = Header.now(frame_id="camera")
         if isinstance(self.image_pub, ImagePublisher):
             self.image_pub.publish(frame, head)
-            self.sent["image"].record(self.image_pub.frames - 1, head.stamp)   # slices carry the frame number
+            n = self.image_pub.frames - 1
+            self.sent["image"].record(n, head.stamp)   # slices carry the frame number
+            for i in range(self.image_pub.last_count):
+                self.sent["image_strip"].record(n * MAX_SLICES + i, head.stamp)
+            return
+        if isinstance(self.image_pub, FecImagePublisher):
+            n = self.image_pub.publish(frame, head)
+            self.sent["image"].record(n, head.stamp)
+            self.sent["image_strip"].record(n * MAX_SLICES, head.stamp)
             return
         if self.config.profile.image_mode == "jpeg":
             h, w = frame.shape[:2]
@@ -524,6 +542,8 @@ class Companion:
 
     def close(self) -> None:
         # Runs before the node's publishers go: the link's thread must stop using them first.
+        if self.link_monitor is not None:
+            self.link_monitor.close()
         self.link.telemetry.remove_listener(self._on_imu)
         self._stop.set()
         if self._camera_thread is not None:

@@ -10,6 +10,7 @@ import pytest
 pytest.importorskip("zfec")
 
 from conftest import linked_configs  # noqa: E402
+
 from zenoh_robot import Node  # noqa: E402
 from zenoh_robot.image_fec import (  # noqa: E402
     FecAssembler,

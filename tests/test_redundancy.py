@@ -2,7 +2,11 @@
 from __future__ import annotations
 
 import random
+import time
 
+from conftest import linked_configs
+
+from zenoh_robot import Node
 from zenoh_robot._wire.redundancy import Deduplicator, RedundantHistory
 
 
@@ -136,3 +140,40 @@ def test_deadline_copies_are_spread_and_a_newer_payload_replaces_them() -> None:
     # Spread over the window, not bunched: before the newer payload only the first ~2 of 10 went.
     assert 1 <= len(old) <= 4, old
     assert len(new) == 10 and len(other) == 2
+
+
+def test_repeat_plan_follows_loss_and_bounds_cost() -> None:
+    from zenoh_robot._wire.feedback import repeat_plan
+    plans = {p: repeat_plan(p, 0.5) for p in (0.0, 0.3, 0.5, 0.7, 0.9)}
+    rates = {p: c / w for p, (c, w) in plans.items()}          # copies per second while samples flow
+    assert rates[0.0] <= 41 and list(rates.values()) == sorted(rates.values())
+    for p, rate in rates.items():
+        # Every 400 ms window must hold enough packets that losing all of them is < 1e-4 likely.
+        assert p ** (0.4 * rate) < 1e-4, (p, plans[p])
+    assert plans[0.9][0] == 64 and plans[0.9][1] < 0.4            # 64 copies, packed closer
+
+
+def test_link_monitor_measures_silence_and_adapts_a_publisher(ns: str) -> None:
+    """Two nodes probe each other: no loss measured; when one goes silent the other sees ~100 %,
+    and the adapter re-sizes a real deadline publisher's copies from it."""
+    from zenoh_robot._wire.feedback import LinkMonitor, apply_repeat_plan
+    from zenoh_robot.msgs import Header
+    from zenoh_robot.qos import RESILIENT
+
+    listen, connect = linked_configs()
+    with Node("a", namespace=ns, config=listen) as a, Node("b", namespace=ns, config=connect) as b:
+        pub = a.create_publisher(Header, "sp", RESILIENT.replace(deadline=0.5, repeat=64))
+        ma, mb = LinkMonitor(a, topic=f"/{ns}/link"), LinkMonitor(b, topic=f"/{ns}/link")
+        seen: list[float] = []
+        ma.adapt(lambda p: (seen.append(p), apply_repeat_plan(pub, p)))
+        try:
+            # Callbacks run on the node's executor: spin a (b's probes are what a measures).
+            assert a.spin_until(lambda: len(seen) > 25 and seen[-1] < 0.2, 6.0), seen[-5:]
+            assert pub.repeats == 16 and abs(pub.repeat_window - 0.4) < 1e-9
+            mb.close()                          # b falls silent: a must see it as loss within ~1 s
+            assert a.spin_until(lambda: ma.outgoing_loss() >= 0.9, 4.0), ma.outgoing_loss()
+            time.sleep(0.2)
+            assert pub.repeats == 64 and pub.repeat_window < 0.4
+        finally:
+            ma.close()
+            mb.close()

@@ -97,7 +97,7 @@ def shares_for(k: int, loss: float, target: float = 0.99, max_expansion: float =
 def split(blob: bytes, share_bytes: int, loss: float, target: float = 0.99,
           max_expansion: float = 3.0) -> tuple[int, int, list[bytes]]:
     """``blob`` as (k, n, n shares); any k of them rebuild it (:func:`join`)."""
-    import zfec   # the [image] extra
+    import zfec  # the [image] extra
 
     k = max(1, min(MAX_SHARES - 1, math.ceil(len(blob) / share_bytes)))
     size = math.ceil(len(blob) / k)

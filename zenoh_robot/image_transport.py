@@ -101,6 +101,7 @@ class ImagePublisher:
         # semantics are kept on the receiving side.
         self._pub = node.create_publisher(ImageSlice, topic, qos.replace(history="keep_all", depth=0))
         self.frames = 0
+        self.last_count = 0      # slices of the last frame published
         self.oversize_slices = 0
         # Zenoh batches messages sent within 1 ms of each other into one datagram, and on the
         # multicast transport a batch is not bounded by batch_size: a burst of slices would
@@ -114,6 +115,7 @@ class ImagePublisher:
             if i and self.pace_s:
                 time.sleep(self.pace_s)
             self._pub.publish(piece)
+        self.last_count = len(pieces)
         self.frames += 1
 
     def encode(self, frame: Image | np.ndarray, header: Header | None = None) -> list[ImageSlice]:

@@ -125,13 +125,22 @@ class Publisher(Generic[M]):
         """Delayed copies of each sample (the QoS's ``repeat`` unless adapted by :meth:`set_repeats`)."""
         return self._repeats
 
-    def set_repeats(self, copies: int) -> None:
+    @property
+    def repeat_window(self) -> float | None:
+        """Seconds over which a deadline stream's copies are spread (None: copies 3 ms apart)."""
+        return self._repeat_window
+
+    def set_repeats(self, copies: int, window: float | None = None) -> None:
         """Adapt the copies per sample to the measured loss (only for a QoS with ``repeat``: subscribers
-        deduplicate only when the QoS says copies follow). Clamped to 1..64."""
+        deduplicate only when the QoS says copies follow). Clamped to 1..64. With a deadline, ``window``
+        (clamped to 0.8 x the deadline) sets how long the copies are spread over: copies / window is
+        the packet rate while samples keep coming (``_wire/feedback.repeat_plan``)."""
         if not self.qos.repeat:
             raise ValueError(f"publisher on {self.topic!r} has no repeat in its QoS")
         with self._lock:
             self._repeats = max(1, min(MAX_HISTORY, int(copies)))
+            if window is not None and self._repeat_window is not None and self.qos.deadline:
+                self._repeat_window = min(max(float(window), 0.001), self.qos.deadline * REPEAT_WINDOW_FRACTION)
 
     def assert_liveliness(self) -> None:
         """Tell subscriptions this publisher is alive (MANUAL_BY_TOPIC; publish() also does)."""

@@ -16,7 +16,7 @@ STREAMS = ("setpoint", "sensor", "state", "image", "events")
 # The GCS offers this deadline on setpoints: PX4 leaves OFFBOARD below 2 Hz, so a setpoint
 # stream that promises less is no use. A companion may request any deadline >= this one.
 SETPOINT_DEADLINE = 0.5
-IMAGE_MODES = ("raw", "jpeg", "sliced")
+IMAGE_MODES = ("raw", "jpeg", "sliced", "fec")
 SETPOINT_REPEAT_CEILING = 64
 
 
@@ -25,8 +25,12 @@ class StreamProfile:
     name: str
     description: str
     qos: dict[str, QoSProfile]
-    image_mode: str = "raw"                 # raw (rgb8 Image), jpeg (one JPEG Image), sliced (ImagePublisher)
+    image_mode: str = "raw"                 # raw (rgb8 Image), jpeg (one JPEG Image), sliced (ImagePublisher),
+                                            # fec (one JPEG in shares + parity: zenoh_robot.image_fec)
     jpeg_quality: int = 70
+    # Each end measures the loss it sees and tells the other (_wire/feedback.LinkMonitor): setpoint
+    # copies and image parity follow it instead of being sized for the worst case.
+    loss_feedback: bool = False
     # SessionConfig keyword overrides: what the transport needs to live through loss.
     transport: dict[str, Any] = field(default_factory=dict)
 
@@ -43,7 +47,7 @@ class StreamProfile:
 
     def summary(self) -> dict[str, Any]:
         return {"name": self.name, "description": self.description, "image_mode": self.image_mode,
-                "jpeg_quality": self.jpeg_quality, "transport": self.transport,
+                "jpeg_quality": self.jpeg_quality, "loss_feedback": self.loss_feedback, "transport": self.transport,
                 "qos": {k: v.to_dict() for k, v in self.qos.items()}}
 
 
@@ -62,11 +66,12 @@ PROFILES: dict[str, StreamProfile] = {
         _all(QoSProfile(ReliabilityPolicy.BEST_EFFORT, **_KEEP_LAST_10)), image_mode="raw"),
     "resilient": StreamProfile(
         "resilient",
-        "setpoints carry their last 8 samples and the newest is re-sent 64 times spread over 400 ms; state "
+        "setpoints carry their last 8 samples and the newest is re-sent over 400 ms, 16 to 64 times as "
+        "the measured loss requires (loss feedback; 64 until the first report); state "
         "and events carry their last samples and go out 4 times 3 ms apart; sensors best "
-        "effort with one delayed copy; images as paced one-datagram JPEG slices with latest-frame "
-        "semantics; UDP multicast transport (no handshake to lose), joins every 250 ms, keep-alives "
-        "every 100 ms",
+        "effort with one delayed copy; images as one JPEG per frame in one-datagram shares plus "
+        "Reed-Solomon parity sized from the measured loss (whole or absent, latest frame wins); "
+        "UDP multicast transport (no handshake to lose), joins every 250 ms, keep-alives every 100 ms",
         {
             # Deadline-driven copies: the newest setpoint re-sent 64 times over 0.8 x the 500 ms
             # deadline, a newer one replacing them: ~170 packets/s at 10 Hz, so a gap over 500 ms
@@ -80,7 +85,7 @@ PROFILES: dict[str, StreamProfile] = {
             "image": QoSProfile(ReliabilityPolicy.BEST_EFFORT, depth=1, priority=Priority.DATA_LOW),
             "events": RESILIENT.replace(depth=10, priority=Priority.INTERACTIVE_HIGH),
         },
-        image_mode="sliced", jpeg_quality=60,
+        image_mode="fec", jpeg_quality=60, loss_feedback=True,
         transport={"batch_size": 1300, "lease_s": 10.0, "keep_alive": 100},
     ),
 }

@@ -1,0 +1,206 @@
+"""Loss feedback: each node measures the packet loss it sees and tells its peers.
+
+A publisher cannot see its own losses; its receivers can. A :class:`LinkMonitor` per node
+sends a tiny best-effort probe (``LinkProbe``, ~100 bytes) every ``period_s`` on one
+absolute topic; each probe carries a sequence number, and the loss the sender measures on
+the probes of each peer it hears. So every node knows (a) the loss on its incoming
+direction, from the gaps in its peers' probes, and (b) the loss its peers see from it,
+from their reports. :meth:`LinkMonitor.outgoing_loss` is the worst of both over the peers
+heard recently (loss is usually symmetric, and (a) needs no round trip, so it answers a
+sudden burst in about one short window). Adapters (:meth:`LinkMonitor.adapt`) are called
+with it at every probe: e.g. ``monitor.adapt(lambda p: apply_repeat_plan(setpoint_pub, p))``
+or ``monitor.adapt(image_pub.set_loss)``.
+
+Estimates: probes that arrived in the last ``window_s`` (and ``long_window_s``) over those
+the peer's period says were sent; the larger of the two, so a rise is seen within the short
+window and a fall only once the long window agrees. Bounded: at most ``max_peers`` peers
+(least recently heard forgotten), ``max_peers`` reports per probe, a peer silent for
+``forget_s`` is dropped (a drone that left must not hold the link at "90 %" forever).
+"""
+from __future__ import annotations
+
+import logging
+import math
+import secrets
+import threading
+import time
+from collections import OrderedDict, deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from ..message import Message, array, message, ros_field
+from ..qos import QoSProfile, ReliabilityPolicy
+from .repeater import REPEAT_INTERVAL_S
+
+log = logging.getLogger("zenoh_robot.feedback")
+
+LINK_TOPIC = "/zr_link"
+MAX_PEERS = 32
+MAX_LOSS = 0.97
+PROBE_QOS = QoSProfile(ReliabilityPolicy.BEST_EFFORT, depth=8)
+
+
+@message(name="zenoh_robot/LinkProbe")
+class LinkProbe(Message):
+    id: int = ros_field("uint64", 0)          # the sending monitor (random per node)
+    seq: int = ros_field("uint32", 0)
+    period_ms: int = ros_field("uint16", 50)  # how often the sender probes
+    peers: list[int] = array("uint64")        # monitors the sender hears ...
+    loss: list[float] = array("float32")      # ... and the loss it measures on each (0..1)
+
+
+@dataclass
+class _Peer:
+    first_seen: float
+    period: float
+    arrivals: deque[float] = field(default_factory=lambda: deque(maxlen=2048))
+    reported: float = math.nan                # the loss this peer sees on our probes
+    reported_at: float = 0.0
+
+
+def repeat_plan(loss: float, deadline_s: float, miss: float = 1e-6, margin: float = 0.05,
+                min_copies: int = 16, max_copies: int = 64) -> tuple[int, float]:
+    """(copies, window) for a deadline stream at packet loss ``loss``.
+
+    A gap longer than the deadline needs every packet sent in the window lost; with the
+    newest sample re-sent every ``step`` (a newer sample replaces the older one's copies and
+    carries it in its history, so copies form one steady stream), that is ``p ** (W / step)``.
+    Pick the step so this is below ``miss`` for p = loss + ``margin`` (the estimate is noisy),
+    never slower than ``min_copies`` over the window (a sudden burst must be survived while the
+    feedback catches up) and never faster than one copy per REPEAT_INTERVAL_S.
+    """
+    window = 0.8 * deadline_s
+    p = min(MAX_LOSS, max(0.0, loss if math.isfinite(loss) else MAX_LOSS) + margin)
+    needed = math.ceil(math.log(miss) / math.log(p)) if p > 0 else 1
+    step = max(REPEAT_INTERVAL_S, window / max(needed, min_copies))
+    copies = min(max_copies, max(1, math.ceil(window / step)))
+    return copies, min(window, copies * step)
+
+
+def apply_repeat_plan(publisher: Any, loss: float) -> None:
+    """Set a deadline publisher's copies from the measured loss (see :func:`repeat_plan`)."""
+    copies, window = repeat_plan(loss, publisher.qos.deadline)
+    publisher.set_repeats(copies, window)
+
+
+class LinkMonitor:
+    def __init__(self, node: Any, topic: str = LINK_TOPIC, period_s: float = 0.05, window_s: float = 1.0,
+                 long_window_s: float = 5.0, forget_s: float = 10.0, max_peers: int = MAX_PEERS) -> None:
+        self.id = secrets.randbits(63)
+        self.period_s = period_s
+        self.window_s = window_s
+        self.long_window_s = long_window_s
+        self.forget_s = forget_s
+        self.max_peers = max_peers
+        self._peers: OrderedDict[int, _Peer] = OrderedDict()
+        self._lock = threading.Lock()
+        self._adapters: list[Callable[[float], None]] = []
+        self._seq = 0
+        self.probes_sent = 0
+        self.probes_received = 0
+        self.bad_probes = 0
+        self.adapter_errors = 0
+        self._last_log = 0.0
+        self._pub = node.create_publisher(LinkProbe, topic, PROBE_QOS)
+        self._sub = node.create_subscription(LinkProbe, topic, self._on_probe, PROBE_QOS)
+        self._stop = threading.Event()
+        # Own thread, not the node's executor: the probe clock must not stall with the callbacks.
+        self._thread = threading.Thread(target=self._run, name="zr-link-monitor", daemon=True)
+        self._thread.start()
+
+    def adapt(self, callback: Callable[[float], None]) -> None:
+        """Call ``callback(outgoing_loss)`` after every probe once a peer is heard."""
+        self._adapters.append(callback)
+
+    # -- receive ---------------------------------------------------------------------
+    def _on_probe(self, msg: LinkProbe, info: Any = None) -> None:
+        if msg.id == self.id:
+            return
+        if not (1 <= msg.period_ms <= 10_000 and len(msg.peers) == len(msg.loss) <= MAX_PEERS):
+            self.bad_probes += 1
+            return
+        now = time.monotonic()
+        with self._lock:
+            peer = self._peers.get(msg.id)
+            if peer is None:
+                peer = self._peers[msg.id] = _Peer(now, msg.period_ms / 1000)
+                while len(self._peers) > self.max_peers:
+                    self._peers.popitem(last=False)
+            self._peers.move_to_end(msg.id)
+            peer.period = msg.period_ms / 1000
+            peer.arrivals.append(now)
+            self.probes_received += 1
+            for pid, loss in zip(msg.peers, msg.loss, strict=True):
+                if pid == self.id and math.isfinite(loss):
+                    peer.reported, peer.reported_at = min(1.0, max(0.0, float(loss))), now
+
+    def _incoming(self, peer: _Peer, now: float) -> float:
+        worst = 0.0
+        for window in (self.window_s, self.long_window_s):
+            span = min(window, now - peer.first_seen)
+            if span < 4 * peer.period:
+                continue          # too new to say
+            got = sum(1 for t in peer.arrivals if t > now - span)
+            worst = max(worst, 1.0 - min(1.0, got / (span / peer.period)))
+        return worst
+
+    def incoming_loss(self) -> dict[int, float]:
+        """Per peer heard: the loss measured on its probes (0..1)."""
+        now = time.monotonic()
+        with self._lock:
+            return {pid: self._incoming(p, now) for pid, p in self._peers.items()}
+
+    def outgoing_loss(self) -> float:
+        """The worst loss towards any peer heard recently (NaN if none): what to size copies for."""
+        now = time.monotonic()
+        worst = math.nan
+        with self._lock:
+            for p in self._peers.values():
+                loss = self._incoming(p, now)
+                if now - p.reported_at < 3.0 and math.isfinite(p.reported):
+                    loss = max(loss, p.reported)
+                worst = loss if math.isnan(worst) else max(worst, loss)
+        return worst
+
+    # -- send ------------------------------------------------------------------------
+    def _run(self) -> None:
+        next_t = time.monotonic()
+        while not self._stop.is_set():
+            try:
+                self._tick()
+            except Exception as exc:   # a closing session: never kill the thread on one failure
+                now = time.monotonic()
+                if now - self._last_log > 5.0:
+                    self._last_log = now
+                    log.warning("link probe failed: %s", exc)
+            next_t += self.period_s
+            self._stop.wait(max(0.0, next_t - time.monotonic()))
+
+    def _tick(self) -> None:
+        now = time.monotonic()
+        with self._lock:
+            gone = [pid for pid, p in self._peers.items() if not p.arrivals or now - p.arrivals[-1] > self.forget_s]
+            for pid in gone:
+                del self._peers[pid]
+            measured = [(pid, self._incoming(p, now)) for pid, p in self._peers.items()]
+        self._seq = (self._seq + 1) & 0xFFFFFFFF
+        self._pub.publish(LinkProbe(self.id, self._seq, round(self.period_s * 1000),
+                                    [pid for pid, _ in measured], [loss for _, loss in measured]))
+        self.probes_sent += 1
+        if not measured:
+            return
+        loss = self.outgoing_loss()
+        for adapter in self._adapters:
+            try:
+                adapter(loss)
+            except Exception as exc:
+                self.adapter_errors += 1
+                if now - self._last_log > 5.0:
+                    self._last_log = now
+                    log.warning("loss adapter failed: %s", exc)
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not threading.current_thread():
+            self._thread.join(timeout=1.0)
