@@ -40,6 +40,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--profile", choices=sorted(PROFILES), default="resilient")
     p.add_argument("--config", type=Path, help="QoS YAML overriding streams (setpoint, sensor, state, image, events)")
     p.add_argument("--zenoh", help="Zenoh session config (JSON5)")
+    p.add_argument("--iface", help="network interface towards the GCS for the multicast transport "
+                   "(profiles resilient, resilient_multicast; required by the latter)")
     add_session_arguments(p)
     p.add_argument("--no-topic-statistics", action="store_true",
                    help="do not publish per-stream statistics (what `zenoh-robot stats` shows)")
@@ -130,7 +132,10 @@ def run(args: argparse.Namespace) -> int:
         CompanionParameters(config).declare(ParameterStore(params))
     except ParameterError as exc:
         raise CliError(f"-p: {exc}") from None
-    session = SessionConfig.from_file(args.zenoh) if args.zenoh else SessionConfig(**profile.transport)
+    try:   # the profile says unicast or multicast; multicast needs --iface (one-line error otherwise)
+        session = SessionConfig.from_file(args.zenoh) if args.zenoh else profile.session_config(args.iface)
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
     session = apply_session_arguments(session, args, args.id)
     from zenoh_robot import MultiThreadedExecutor
     stop = threading.Event()

@@ -16,7 +16,7 @@ from zenoh_robot import Node, SessionConfig
 from zenoh_robot.parameters import add_param_argument, params_from_args
 from zenoh_robot.services import command_retry
 from zenoh_robot.session_config import add_session_arguments, apply_session_arguments
-from zenoh_robot.tools.stream_profiles import IMAGE_MODES, PROFILES, stream_profile
+from zenoh_robot.tools.stream_profiles import IMAGE_MODES, PROFILES, StreamProfile, stream_profile
 
 from .app import Gcs, GcsConfig
 from .dashboard import RateMeter, plain_lines, render
@@ -58,6 +58,8 @@ def add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--speed", type=float, default=2.0, help="pattern speed, m/s")
     p.add_argument("--profile", choices=sorted(PROFILES), default="resilient", help="stream QoS/transport profile")
     p.add_argument("--zenoh", help="Zenoh session config (JSON5)")
+    p.add_argument("--iface", help="network interface towards the drones for the multicast transport "
+                   "(profiles resilient, resilient_multicast; required by the latter)")
     add_session_arguments(p)
     p.add_argument("--image", choices=IMAGE_MODES, help="image path, overriding the profile's (must match the drone's)")
     p.add_argument("--duration", type=float, help="stop after this many seconds")
@@ -94,10 +96,14 @@ def add_common(p: argparse.ArgumentParser) -> None:
     add_param_argument(p)
 
 
-def session_config(args: argparse.Namespace, profile_transport: dict[str, Any]) -> SessionConfig:
+def session_config(args: argparse.Namespace, profile: StreamProfile) -> SessionConfig:
     if args.zenoh:
         return SessionConfig.from_file(args.zenoh)
-    return SessionConfig(**profile_transport)
+    from zenoh_robot.tools.cli.main import CliError
+    try:   # the profile says unicast or multicast; multicast needs --iface (one-line error otherwise)
+        return profile.session_config(getattr(args, "iface", None))
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -133,7 +139,7 @@ def run(args: argparse.Namespace) -> int:
         console.print(f"gcs: --save-image: one file per drone, "
                       f"{args.save_image.with_name(args.save_image.stem + '_<id>' + args.save_image.suffix)} "
                       "(each name is printed when first written)")
-    session = apply_session_arguments(session_config(args, profile.transport), args, "gcs")
+    session = apply_session_arguments(session_config(args, profile), args, "gcs")
     with Node("gcs", config=session, parameter_overrides=params,
               enable_topic_statistics=not args.no_topic_statistics) as node:
         gcs = Gcs(node, config)

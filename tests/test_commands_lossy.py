@@ -24,3 +24,79 @@ def test_commands_answered_and_executed_once_at_50_percent_loss() -> None:
     assert row["success_rate"] >= 0.9, row
     assert row["double_executions"] == 0, row
     assert row["attempts_per_call"] > 1.0, row      # the loss was real and the retries did the work
+
+
+PEER_SCRIPT = """
+import sys
+from zenoh_robot import Node, SessionConfig
+with Node("mc_peer", config=SessionConfig.resilient(sys.argv[1])) as node:
+    print("READY", flush=True)
+    sys.stdin.readline()
+"""
+
+CHECK_SCRIPT = """
+import sys, time
+from zenoh_robot import Node, SessionConfig
+from zenoh_robot.msgs import Setpoint
+def wait(pred, t):
+    end = time.monotonic() + t
+    while time.monotonic() < end and not pred():
+        time.sleep(0.05)
+    return pred()
+with Node("mc_check", config=SessionConfig.resilient(sys.argv[1])) as node:
+    pub = node.create_publisher(Setpoint, "mc/setpoint")
+    up = wait(node.link_up, 10.0)
+    time.sleep(1.0)
+    print("UP" if up else "NOT-UP", len(node.peers()), len(node.session.info.peers_zid()),
+          pub.get_subscription_count(), flush=True)
+    sys.stdin.readline()                      # the peer has closed its session
+    print("DOWN" if wait(lambda: not node.link_up(), 15.0) else "STILL-UP", flush=True)
+"""
+
+
+@pytest.mark.netns
+def test_link_up_and_peers_on_a_multicast_session() -> None:
+    """On the multicast transport the graph is empty (no declarations cross it, so matched counts
+    and peers_zid() stay 0), yet node.peers() / link_up() see the other side come and go."""
+    import subprocess
+    import sys
+
+    from zenoh_robot.tools.experiment.netns import LossyLink, unavailable_reason
+
+    reason = unavailable_reason()
+    if reason:
+        skip_unless_required(f"multicast link-up test: network namespaces are unavailable: {reason}")
+    with LossyLink(loss_pct=0) as link:
+        def child(side: str, script: str) -> subprocess.Popen[str]:
+            return subprocess.Popen(link.exec_in(side) + [sys.executable, "-c", script, link.dev(side)],
+                                    stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        peer = child("drone", PEER_SCRIPT)
+        check = child("gcs", CHECK_SCRIPT)
+        try:
+            assert peer.stdout is not None and peer.stdout.readline().strip() == "READY"
+            assert check.stdout is not None and check.stdin is not None
+            up, n_peers, n_peers_zid, n_subs = check.stdout.readline().split()
+            assert (up, n_peers) == ("UP", "1"), (up, n_peers)
+            assert (n_peers_zid, n_subs) == ("0", "0")     # what a user saw: nothing tells the link is up
+            peer.communicate("\n", timeout=15)            # the peer closes its session
+            check.stdin.write("\n")
+            check.stdin.flush()
+            assert check.stdout.readline().strip() == "DOWN"
+        finally:
+            for p in (peer, check):
+                if p.poll() is None:
+                    p.kill()
+                p.wait(10)
+
+
+def test_multicast_profile_needs_an_interface() -> None:
+    from zenoh_robot.qos import QoSError
+    from zenoh_robot.tools.stream_profiles import stream_profile
+
+    with pytest.raises(QoSError, match="--iface"):
+        stream_profile("resilient_multicast").session_config(None)
+    assert stream_profile("resilient_multicast").session_config("eth9").multicast
+    assert stream_profile("resilient").session_config("eth9").multicast        # auto: --iface picks multicast
+    assert not stream_profile("resilient").session_config(None).multicast
+    with pytest.raises(QoSError, match="unicast"):
+        stream_profile("reliable").session_config("eth9")

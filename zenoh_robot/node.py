@@ -229,6 +229,23 @@ class Node:
     def zid(self) -> str:
         return self._the_graph.zid
 
+    def peers(self) -> list[str]:
+        """Zenoh ids of the sessions this one has a live transport with, unicast or multicast.
+
+        On a multicast session (SessionConfig.resilient) this is the only discovery there is: Zenoh 1.10
+        carries no liveliness tokens, declarations or queries over that transport, so the graph, the
+        matched counts and ``session.info.peers_zid()`` stay empty there; a multicast peer appears
+        with its first Join and leaves when it closes or its lease (10 s) runs out.
+        """
+        try:
+            return sorted({str(t.zid) for t in self.session.info.transports()})
+        except Exception:     # a closed session has no peers
+            return []
+
+    def link_up(self) -> bool:
+        """True while at least one other session is reachable (see :meth:`peers`)."""
+        return bool(self.peers())
+
     def refresh_graph(self, timeout: float = 1.0) -> None:
         """Query the network for the whole graph now (CLI tools call this before answering)."""
         self._the_graph.refresh(timeout)

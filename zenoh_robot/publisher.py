@@ -149,7 +149,10 @@ class Publisher(Generic[M]):
         self.events.assert_liveliness()
 
     def get_subscription_count(self) -> int:
-        """Subscriptions matched with this publisher (same type, compatible QoS), in any process."""
+        """Subscriptions matched with this publisher (same type, compatible QoS), in any process.
+
+        Always 0 on a multicast session: Zenoh 1.10 does not carry the graph's declarations over that
+        transport. There ``node.link_up()`` / ``node.peers()`` tell whether anyone is reachable."""
         return self.events.current_count
 
     def on_peer(self, appeared: bool, info: TopicEndpointInfo) -> None:

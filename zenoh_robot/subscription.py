@@ -367,7 +367,9 @@ class Subscription(Generic[M]):
         self.events.on_peer(appeared, info)
 
     def get_publisher_count(self) -> int:
-        """Publishers matched with this subscription (same type, compatible QoS), in any process."""
+        """Publishers matched with this subscription (same type, compatible QoS), in any process.
+
+        Always 0 on a multicast session (no declarations cross it): use ``node.link_up()`` there."""
         return self.events.current_count
 
     def destroy(self) -> None:

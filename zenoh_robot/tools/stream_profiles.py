@@ -10,7 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from zenoh_robot.qos import (RESILIENT, HistoryPolicy, Priority, QoSError, QoSProfile, ReliabilityPolicy)
+from zenoh_robot.qos import RESILIENT, HistoryPolicy, Priority, QoSError, QoSProfile, ReliabilityPolicy
+from zenoh_robot.session_config import SessionConfig
 
 STREAMS = ("setpoint", "sensor", "state", "image", "events")
 # The GCS offers this deadline on setpoints: PX4 leaves OFFBOARD below 2 Hz, so a setpoint
@@ -18,6 +19,7 @@ STREAMS = ("setpoint", "sensor", "state", "image", "events")
 SETPOINT_DEADLINE = 0.5
 IMAGE_MODES = ("raw", "jpeg", "sliced", "fec")
 SETPOINT_REPEAT_CEILING = 64
+TRANSPORT_KINDS = ("unicast", "multicast", "auto")
 
 
 @dataclass(frozen=True)
@@ -33,6 +35,9 @@ class StreamProfile:
     loss_feedback: bool = False
     # SessionConfig keyword overrides: what the transport needs to live through loss.
     transport: dict[str, Any] = field(default_factory=dict)
+    # "unicast": a plain session (TCP/UDP links); "multicast": Zenoh's UDP multicast transport on the
+    # interface the caller names (SessionConfig.resilient); "auto": multicast when an interface is given.
+    transport_kind: str = "unicast"
 
     def with_overrides(self, params: dict[str, Any]) -> "StreamProfile":
         """Apply the thesis's node parameters (reliability, history, depth) to every stream."""
@@ -45,9 +50,27 @@ class StreamProfile:
             raise QoSError(f"parameters {sorted(keys)}: {exc}") from None
         return replace(self, qos=new, name=f"{self.name}+params")
 
+    def session_config(self, iface: str | None = None) -> SessionConfig:
+        """The Zenoh session this profile's transport asks for; ``iface`` is the network interface
+        towards the peers (multicast). A profile that needs multicast without one: a one-line error."""
+        if self.transport_kind not in TRANSPORT_KINDS:
+            raise QoSError(f"profile {self.name}: transport {self.transport_kind!r} is not one of {TRANSPORT_KINDS}")
+        if iface is not None and not iface.strip():
+            raise QoSError("--iface: empty interface name")
+        if self.transport_kind == "multicast" and iface is None:
+            raise QoSError(f"profile {self.name} uses the UDP multicast transport: give --iface IFACE "
+                           f"(the network interface towards the peers, e.g. wlan0) or --zenoh FILE")
+        if iface is not None and self.transport_kind in ("multicast", "auto"):
+            return SessionConfig.resilient(iface, **self.transport)
+        if iface is not None:
+            raise QoSError(f"profile {self.name} uses a unicast transport: --iface applies to multicast "
+                           f"profiles ({', '.join(n for n, p in PROFILES.items() if p.transport_kind != 'unicast')})")
+        return SessionConfig(**self.transport)
+
     def summary(self) -> dict[str, Any]:
         return {"name": self.name, "description": self.description, "image_mode": self.image_mode,
                 "jpeg_quality": self.jpeg_quality, "loss_feedback": self.loss_feedback, "transport": self.transport,
+                "transport_kind": self.transport_kind,
                 "qos": {k: v.to_dict() for k, v in self.qos.items()}}
 
 
@@ -86,9 +109,14 @@ PROFILES: dict[str, StreamProfile] = {
             "events": RESILIENT.replace(depth=10, priority=Priority.INTERACTIVE_HIGH),
         },
         image_mode="fec", jpeg_quality=60, loss_feedback=True,
-        transport={"batch_size": 1300, "lease_s": 10.0, "keep_alive": 100},
+        transport={"batch_size": 1300, "lease_s": 10.0, "keep_alive": 100}, transport_kind="auto",
     ),
 }
+# The resilient streams on the multicast transport, which they are measured on (docs/lossy-link.md):
+# --iface is required, so a forgotten flag cannot silently fall back to a unicast handshake.
+PROFILES["resilient_multicast"] = replace(
+    PROFILES["resilient"], name="resilient_multicast", transport_kind="multicast",
+    description=PROFILES["resilient"].description + " (multicast required: --iface)")
 
 
 def stream_profile(name: str, params: dict[str, Any] | None = None, *, image_mode: str | None = None,
