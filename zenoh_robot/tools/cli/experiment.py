@@ -26,6 +26,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="apply loss after set-up (the thesis), from start-up, or both")
     p.add_argument("--duration", type=float, default=20.0, help="measured seconds per cell (default 20)")
     p.add_argument("--warmup", type=float, default=5.0, help="seconds before measuring (default 5)")
+    p.add_argument("--transport", default="default",
+                   help="comma-separated: default (each profile's own: multicast for resilient), unicast "
+                        "(resilient over a UDP/TCP peer-to-peer session with fast open retries)")
     p.add_argument("--out", type=Path, default=Path("results/experiment"))
     p.add_argument("--resume", action="store_true", help="keep finished cells of an earlier run in --out")
     p.add_argument("--report-only", action="store_true", help="redraw figures and tables from --out")
@@ -51,7 +54,12 @@ def run(args: argparse.Namespace) -> int:
         if unknown:
             raise CliError(f"unknown profile(s) {unknown}; profiles: {', '.join(KNOWN)}")
         starts = ["after", "startup"] if args.start == "both" else [args.start]
-        cells = [CellSpec(p, loss, s, args.duration, args.warmup) for s in starts for p in profiles for loss in args.loss]
+        transports = [t for t in args.transport.split(",") if t]
+        from ..experiment.cell import TRANSPORTS
+        if any(t not in TRANSPORTS for t in transports):
+            raise CliError(f"unknown transport in {transports}; transports: {', '.join(TRANSPORTS)}")
+        cells = [CellSpec(p, loss, s, args.duration, args.warmup, t) for s in starts for p in profiles
+                 for t in transports if t == "default" or p == "resilient" for loss in args.loss]
         console.print(f"{len(cells)} cells of {args.duration:g} s (+{args.warmup:g} s warm-up): "
                       f"about {len(cells) * (args.duration + args.warmup + 4) / 60:.0f} min; results in {out}")
         results = run_sweep(out, cells, resume=args.resume, console=console)

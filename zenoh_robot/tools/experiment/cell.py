@@ -35,10 +35,29 @@ class CellSpec:
     start: str = "after"        # "after": loss once sessions are up (the thesis); "startup": from the start
     duration: float = 20.0
     warmup: float = 5.0
+    transport: str = "default"  # the profile's own; "unicast": resilient over a UDP/TCP peer-to-peer session
+
+    @property
+    def label(self) -> str:
+        return self.profile if self.transport == "default" else f"{self.profile}@{self.transport}"
 
 
-def transport_for(profile: str, link: LossyLink, side: str) -> dict[str, Any]:
+TRANSPORTS = ("default", "unicast")
+# A unicast session must cross a handshake: under loss, retry it fast and give each try little time
+# (zenoh 1.10 defaults: 10 s open/accept timeouts, retries backing off to 4 s).
+FAST_OPEN = {"transport/unicast/open_timeout": 1000, "transport/unicast/accept_timeout": 1000,
+             "connect/retry": {"period_init_ms": 100, "period_max_ms": 500, "period_increase_factor": 1.5}}
+
+
+def transport_for(profile: str, link: LossyLink, side: str, transport: str = "default") -> dict[str, Any]:
     """The Zenoh config of one side, as JSON (valid JSON5) for ``--zenoh``."""
+    if profile == "resilient" and transport == "unicast":
+        endpoints = [f"udp/{link.addr('gcs')}:{PORT}", f"tcp/{link.addr('gcs')}:{PORT}"]
+        tuned = dict(multicast_scouting=False, shared_memory=False, batch_size=1300, lease_s=10.0, keep_alive=100,
+                     accept_timeout_s=1.0, extra=dict(FAST_OPEN))
+        if side == "gcs":
+            return SessionConfig(listen=endpoints, **tuned).to_json5()   # type: ignore[arg-type]
+        return SessionConfig(listen=[], connect=endpoints, **tuned).to_json5()   # type: ignore[arg-type]
     if profile == "resilient":
         return SessionConfig.resilient(link.dev(side), MCAST).to_json5()
     # The thesis's variants as a plain deployment would run them: TCP for reliable, UDP for best
@@ -59,7 +78,8 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
     with LossyLink(loss_pct=spec.loss if spec.start == "startup" else 0.0) as link:
         procs = {}
         for side in ("gcs", "drone"):
-            (workdir / f"{side}.json5").write_text(json.dumps(transport_for(spec.profile, link, side), indent=1))
+            (workdir / f"{side}.json5").write_text(
+                json.dumps(transport_for(spec.profile, link, side, spec.transport), indent=1))
         common = ["--profile", spec.profile, "--duration", str(total)]
         drone_cmd = [sys.executable, "-m", "companion", "--id", DRONE_ID, "--px4", "sim",
                      "--zenoh", str(workdir / "drone.json5"), "--record", str(workdir / "drone.json"), *common]
@@ -101,8 +121,8 @@ def _load(path: Path) -> dict[str, Any] | None:
 
 def analyse_cell(spec: CellSpec, workdir: Path, t0: int, t1: int, exit_codes: dict[str, int]) -> dict[str, Any]:
     gcs, drone = _load(workdir / "gcs.json"), _load(workdir / "drone.json")
-    result: dict[str, Any] = {"profile": spec.profile, "loss": spec.loss, "start": spec.start,
-                              "duration": spec.duration, "exit_codes": exit_codes, "topics": {},
+    result: dict[str, Any] = {"profile": spec.label, "transport": spec.transport, "loss": spec.loss,
+                              "start": spec.start, "duration": spec.duration, "exit_codes": exit_codes, "topics": {},
                               "config": stream_profile(spec.profile).summary()}
     if gcs is None or drone is None or DRONE_ID not in gcs.get("drones", {}):
         result["error"] = f"missing records (see {workdir}/*.log)"
@@ -117,6 +137,13 @@ def analyse_cell(spec: CellSpec, workdir: Path, t0: int, t1: int, exit_codes: di
              "sensor": (g["received"]["sensor"], d["sent"]["sensor"]),
              "image": (g["received"]["image"], d["sent"]["image"]),
              "state": (g["received"]["state"], d["sent"]["state"])}
+    # Honest image figures: frames whose every strip is fresh, and the fraction of fresh strips. A raw or
+    # single-JPEG frame is one piece (whole iff it arrived); a FEC frame is whole or absent.
+    if stream_profile(spec.profile).image_mode in ("sliced", "fec") and "image_whole" in g["received"]:
+        pairs["image_whole"] = (g["received"]["image_whole"], d["sent"]["image"])
+        pairs["image_strip"] = (g["received"]["image_strip"], d["sent"]["image_strip"])
+    else:
+        pairs["image_whole"] = pairs["image_strip"] = pairs["image"]
     for topic, (received, sent) in pairs.items():
         result["topics"][topic] = analyse(rec(received), rec(sent), t0, t1).as_dict()
     sp = result["topics"]["setpoint"]

@@ -23,7 +23,7 @@ def write_csv(results: list[dict[str, Any]], path: Path) -> None:
         w = csv.writer(f)
         w.writerow(["start", "profile", "loss", "topic", *FIELDS, "offboard_kept", "error"])
         for r in results:
-            for topic in TOPICS + ("state",):
+            for topic in TOPICS + ("state", "image_whole", "image_strip"):
                 s = r.get("topics", {}).get(topic, {})
                 w.writerow([r.get("start"), r.get("profile"), r.get("loss"), topic, *(s.get(k) for k in FIELDS),
                             r.get("offboard_kept"), r.get("error", "")])
@@ -89,6 +89,25 @@ def setpoint_table(results: list[dict[str, Any]], start: str = "after") -> str:
     return "\n".join(lines)
 
 
+def image_table(results: list[dict[str, Any]], start: str = "after") -> str:
+    """Frames as the viewer sees them: shown, whole and fresh (every strip from this frame), fresh strips."""
+    rows = sorted((r for r in results if r.get("start") == start and not r.get("error")),
+                  key=lambda r: (float(r["loss"]), str(r["profile"])))
+    head = ["loss", "profile", "image mode", "frames shown /s", "whole fresh frames /s", "whole fresh %",
+            "fresh strips %", "p50 age", "drone -> GCS kB/s"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows:
+        t = r.get("topics", {})
+        shown, whole, strip = t.get("image", {}), t.get("image_whole", {}), t.get("image_strip", {})
+        lines.append("| " + " | ".join([
+            f"{float(r['loss']):g}%", str(r["profile"]), str(r.get("config", {}).get("image_mode", "-")),
+            f"{shown.get('rate_hz', math.nan):.1f}", f"{whole.get('rate_hz', math.nan):.1f}",
+            f"{whole.get('delivered_pct', math.nan):.0f}%", f"{strip.get('delivered_pct', math.nan):.0f}%",
+            _fmt_ms(whole.get("age_p50_ms")), f"{r.get('bandwidth_kBps', {}).get('drone', math.nan):.1f}",
+        ]) + " |")
+    return "\n".join(lines)
+
+
 def draw_figures(results: list[dict[str, Any]], out_dir: Path) -> list[Path]:
     import matplotlib
     matplotlib.use("Agg")
@@ -132,7 +151,8 @@ def write_report(results: list[dict[str, Any]], out_dir: Path) -> dict[str, Path
         if any(r.get("start") == start for r in results):
             md += [f"## Loss {'applied after set-up' if start == 'after' else 'present from start-up'}", "",
                    markdown_table(results, start), "", "### Setpoint gaps and bandwidth", "",
-                   setpoint_table(results, start), ""]
+                   setpoint_table(results, start), "", "### Images: whole fresh frames", "",
+                   image_table(results, start), ""]
     (out_dir / "results.md").write_text("\n".join(md))
     figures = draw_figures(results, out_dir)
     import json

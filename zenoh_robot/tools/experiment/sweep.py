@@ -8,9 +8,10 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Iterable
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
@@ -22,7 +23,7 @@ PROFILES = ("reliable", "best_effort", "resilient")
 
 
 def _key(r: dict[str, Any]) -> tuple[str, str, float]:
-    return r["start"], r["profile"], float(r["loss"])
+    return r["start"], r["profile"], float(r["loss"])   # profile: the cell's label (profile@transport)
 
 
 def load_results(path: Path) -> list[dict[str, Any]]:
@@ -46,18 +47,18 @@ def run_sweep(out_dir: Path, cells: Iterable[CellSpec], resume: bool = False,
     done = {_key(r) for r in load_results(results_path)} if resume else set()
     if not resume and results_path.exists():
         results_path.rename(results_path.with_suffix(f".{int(time.time())}.jsonl"))
-    todo = [c for c in cells if (c.start, c.profile, float(c.loss)) not in done]
+    todo = [c for c in cells if (c.start, c.label, float(c.loss)) not in done]
     columns = (TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total} cells"),
                TimeElapsedColumn(), TimeRemainingColumn())
     with Progress(*columns, console=console) as progress:
         task = progress.add_task("sweep", total=len(todo))
         for spec in todo:
-            progress.update(task, description=f"{spec.profile:11s} {spec.loss:4.0f}% loss ({spec.start})")
-            workdir = out_dir / "cells" / f"{spec.start}-{spec.profile}-{spec.loss:g}"
+            progress.update(task, description=f"{spec.label:11s} {spec.loss:4.0f}% loss ({spec.start})")
+            workdir = out_dir / "cells" / f"{spec.start}-{spec.label}-{spec.loss:g}"
             try:
                 result = run_cell(spec, workdir)
             except Exception as exc:   # one broken cell must not lose the sweep
-                result = {**asdict(spec), "error": f"{type(exc).__name__}: {exc}", "topics": {}}
+                result = {**asdict(spec), "profile": spec.label, "error": f"{type(exc).__name__}: {exc}", "topics": {}}
             with results_path.open("a") as f:
                 f.write(json.dumps(result) + "\n")
             progress.console.print(one_line(result))
