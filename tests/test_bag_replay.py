@@ -238,3 +238,29 @@ def test_bytes_that_are_no_envelope_are_counted_and_the_recording_goes_on(ns, tm
     xs = [json.loads(r.message.data)["x"] for r in iter_records(path)
           if isinstance(r, Record) and r.channel.topic == f"/{ns}/sp"]
     assert xs == sorted(xs) and len(xs) >= 15
+
+
+def test_fec_image_shares_become_whole_jpeg_frames_in_the_log(ns, tmp_path):
+    pytest.importorskip("zfec")
+    from zenoh_robot.image_fec import FecImagePublisher
+
+    listen, connect = linked_configs()
+    path = tmp_path / "fec.mcap"
+    with Node("cam", namespace=ns, config=listen) as cnode, Node("rec", config=connect) as rnode, Spinning(rnode):
+        camera = FecImagePublisher(cnode, "image", loss=0.2)
+        rec = BagRecorder(rnode, path, [f"/{ns}/image"]).start()
+        assert wait_for(lambda: len(rec.subscribed) == 1, 10.0)
+        time.sleep(0.3)
+        rng = np.random.default_rng(1)
+        for _ in range(15):
+            camera.publish(rng.integers(0, 255, (96, 128, 3), dtype=np.uint8))
+            time.sleep(0.03)
+        assert wait_for(lambda: rec.counters.views_written >= 10, 10.0), rec.counters
+        rec.close()
+    topics = _summary_topics(path)
+    assert f"/{ns}/image" not in topics, "the shares are not copied as base64 JSON"
+    assert f"/_zr/raw/{ns}/image" in topics
+    with open(path, "rb") as f:
+        frames = [m for _, _, m in make_reader(f).iter_messages(topics=[f"/{ns}/image/image"])]
+    assert len(frames) >= 10
+    assert all(b"\xff\xd8\xff" in m.data for m in frames), "each view holds a whole JPEG (start of image marker)"

@@ -10,9 +10,10 @@ Per topic (and message type) the file holds:
   metadata, so ``bag play`` republishes them bit-exact, each publisher with its own QoS;
 - foxglove.* views (``<topic>/fix``, ``<topic>/pose``, ``/tf``, ``<topic>/image``), see schemas.py.
 
-Image slices (``zenoh_robot/ImageSlice``) get no JSON channel unless ``slice_json``: as
-JSON their JPEG bytes would be base64 (a third larger, and the bulk of the file) while
-Foxglove shows the reassembled ``<topic>/image`` view and replay uses the raw channel.
+Image slices and FEC shares (``zenoh_robot/ImageSlice``, ``ImageShare``) get no JSON channel
+unless ``slice_json``: as JSON their JPEG bytes would be base64 (a third larger, and the bulk
+of the file) while Foxglove shows the rebuilt ``<topic>/image`` view and replay uses the raw
+channel.
 
 ``log_time`` is when the sample reached the recorder, ``publish_time`` its source stamp.
 The topics are raw subscriptions of the node (see tap.py): their callbacks only queue the

@@ -12,7 +12,9 @@ layer never imports the drone packages:
   ``<topic>/pose`` PoseInFrame;
 - ``sensor_msgs/Image``: ``<topic>/image`` RawImage (CompressedImage when it holds a JPEG);
 - ``zenoh_robot/ImageSlice`` (the resilient JPEG slices): frames reassembled by the
-  library's ImageSubscription logic, re-encoded once as ``<topic>/image`` CompressedImage.
+  library's ImageSubscription logic, re-encoded once as ``<topic>/image`` CompressedImage;
+- ``zenoh_robot/ImageShare`` (FEC images, ``image_fec``): each frame's JPEG rebuilt from its
+  shares by the library's FecAssembler, as it was sent, as ``<topic>/image`` CompressedImage.
 
 The views are protobuf messages from foxglove-sdk (schema and encoder in one), used
 both by the MCAP recorder and by the live WebSocket bridge.
@@ -86,7 +88,7 @@ def jsonable(value: Any) -> Any:
 
 def local_type(type_name: str, type_hash: str) -> Any | None:
     """The registered class for this name and hash, or None (unknown here, or another version)."""
-    from zenoh_robot import msgs  # noqa: F401  registers the standard types
+    from zenoh_robot import image_fec, msgs  # noqa: F401  registers the standard types (and FEC shares)
     try:
         cls = lookup(type_name)
     except KeyError:
@@ -236,6 +238,7 @@ class ViewMaker:
 
     def __init__(self) -> None:
         self._slices: dict[str, SliceFrames] = {}
+        self._shares: dict[str, Any] = {}     # topic -> image_fec.FecAssembler
 
     def views(self, topic: str, type_name: str, decoded: Decoded, stamp_ns: int) -> list[View]:
         data = decoded.data
@@ -248,6 +251,8 @@ class ViewMaker:
                 return image_views(topic, decoded.msg, stamp_ns)
             if type_name == "zenoh_robot/ImageSlice" and decoded.msg is not None:
                 return self._slice_views(topic, decoded.msg)
+            if type_name == "zenoh_robot/ImageShare" and decoded.msg is not None:
+                return self._share_views(topic, decoded.msg)
         except Exception:   # a view is a bonus: a strange sample must never stop the recording
             return []
         return []
@@ -263,9 +268,28 @@ class ViewMaker:
                                                        format="jpeg"))
                 for stamp, jpeg in frames.add(msg)]
 
+    def _share_views(self, topic: str, msg: Any) -> list[View]:
+        return _share_views_of(self._shares, self.MAX_ASSEMBLERS, topic, msg)
+
 
 # Types whose JSON copy only duplicates bytes held better elsewhere (the raw channel, the image view)
-BULK_TYPES = frozenset({"zenoh_robot/ImageSlice"})
+BULK_TYPES = frozenset({"zenoh_robot/ImageSlice", "zenoh_robot/ImageShare"})
+
+
+def _share_views_of(assemblers: dict[str, Any], limit: int, topic: str, msg: Any) -> list[View]:
+    from foxglove.messages import CompressedImage
+
+    from zenoh_robot.image_fec import FecAssembler
+    assembler = assemblers.get(topic)
+    if assembler is None:
+        if len(assemblers) >= limit:
+            return []
+        assembler = assemblers[topic] = FecAssembler()
+    frame = assembler.add(msg)
+    if frame is None:
+        return []
+    return [View(f"{topic}/image", CompressedImage(timestamp=_stamp(frame.stamp), frame_id="camera",
+                                                   data=frame.jpeg, format="jpeg"))]
 
 
 def raw_topic(topic: str) -> str:
