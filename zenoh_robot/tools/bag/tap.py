@@ -197,6 +197,11 @@ class Tap:
         self._sub_qos[topic] = qos
         self.subscribed[topic] = self.node.create_subscription(
             None, topic, lambda raw, info, t=topic: self._on_raw(t, raw, info), qos, raw=True)
+        if self._closed:      # close() ran meanwhile and may not have seen this one
+            late = self.subscribed.pop(topic, None)
+            if late is not None:
+                self.node.destroy_subscription(late)
+            return
         log.info("listening to %s", topic)
 
     def _on_raw(self, topic: str, raw: "RawMessage", info: "MessageInfo") -> None:
@@ -259,7 +264,7 @@ class Tap:
                 if item is not None:
                     self._queue_bytes -= item[1]
             for topic in topics:
-                if not self._stop:
+                if not self._closed:
                     self._safe(self._subscribe, topic)
             if item is None:
                 return
