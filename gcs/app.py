@@ -131,6 +131,9 @@ class DroneLink:
         self._anchor: Target | None = None
         self._t0 = 0.0
         self._frozen: Target | None = None
+        # Set once a mission has sent LAND: nothing more to stream, and a stream into a landing drone
+        # is only noise (the companion ends its session on LAND and ignores setpoints outside one).
+        self.done = False
         self._led: Target | None = None     # the last formation target (see target())
         ns = f"/{drone_id}"
         self.setpoint_pub = node.create_publisher(DroneSetpoint, f"{ns}/setpoint", q["setpoint"])
@@ -203,8 +206,9 @@ class DroneLink:
         if got is None:
             return
         frame, now = got.info.frame, info.received_stamp_ns
-        for name, seq in (("image", frame), ("image_whole", frame), ("image_strip", frame * MAX_SLICES)):
-            self.streams[name].record(seq, got.stamp, now)
+        # A rebuilt FEC frame is whole and fresh: one "strip" per frame, numbered by frame.
+        for name in ("image", "image_whole", "image_strip"):
+            self.streams[name].record(frame, got.stamp, now)
         img = Image(Header(got.stamp, "", frame), got.height, got.width, "jpeg", 0, 0, got.jpeg)
         self.frames.add_image(img, FrameInfo(frame, 1, 1, got.info.age_ms))
         self.image.frames, self.image.complete = self.frames.frames, self.frames.complete
@@ -225,6 +229,8 @@ class DroneLink:
     # -- targets ---------------------------------------------------------------------
     def target(self) -> Target | None:
         """What to stream now, or None (no position known: nothing safe to send)."""
+        if self.done:
+            return None
         if self._frozen is not None:
             return self._frozen
         s = self.state

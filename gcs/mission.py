@@ -151,5 +151,6 @@ def _fly(gcs: Gcs, drone: DroneLink, duration: float, out: dict[str, Any], log: 
     drone.freeze()
     landing = True
     command("land")
+    drone.done = True   # PX4 lands by itself: the companion has ended the session and would ignore setpoints
     landed = until(lambda: bool(drone.state and drone.state.landed and not drone.state.armed), 40.0)
     step("landed and disarmed", landed)

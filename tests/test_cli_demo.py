@@ -12,14 +12,14 @@ from test_cli_topic import INTERACTIVE_CLI, Lines, _stop
 
 
 def test_ctrl_c_stops_the_demo_in_order_and_prints_the_summary():
-    proc = subprocess.Popen([*INTERACTIVE_CLI, "demo", "--duration", "25"], cwd=ROOT, text=True,
+    proc = subprocess.Popen([*INTERACTIVE_CLI, "demo", "--duration", "45"], cwd=ROOT, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True,
                             env=dict(os.environ, COLUMNS="200", PYTHONUNBUFFERED="1"))
     try:
         out = Lines(proc)
         assert out.wait_for(r"^demo: simulator, companion and GCS on localhost", 20.0), out.text()
         time.sleep(12)                                # flying by now: take-off takes a few seconds
-        assert proc.poll() is None, out.text()        # --duration 25: still running, Ctrl-C ends it
+        assert proc.poll() is None, out.text()        # --duration 45: still running, Ctrl-C ends it
         os.killpg(proc.pid, signal.SIGINT)            # the terminal's Ctrl-C: the whole foreground group
         rc = proc.wait(timeout=45)
         time.sleep(0.2)                               # the reader thread takes the last lines

@@ -45,7 +45,10 @@ def _free_udp_port() -> int:
         return s.getsockname()[1]
 
 
-SETUP_S = 17.0        # s of a run that are not the pattern: start-up, arming, take-off, landing
+# s of a run that are not the pattern: start-up and take-off (~11 s), landing to disarm (~13 s, as
+# PX4 SITL lands), and a margin; the simulator keeps PX4's timings, so a shorter budget cuts the landing.
+SETUP_S = 30.0
+MIN_DURATION_S = SETUP_S + 10.0
 STOP_TIMEOUT = 15.0    # s a child has to stop after SIGINT (the GCS lands and writes its record)
 
 
@@ -76,8 +79,9 @@ def _wait_until(proc: subprocess.Popen, deadline: float) -> bool:
 def run(args: argparse.Namespace) -> int:
     from .main import CliError
 
-    if not args.duration > 0:
-        raise CliError(f"--duration must be > 0 seconds, got {args.duration:g}")
+    if not args.duration >= MIN_DURATION_S:
+        raise CliError(f"--duration must be at least {MIN_DURATION_S:g} s (take-off and landing alone take "
+                       f"about {SETUP_S:g} s), got {args.duration:g}")
     console = Console()
     started = time.monotonic()
     work = Path(tempfile.mkdtemp(prefix="zenoh-robot-demo-"))
@@ -92,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
     companion = subprocess.Popen([py, "-m", "companion", "--id", args.drone, "--px4", f"udpin:127.0.0.1:{port}",
                                   "--profile", args.profile, "--record", str(work / "companion.json")],
                                  stdout=logs["companion"], stderr=subprocess.STDOUT, **detached)
-    pattern_s = max(args.duration - SETUP_S, args.duration / 2)   # so the GCS ends by itself near the deadline
+    pattern_s = args.duration - SETUP_S   # so the GCS lands and ends by itself before the deadline
     gcs_cmd = [py, "-m", "gcs", "--drones", args.drone, "--mission", "--duration", f"{pattern_s:g}",
                "--pattern", args.pattern, "--profile", args.profile, "--record", str(work / "gcs.json")]
     from zenoh_robot.tools.foxglove_bridge import pick_port
