@@ -9,6 +9,7 @@ over each transport profile, so the table compares transports only:
 - ``secure-quic`` / ``secure-tls``: ``SessionConfig(secure=...)`` (mTLS against a CA made for the
   run, the role ACL), tuned for loss (:data:`LOSSY_TUNING`); QUIC with ``?mixed_rel=1`` (best
   effort as QUIC datagrams), TLS over TCP (everything on one reliable byte stream);
+- ``secure-quic-split``: two such QUIC connections, priorities 0-3 (setpoints) and 4-7 (sensors);
 - ``secure-quic-untuned``: the same with Zenoh's defaults (only with loss from start-up: the
   tuning is about forming the session);
 - ``plain``: unicast TCP + UDP without TLS, as the lossy-link experiment's plain profiles run.
@@ -42,7 +43,14 @@ MODULE = "zenoh_robot.tools.experiment.secure_sweep"
 PORT = 7447
 SENSOR_HZ = 200.0
 SETPOINT_HZ = 10.0
-PROFILES = ("secure-quic", "secure-tls", "plain", "secure-quic-untuned")
+# Receivers listen this long after the senders stop: a sample delivered late is delivered (its
+# age says how late), a sample never delivered is lost.
+DRAIN_S = 2.0
+# On a congestion-controlled link (QUIC datagrams) the resilient setpoint QoS's 64 repeats, made
+# for raw multicast UDP, fill the congestion window at loss; the lean variant keeps qos.RESILIENT's 3.
+LEAN = ("secure-quic-lean",)
+LEAN_REPEAT = 3
+PROFILES = ("secure-quic", "secure-quic-split", "secure-quic-lean", "secure-tls", "plain", "secure-quic-untuned")
 LOSSES = (0, 10, 30, 50)
 STARTS = ("after", "startup")
 # What helps a unicast (handshaking) session live through loss, in Zenoh 1.10 keys (each checked
@@ -90,9 +98,17 @@ def session_kwargs(profile: str, side: str, link: LossyLink, keys_dir: Path) -> 
     # QUIC with mixed reliability (Zenoh >= 1.10 endpoint metadata): best-effort samples go as QUIC
     # datagrams, reliable ones on a stream, one connection and one handshake. Without it every
     # sample rides one reliable stream and waits behind each retransmission (head-of-line blocking).
-    ep = f"tls/{drone}:{PORT}" if profile == "secure-tls" else f"quic/{drone}:{PORT}?mixed_rel=1"
-    kw = {**base, "secure": str(keys_dir), "name": "uav1" if side == "drone" else "gcs", "max_links": 1,
-          "listen": [ep] if side == "drone" else [], "connect": [] if side == "drone" else [ep]}
+    if profile == "secure-tls":
+        eps = [f"tls/{drone}:{PORT}"]
+    elif profile in ("secure-quic-split", "secure-quic-lean"):
+        # Two QUIC connections, each with its own congestion window: control, real-time and
+        # interactive priorities (setpoints, commands, state) apart from data (sensors, images),
+        # so a 200 Hz stream's losses never throttle the setpoints.
+        eps = [f"quic/{drone}:{PORT}?prio=0-3;mixed_rel=1", f"quic/{drone}:{PORT + 1}?prio=4-7;mixed_rel=1"]
+    else:
+        eps = [f"quic/{drone}:{PORT}?mixed_rel=1"]
+    kw = {**base, "secure": str(keys_dir), "name": "uav1" if side == "drone" else "gcs", "max_links": len(eps),
+          "listen": eps if side == "drone" else [], "connect": [] if side == "drone" else eps}
     if profile != "secure-quic-untuned":
         kw["extra"] = dict(LOSSY_TUNING)
     return kw
@@ -100,13 +116,16 @@ def session_kwargs(profile: str, side: str, link: LossyLink, keys_dir: Path) -> 
 
 # --- the endpoint process ------------------------------------------------------------------------
 
-def endpoint(side: str, config_kw: dict[str, Any], duration: float, out: Path) -> None:
-    """Run one side for ``duration`` s from now; write sent/received records and first-sample times."""
+def endpoint(side: str, config_kw: dict[str, Any], duration: float, out: Path, drain: float = 0.0,
+             setpoint_repeat: int | None = None) -> None:
+    """Publish for ``duration`` s from now, listen ``drain`` s more; write the records and first-sample times."""
     from zenoh_robot import Node
     from zenoh_robot.msgs import Header, SensorCombined, Setpoint
     from zenoh_robot.tools.stream_profiles import stream_profile
 
-    qos = stream_profile("resilient").qos
+    qos = dict(stream_profile("resilient").qos)
+    if setpoint_repeat is not None:
+        qos["setpoint"] = qos["setpoint"].replace(repeat=setpoint_repeat)
     end = time.monotonic() + duration
     sent, received = StreamRecorder(), StreamRecorder()
     first: dict[str, int] = {}
@@ -132,11 +151,13 @@ def endpoint(side: str, config_kw: dict[str, Any], duration: float, out: Path) -
         pub = node.create_publisher(out_type, out_topic, out_qos)
         threading.Thread(target=node.spin, daemon=True).start()
         period, next_t = 1.0 / rate, time.monotonic()
+        make: Any = out_type   # every field but the header keeps its default
         while next_t < end:
-            info = pub.publish(out_type(header=Header.now()))
+            info = pub.publish(make(header=Header.now()))
             sent.record(info.seq, info.stamp_ns)
             next_t += period
             time.sleep(max(0.0, next_t - time.monotonic()))
+        time.sleep(drain)   # what is still in flight (a reliable link's retransmissions) counts, late
     out.write_text(json.dumps({"sent": sent.to_dict(), "received": received.to_dict(), "first_rx_ns": first.get("rx"),
                                "open_ns": first.get("open")}))
 
@@ -152,8 +173,10 @@ def run_cell(cell: SecureCell, workdir: Path, link: LossyLink, keys_dir: Path) -
     launch = time.time_ns()
     for side in ("drone", "gcs"):   # the listener first, as a drone is up before its operator
         kw = json.dumps(session_kwargs(cell.profile, side, link, keys_dir))
-        cmd = [sys.executable, "-m", MODULE, "endpoint", "--side", side, "--config", kw,
-               "--duration", str(total), "--out", str(workdir / f"{side}.json")]
+        cmd = [sys.executable, "-m", MODULE, "endpoint", "--side", side, "--config", kw, "--duration", str(total),
+               "--drain", str(DRAIN_S), "--out", str(workdir / f"{side}.json")]
+        if cell.profile in LEAN:
+            cmd += ["--setpoint-repeat", str(LEAN_REPEAT)]
         with open(workdir / f"{side}.log", "w") as log:
             procs[side] = subprocess.Popen(link.exec_in(side) + cmd, stdout=log, stderr=subprocess.STDOUT)
     try:
@@ -165,7 +188,7 @@ def run_cell(cell: SecureCell, workdir: Path, link: LossyLink, keys_dir: Path) -
         t1 = time.time_ns()
         link.set_loss(0)
         for p in procs.values():
-            p.wait(timeout=total + 30)
+            p.wait(timeout=total + DRAIN_S + 30)
     finally:
         for p in procs.values():
             if p.poll() is None:
@@ -253,6 +276,8 @@ def main(argv: list[str] | None = None) -> int:
     e.add_argument("--config", required=True, help="SessionConfig keyword arguments as JSON")
     e.add_argument("--duration", type=float, required=True)
     e.add_argument("--out", type=Path, required=True)
+    e.add_argument("--drain", type=float, default=0.0, help="listen this long after the last publish, s")
+    e.add_argument("--setpoint-repeat", type=int, default=None, help="override the setpoint QoS's repeat count")
     p.add_argument("--out", type=Path, default=Path("secure-sweep"), help="results directory")
     p.add_argument("--profiles", default=",".join(PROFILES))
     p.add_argument("--losses", default=",".join(str(x) for x in LOSSES), help="loss %% per direction, e.g. 0,30")
@@ -261,7 +286,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--warmup", type=float, default=3.0, help="launch to window start, s")
     args = p.parse_args(argv)
     if args.cmd == "endpoint":
-        endpoint(args.side, json.loads(args.config), args.duration, args.out)
+        endpoint(args.side, json.loads(args.config), args.duration, args.out, args.drain, args.setpoint_repeat)
         return 0
     reason = unavailable_reason()
     if reason:
