@@ -15,9 +15,10 @@ import hashlib
 import typing
 from dataclasses import dataclass, field
 from operator import attrgetter
-from typing import Any, Callable, ClassVar
+from collections.abc import Callable
+from typing import Any, ClassVar
 
-from ._wire.validate import ValidationError, build_body_check  # noqa: F401  (ValidationError: re-exported)
+from ._wire.validate import ValidationError, build_body_check, build_decoder  # noqa: F401  (ValidationError: re-exported)
 
 PRIMITIVES: dict[str, type] = {
     "bool": bool,
@@ -108,6 +109,10 @@ class Message:
     _fields_spec: ClassVar[tuple[FieldSpec, ...]]
     _to_wire: ClassVar[Callable[[Any], Any]]
     _from_wire: ClassVar[Callable[[Any], Any]]
+    # Set by @message (see _wire/validate.py): the generated fast path and the reference rules.
+    _zr_try_from_wire: ClassVar[Callable[[Any], Any]]
+    _zr_reference_decode: ClassVar[Callable[[Any], Any]]
+    _zr_reference_from_wire: ClassVar[Callable[[Any], Any]]
     # True on message types that topic statistics never watch (the statistics themselves).
     __zr_no_statistics__: ClassVar[bool] = False
 
@@ -222,11 +227,20 @@ def _build_codec(cls: type) -> tuple[Callable[[Any], Any], Callable[[Any], Any]]
 
     # Every field is checked against the schema (types, ranges, lengths, nested types): a body from
     # the network must not hand a callback a str where it expects a float (see _wire/validate.py).
+    # The reference checker decides every body the generated fast path does not take as is.
     check_body = build_body_check(type_name, specs)
+    reference_check = build_body_check(type_name, specs, reference=True)
 
-    def from_wire(values: Any) -> Any:
+    def reference_decode(values: Any) -> Any:
         return cls(*check_body(values))
 
+    def reference_from_wire(values: Any) -> Any:    # all-reference, nested types too: for tests
+        return cls(*reference_check(values))
+
+    c: Any = cls
+    c._zr_reference_decode = reference_decode
+    c._zr_reference_from_wire = reference_from_wire
+    from_wire, c._zr_try_from_wire = build_decoder(cls)
     return to_wire, from_wire
 
 
