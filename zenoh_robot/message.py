@@ -13,9 +13,9 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import typing
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from operator import attrgetter
-from collections.abc import Callable
 from typing import Any, ClassVar
 
 from ._wire.validate import ValidationError, build_body_check, build_decoder  # noqa: F401  (ValidationError: re-exported)

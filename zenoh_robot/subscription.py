@@ -143,6 +143,7 @@ class Subscription(Generic[M]):
         self.max_queued_bytes = MAX_QUEUED_BYTES
         self._queued_bytes = 0
         self._seq_jumps: dict[int, int] = {}   # publisher id -> unconfirmed jump (see _track_sequence)
+        self._seq_newest: int | None = None    # the id last moved to the end of per_publisher_seq
         self._hash = self.type_hash
         self._any_type = ts is None
         self._from_wire: Callable[[Any], Any] = self._raw_sample if raw else ts.decode  # type: ignore[union-attr]
@@ -237,10 +238,11 @@ class Subscription(Generic[M]):
         except envelope.MalformedSample as exc:
             self._malformed(f"{exc} ({len(data)} bytes)")
             return
-        bad_extra = check_extra(env.extra)
-        if bad_extra is not None:
-            self._malformed(bad_extra)
-            return
+        if env.extra:   # almost always empty: only redundant/repeating publishers fill it
+            bad_extra = check_extra(env.extra)
+            if bad_extra is not None:
+                self._malformed(bad_extra)
+                return
         if self.events.blocked and env.publisher_id in self.events.blocked:
             self.counters.incompatible += 1    # reported once as an incompatible-QoS event
             return
@@ -321,6 +323,11 @@ class Subscription(Generic[M]):
         and a sample the stream does not follow is forgotten (the real stream goes on counting)."""
         table = self.counters.per_publisher_seq
         jumps = self._seq_jumps
+        if pub_id == self._seq_newest and not jumps and table.get(pub_id) == seq - 1:
+            # The common case: the next seq of the publisher seen last (already newest in LRU order).
+            table[pub_id] = seq
+            return 0
+        self._seq_newest = pub_id
         last = table.pop(pub_id, None)      # re-inserted below: the table is kept in LRU order
         if last is None:
             if len(table) >= MAX_TRACKED_PUBLISHERS:
