@@ -11,12 +11,12 @@ import json
 import stat
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import pytest
 import zenoh
-
 from conftest import free_port, wait_for
 
 keys = pytest.importorskip("zenoh_robot.tools.keys")
@@ -250,3 +250,29 @@ def test_secure_config_refuses_what_cannot_be_secure(keys_dir: Path, tmp_path: P
     assert values["transport"]["link"]["tls"]["enable_mtls"] is True
     assert values["transport"]["link"]["protocols"] == ["tls", "quic"]
     assert values["access_control"]["default_permission"] == "deny"
+
+
+def test_secure_flags_make_plain_profiles_secure_twins(keys_dir: Path) -> None:
+    """--secure turns tcp into tls and unicast udp into QUIC with datagrams for best effort; multicast goes."""
+    import argparse
+
+    from zenoh_robot.session_config import apply_session_arguments
+    port = free_port()
+    profile = SessionConfig(listen=[f"udp/127.0.0.1:{port}", "udp/239.255.74.71:7460#iface=lo"],
+                            multicast_scouting=False)
+    args = argparse.Namespace(secure=str(keys_dir), cert_name=None, domain=None, session_connect=[])
+    drone = apply_session_arguments(profile, args, "uav1")
+    assert drone.listen == [f"quic/127.0.0.1:{port}?mixed_rel=auto"] and drone.name == "uav1"
+    args.session_connect = [f"udp/127.0.0.1:{port}", "tcp/127.0.0.1:7447"]
+    gcs = apply_session_arguments(SessionConfig(listen=[], multicast_scouting=False), args, "gcs")
+    assert gcs.connect == [f"quic/127.0.0.1:{port}?mixed_rel=auto", "tls/127.0.0.1:7447"]
+    gcs.connect = gcs.connect[:1]
+    sessions = [_open(drone), _open(gcs)]
+    try:
+        # One QUIC connection, two Zenoh links: a stream (reliable) and datagrams (best effort).
+        assert wait_for(lambda: len(list(sessions[1].info.links())) == 2, 5.0)
+        kinds = {(str(lk.reliability), lk.is_streamed) for lk in sessions[1].info.links()}
+        assert kinds == {("Reliability.RELIABLE", True), ("Reliability.BEST_EFFORT", False)}, kinds
+    finally:
+        for s in reversed(sessions):
+            s.close()

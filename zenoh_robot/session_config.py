@@ -344,7 +344,10 @@ def _secure_twin(endpoint: str) -> str | None:
                 return None
         except ValueError:
             pass
-        return "quic/" + rest.split("#", 1)[0]
+        # Best-effort samples as QUIC datagrams (as on UDP), reliable ones on a stream: on one
+        # stream every sample waits behind each retransmission (docs/security.md, measured).
+        # "auto" falls back to the stream alone against a peer that does not offer it.
+        return "quic/" + rest.split("#", 1)[0].split("?", 1)[0] + "?mixed_rel=auto"
     return "tls/" + rest if proto == "tcp" else None
 
 
