@@ -8,7 +8,8 @@ from rich.table import Table
 
 from .runner import CellResult
 
-TARGETS = {"small_p50": 1.5, "image_p50": 1.2, "throughput": 0.5, "soak_mb": 5.0}
+# The hot-path issue's targets (figures to read, never asserted: the machines are shared and noisy).
+TARGETS = {"small_p50": 1.15, "image_p50": 1.2, "throughput": 0.8, "soak_mb": 5.0}
 
 
 def _f(v: float, fmt: str = "{:.2f}") -> str:
@@ -22,7 +23,8 @@ def rows(results: list[CellResult]) -> list[list[str]]:
         what = f"{c.rate:g} Hz" if c.kind == "latency" else "max"
         if c.kind == "latency":
             target = TARGETS["image_p50"] if c.payload in ("image", "jpeg") else TARGETS["small_p50"]
-            fig = f"p50 {_f(fw.p50_ms, '{:.3f}')} / {_f(raw.p50_ms, '{:.3f}')} ms, p99 {_f(fw.p99_ms, '{:.2f}')} / {_f(raw.p99_ms, '{:.2f}')}"
+            fig = (f"p50 {_f(fw.p50_ms, '{:.3f}')} / {_f(raw.p50_ms, '{:.3f}')} ms, "
+                   f"p99 {_f(fw.p99_ms, '{:.2f}')} / {_f(raw.p99_ms, '{:.2f}')}")
             ratio = r.ratios.get("p50", math.nan)
             verdict = "ok" if ratio <= target else f"over {target}x"
         else:
