@@ -128,8 +128,9 @@ def _local_type(type_name: str, hashes: set[str], msg_file: str | None) -> type 
             print(f"{type_name} is not registered here: reading raw field values (give its .msg with --msg)",
                   file=sys.stderr, flush=True)
             return None
-    if type_support(cls).name != type_name or hashes != {type_support(cls).hash}:
-        print(f"{type_name} here ({type_support(cls).name}, hash {type_support(cls).hash}) differs from the publishers' "
+    ts = type_support(cls)
+    if ts.name != type_name or hashes != {ts.hash}:
+        print(f"{type_name} here ({ts.name}, hash {ts.hash}) differs from the publishers' "
               f"({', '.join(sorted(hashes))}): reading raw field values", file=sys.stderr, flush=True)
         return None
     return cls

@@ -95,7 +95,7 @@ def _coerce_field(spec: Any, value: Any, where: str) -> Any:
 def check_fields(msg: Any) -> None:
     for spec in msg._fields_spec:
         value = getattr(msg, spec.name)
-        where = f"{type_support(msg).name}.{spec.name}"
+        where = f"{type_support(type(msg)).name}.{spec.name}"
         if spec.is_message:
             for item in (value if spec.array is not None else [value]):
                 check_fields(item)
@@ -114,7 +114,7 @@ def build_message(cls: type, data: dict[str, Any]) -> tuple[Any, bool]:
         raise CliError(one_line(str(exc))) from None
     check_fields(msg)
     try:
-        type_support(cls).encode(msg)   # the checks only encoding makes (a fixed array's length), before any session
+        type_support(cls).encode(msg)   # the checks only encoding makes (a fixed array's length), before a session
     except (TypeError, ValueError) as exc:
         raise CliError(one_line(str(exc))) from None
     return msg, auto_header
