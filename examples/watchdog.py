@@ -34,6 +34,7 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser(prog="watchdog", description=__doc__)
     add_config_arguments(parser)
     parser.add_argument("--deadline", type=float, default=1.0,
-                        help="seconds without a setpoint before an event (>= the talker's offered 0.5, or incompatible)")
+                        help="seconds without a setpoint before an event "
+                             "(>= the talker's offered 0.5, or incompatible)")
     args = parser.parse_args()
     main(config_from_args(args), args.ns, args.deadline)

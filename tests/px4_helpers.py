@@ -2,11 +2,12 @@
 from __future__ import annotations
 
 import time
-from pathlib import Path
+from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Iterator
+from pathlib import Path
 
 from conftest import python_proc, wait_for  # noqa: F401  (wait_for is re-exported for the px4 tests)
+
 from px4_link import Px4Link
 from px4_link.sim import Simulator
 

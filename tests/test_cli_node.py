@@ -9,7 +9,7 @@ import secrets
 import subprocess
 import sys
 import threading
-from typing import Iterator
+from collections.abc import Iterator
 
 import pytest
 from conftest import ROOT, python_proc

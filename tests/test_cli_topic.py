@@ -14,13 +14,21 @@ import subprocess
 import sys
 import threading
 import time
-from typing import Iterator
+from collections.abc import Iterator
 
 import pytest
 from conftest import ROOT, python_proc, wait_for
 
-from zenoh_robot import (DurabilityPolicy, EndpointType, Node, QoSProfile, TopicEndpointInfo,
-                         check_compatibility, msgs, qos)
+from zenoh_robot import (
+    DurabilityPolicy,
+    EndpointType,
+    Node,
+    QoSProfile,
+    TopicEndpointInfo,
+    check_compatibility,
+    msgs,
+    qos,
+)
 from zenoh_robot.tools.cli.topic import adapted_qos
 
 CLI = [sys.executable, "-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())"]

@@ -4,8 +4,8 @@ from __future__ import annotations
 import time
 
 import pytest
-
 from conftest import free_port
+
 from zenoh_robot import Node
 from zenoh_robot.graph import DuplicateNodeError
 from zenoh_robot.msgs import String

@@ -4,9 +4,9 @@ from __future__ import annotations
 import time
 
 import numpy as np
-
 from conftest import linked_configs
-from zenoh_robot import Node, QoSProfile
+
+from zenoh_robot import Node
 from zenoh_robot.image_transport import ImagePublisher, ImageSlice, ImageSubscription
 from zenoh_robot.qos import IMAGE
 

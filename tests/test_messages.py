@@ -7,8 +7,18 @@ import pytest
 
 from zenoh_robot import Message, array, message
 from zenoh_robot.message import lookup, type_support
-from zenoh_robot.msgs import (Float32, Header, Image, JointState, Quaternion, SensorCombined, Setpoint, String,
-                              Twist, Vector3)
+from zenoh_robot.msgs import (
+    Float32,
+    Header,
+    Image,
+    JointState,
+    Quaternion,
+    SensorCombined,
+    Setpoint,
+    String,
+    Twist,
+    Vector3,
+)
 
 ALL = [
     Setpoint(Header(5, "map", 2), 1.0, 2.0, -3.0, 0.5, True),

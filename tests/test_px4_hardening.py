@@ -7,10 +7,11 @@ import socket
 import time
 
 import pytest
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from px4_helpers import sim_and_link
 from pymavlink.dialects.v20 import common as mavlink2
 
-from px4_helpers import sim_and_link
 from px4_link import CommandTemporarilyRejected, Imu, PositionSetpoint, SetpointRejected
 from px4_link.setpoints import Geofence, SetpointValidator
 from px4_link.sim import Simulator

@@ -7,12 +7,26 @@ import socket
 import time
 
 import pytest
+from px4_helpers import FAST_PARAMS, EventLog, sim_and_link, wait_for
 
-from px4_helpers import EventLog, FAST_PARAMS, sim_and_link, wait_for
-from px4_link import (Attitude, Battery, CommandDenied, CommandTemporarilyRejected,
-                      CommandTimeout, CommandUnsupported, ExtendedSysState, Geofence,
-                      GlobalPosition, Imu, LocalPosition, PositionSetpoint, Px4Link,
-                      SetpointRejected, SysStatus, VelocitySetpoint)
+from px4_link import (
+    Attitude,
+    Battery,
+    CommandDenied,
+    CommandTemporarilyRejected,
+    CommandTimeout,
+    CommandUnsupported,
+    ExtendedSysState,
+    Geofence,
+    GlobalPosition,
+    Imu,
+    LocalPosition,
+    PositionSetpoint,
+    Px4Link,
+    SetpointRejected,
+    SysStatus,
+    VelocitySetpoint,
+)
 from px4_link.sim import Simulator
 
 

@@ -8,9 +8,9 @@ import time
 
 import numpy as np
 import pytest
+from px4_helpers import assert_no_px4_failsafe, sim_and_link, trace_messages
 from pymavlink.dialects.v20 import common as mavlink2
 
-from px4_helpers import assert_no_px4_failsafe, sim_and_link, trace_messages
 from px4_link import PositionSetpoint
 from px4_link.sim import Simulator
 from px4_link.sim.commander import Commander, ReceivedSetpoint
@@ -47,7 +47,7 @@ def test_trace_acks_per_do_set_mode_and_sim_sends_two() -> None:
         while time.monotonic() < deadline:
             try:
                 data = s.recv(65535)
-            except socket.timeout:
+            except TimeoutError:
                 continue
             for m in parser.parse_buffer(data) or []:
                 if m.get_type() == "COMMAND_ACK" and m.command == 176:

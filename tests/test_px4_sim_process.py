@@ -5,8 +5,8 @@ import signal
 import subprocess
 
 import pytest
-
 from px4_helpers import EventLog, sim_process, wait_for
+
 from px4_link import Px4Link
 from px4_link.sim.cli import build_parser
 

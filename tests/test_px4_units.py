@@ -4,14 +4,25 @@ from __future__ import annotations
 import math
 import threading
 
+import px4_helpers  # noqa: F401  (puts the checkout's px4_link first on sys.path)
 import pytest
 
-import px4_helpers  # noqa: F401  (puts the checkout's px4_link first on sys.path)
 from px4_link import commands as cmds
-from px4_link.modes import (UnknownModeError, decode_custom_mode, encode_custom_mode,
-                            mode_to_main_sub, normalize_mode_name)
-from px4_link.setpoints import (Geofence, PositionSetpoint, SetpointRejected, SetpointValidator,
-                                VelocitySetpoint, mavlink_fields)
+from px4_link.modes import (
+    UnknownModeError,
+    decode_custom_mode,
+    encode_custom_mode,
+    mode_to_main_sub,
+    normalize_mode_name,
+)
+from px4_link.setpoints import (
+    Geofence,
+    PositionSetpoint,
+    SetpointRejected,
+    SetpointValidator,
+    VelocitySetpoint,
+    mavlink_fields,
+)
 from px4_link.telemetry import Imu
 from px4_link.wire import Encoder, Parser, float_bits_to_int, int_to_float_bits
 

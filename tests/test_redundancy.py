@@ -29,7 +29,7 @@ def test_recovers_every_sample_when_gaps_are_shorter_than_k() -> None:
             lost_run += 1
             continue
         lost_run = 0
-        for copy in range(2):        # each packet repeated: the copy must be dropped
+        for _copy in range(2):        # each packet repeated: the copy must be dropped
             delivered += [s for s, _, _ in dedup.fresh(42, seq, stamp, body, extra)]
     assert delivered == list(range(1, 2001))
     assert dedup.recovered > 0 and dedup.duplicates >= 2000 - dedup.recovered - 1

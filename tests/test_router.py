@@ -9,7 +9,6 @@ from pathlib import Path
 
 import pytest
 import zenoh
-
 from conftest import free_port, python_proc, wait_for
 
 pytest.importorskip("cryptography")

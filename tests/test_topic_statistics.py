@@ -8,16 +8,16 @@ import json
 import math
 import threading
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import pytest
+from conftest import linked_configs, linked_nodes, wait_for
 
 from zenoh_robot import Node, QoSProfile
 from zenoh_robot.msgs import Header, Setpoint, StatisticsEntry, String, TopicStatistics
 from zenoh_robot.tools.recorder import COLUMNS, StatisticsRecorder
 from zenoh_robot.topic_statistics import TopicStatisticsCollector, TopicStatisticsOptions, default_statistics_key
-
-from conftest import linked_configs, linked_nodes, wait_for
 
 RELIABLE = QoSProfile(reliability="reliable", depth=50)
 
@@ -288,14 +288,14 @@ def test_recorder_round_trips_csv_and_json_with_nan(tmp_path) -> None:
     csv_path = rec.save_csv(tmp_path / "deep" / "dir" / "stats.csv")   # parents are created
     assert "nan" in csv_path.read_text().splitlines()[2]
     back = StatisticsRecorder.load_csv(csv_path)
-    assert len(back) == 2 and all(_same(x, y) for x, y in zip(rows, back))
+    assert len(back) == 2 and all(_same(x, y) for x, y in zip(rows, back, strict=True))
 
     json_path = rec.save_json(tmp_path / "stats.json")
     doc = json.loads(json_path.read_text())    # strict JSON: no NaN token
     assert doc["rows"][1]["age_avg_ms"] is None and doc["rows"][0]["age_avg_ms"] == 1.5
     assert doc["columns"] == list(COLUMNS) and doc["dropped_rows"] == 0
     back = StatisticsRecorder.load_json(json_path)
-    assert all(_same(x, y) for x, y in zip(rows, back))
+    assert all(_same(x, y) for x, y in zip(rows, back, strict=True))
     assert not list(tmp_path.glob("**/*.tmp"))
 
 

@@ -12,11 +12,10 @@ import subprocess
 import time
 
 import pytest
+from conftest import linked_configs, skip_unless_required, wait_for
 
 from zenoh_robot import Node, QoSProfile
 from zenoh_robot.msgs import String
-
-from conftest import linked_configs, skip_unless_required, wait_for
 
 N = 300
 PAYLOAD = "x" * 2000   # under the 3 KB shared-memory threshold, over any keep-alive noise
@@ -24,7 +23,7 @@ PAYLOAD = "x" * 2000   # under the 3 KB shared-memory threshold, over any keep-a
 
 def _udp_in_datagrams() -> int:
     lines = [line.split() for line in open("/proc/net/snmp") if line.startswith("Udp:")]
-    return int(dict(zip(lines[0][1:], lines[1][1:]))["InDatagrams"])
+    return int(dict(zip(lines[0][1:], lines[1][1:], strict=True))["InDatagrams"])
 
 
 def _tcp_bytes_sent(local_port: int) -> int:

@@ -12,21 +12,47 @@ import warnings
 from typing import Any
 
 from . import msgs, qos
-from .events import (IncompatibleTypeInfo, MatchedInfo, PublisherEventCallbacks, QoSLivelinessChangedInfo,
-                     QoSLivelinessLostInfo, QoSMessageLostInfo, QoSOfferedDeadlineMissedInfo,
-                     QoSOfferedIncompatibleQoSInfo, QoSRequestedDeadlineMissedInfo, QoSRequestedIncompatibleQoSInfo,
-                     SubscriptionEventCallbacks)
+from .events import (
+    IncompatibleTypeInfo,
+    MatchedInfo,
+    PublisherEventCallbacks,
+    QoSLivelinessChangedInfo,
+    QoSLivelinessLostInfo,
+    QoSMessageLostInfo,
+    QoSOfferedDeadlineMissedInfo,
+    QoSOfferedIncompatibleQoSInfo,
+    QoSRequestedDeadlineMissedInfo,
+    QoSRequestedIncompatibleQoSInfo,
+    SubscriptionEventCallbacks,
+)
 from .executor import Executor, MultiThreadedExecutor, Timer
 from .graph import EndpointType, NodeInfo, TopicEndpointInfo
 from .message import Message, array, message, ros_field
 from .msg_loader import load_msg
 from .names import InvalidNameError
 from .node import Node
-from .parameters import (Parameter, ParameterDescriptor, ParameterType, SetParametersResult, parse_param_args,
-                         qos_from_parameters)
+from .parameters import (
+    Parameter,
+    ParameterDescriptor,
+    ParameterType,
+    SetParametersResult,
+    parse_param_args,
+    qos_from_parameters,
+)
 from .publisher import Publisher
-from .qos import (Durability, DurabilityPolicy, History, HistoryPolicy, Liveliness, LivelinessPolicy, Priority,
-                  QoSError, QoSProfile, Reliability, ReliabilityPolicy)
+from .qos import (
+    Durability,
+    DurabilityPolicy,
+    History,
+    HistoryPolicy,
+    Liveliness,
+    LivelinessPolicy,
+    Priority,
+    QoSError,
+    QoSProfile,
+    Reliability,
+    ReliabilityPolicy,
+)
 from .qos_compat import Compatibility, PolicyKind, check_compatibility
 from .services import Client, RetryPolicy, Service, ServiceCallError, ServiceError, ServiceTimeout, ServiceUnavailable
 from .session_config import SessionConfig, SessionConfigError

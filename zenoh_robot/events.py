@@ -8,8 +8,9 @@ logged as a warning, as rclpy does: a subscription that receives nothing says wh
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable, Optional
+from typing import Any
 
 from .qos_compat import PolicyKind
 
@@ -75,7 +76,7 @@ class MatchedInfo(_Counted):
     current_count_change: int
 
 
-Callback = Optional[Callable[[Any], None]]
+Callback = Callable[[Any], None] | None
 
 
 @dataclass

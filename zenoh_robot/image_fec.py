@@ -46,12 +46,12 @@ LOSS_WINDOW_FRAMES = 60       # frames over which the receiver measures share lo
 @message(name="zenoh_robot/ImageShare")
 class ImageShare(Message):
     header: Header = None  # type: ignore[assignment]    # capture stamp; header.seq is the frame number
-    index: int = ros_field("uint16", 0)     # share number: < k data, >= k parity
-    k: int = ros_field("uint16", 0)         # shares needed to rebuild the frame
-    n: int = ros_field("uint16", 0)         # shares sent for the frame
-    size: int = ros_field("uint32", 0)      # bytes of the frame's JPEG (the last data share is padded)
-    height: int = ros_field("uint32", 0)
-    width: int = ros_field("uint32", 0)
+    index: int = ros_field("uint16", default=0)     # share number: < k data, >= k parity
+    k: int = ros_field("uint16", default=0)         # shares needed to rebuild the frame
+    n: int = ros_field("uint16", default=0)         # shares sent for the frame
+    size: int = ros_field("uint32", default=0)      # bytes of the frame's JPEG (the last data share is padded)
+    height: int = ros_field("uint32", default=0)
+    width: int = ros_field("uint32", default=0)
     encoding: str = "rgb8"                  # of the decoded frame: rgb8 or mono8
     data: bytes = b""
 

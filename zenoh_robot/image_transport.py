@@ -39,11 +39,11 @@ STALE_FRAMES_TO_RESTART = 2  # older frames in a row, each newer than the last: 
 @message(name="zenoh_robot/ImageSlice")
 class ImageSlice(Message):
     header: Header = None  # type: ignore[assignment]    # capture stamp; header.seq is the frame number
-    index: int = ros_field("uint16", 0)      # slice number in the frame
-    count: int = ros_field("uint16", 0)      # slices in the frame
-    row: int = ros_field("uint32", 0)        # first image row of this slice
-    height: int = ros_field("uint32", 0)     # whole frame
-    width: int = ros_field("uint32", 0)
+    index: int = ros_field("uint16", default=0)      # slice number in the frame
+    count: int = ros_field("uint16", default=0)      # slices in the frame
+    row: int = ros_field("uint32", default=0)        # first image row of this slice
+    height: int = ros_field("uint32", default=0)     # whole frame
+    width: int = ros_field("uint32", default=0)
     encoding: str = "rgb8"                   # of the decoded frame: rgb8 or mono8
     data: bytes = b""                        # one baseline JPEG of rows [row, row + its height)
 

@@ -39,7 +39,7 @@ class FieldSpec:
     fixed array of n elements. ``uint8``/``byte`` arrays travel as bytes.
     """
     name: str
-    base: str | type
+    base: str | type["Message"]
     array: int | None = None
 
     @property
@@ -137,8 +137,8 @@ class Message:
         kwargs: dict[str, Any] = {}
         for key, value in data.items():
             spec = names[key]
-            if spec.is_message:
-                sub = spec.base
+            sub = spec.base
+            if not isinstance(sub, str):   # a nested message type
                 value = [sub.from_dict(v) for v in value] if spec.array is not None else sub.from_dict(value)
             kwargs[key] = value
         return cls(**kwargs)
@@ -197,7 +197,7 @@ def _check_fixed(type_name: str, spec: FieldSpec, value: Any) -> None:
             f"{type_name}.{spec.name}: fixed array {spec.ros_type()} needs {spec.array} elements, got {len(value)}")
 
 
-def _build_codec(cls: type) -> tuple[Callable[[Any], Any], Callable[[Any], Any]]:
+def _build_codec(cls: type["Message"]) -> tuple[Callable[[Any], Any], Callable[[Any], Any]]:
     specs = cls._fields_spec
     names = [s.name for s in specs]
     simple = all(not s.is_message and (s.array is None or s.array < 0) for s in specs)
@@ -205,10 +205,12 @@ def _build_codec(cls: type) -> tuple[Callable[[Any], Any], Callable[[Any], Any]]
     if len(names) > 1:
         getter = attrgetter(*names)
     elif names:
-        getter = lambda m, n=names[0]: (getattr(m, n),)  # noqa: E731
+        first = names[0]
+        getter = lambda m: (getattr(m, first),)  # noqa: E731
     else:
         getter = lambda m: ()  # noqa: E731
     type_name = cls._type_name
+    to_wire: Callable[[Any], Any]
     if simple:
         to_wire = getter
     else:
@@ -218,11 +220,12 @@ def _build_codec(cls: type) -> tuple[Callable[[Any], Any], Callable[[Any], Any]]
                 v = out[i]
                 if spec.array is not None and spec.array >= 0:
                     _check_fixed(type_name, spec, v)
-                if spec.is_message:
+                sub = spec.base
+                if not isinstance(sub, str):   # a nested message type
                     if spec.array is None:
-                        out[i] = spec.base._to_wire(v)
+                        out[i] = sub._to_wire(v)
                     else:
-                        out[i] = [spec.base._to_wire(x) for x in v]
+                        out[i] = [sub._to_wire(x) for x in v]
             return out
 
     # Every field is checked against the schema (types, ranges, lengths, nested types): a body from
@@ -275,7 +278,7 @@ def message(cls: type | None = None, *, name: str | None = None) -> Any:
 _REGISTRY: dict[str, type] = {}
 
 
-def register(cls: type) -> None:
+def register(cls: type["Message"]) -> None:
     """Make a type findable by name (for the CLI and the .msg loader's nested types)."""
     _REGISTRY[cls._type_name] = cls
     _REGISTRY.setdefault(cls.__name__, cls)

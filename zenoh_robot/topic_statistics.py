@@ -22,8 +22,8 @@ previous window's values. ``std_dev`` is the population standard deviation.
 The default statistics topic is ``<namespace>/statistics/<topic>``, ``<topic>`` being
 the subscription's key without the node's namespace prefix (``uav1/setpoint`` in
 namespace ``uav1`` -> ``uav1/statistics/setpoint``; ``chatter`` with no namespace ->
-``statistics/chatter``; ``uav1/sensor`` with no namespace -> ``uav1/statistics/sensor``). ``zenoh_robot.tools.recorder.StatisticsRecorder``
-writes them as CSV or JSON.
+``statistics/chatter``; ``uav1/sensor`` with no namespace -> ``uav1/statistics/sensor``).
+``zenoh_robot.tools.recorder.StatisticsRecorder`` writes them as CSV or JSON.
 """
 from __future__ import annotations
 
@@ -40,6 +40,7 @@ from .node import register_subscription_hook
 from .qos import QoSProfile, ReliabilityPolicy
 
 if TYPE_CHECKING:
+    from .message import Message
     from .node import Node
     from .publisher import Publisher
     from .subscription import MessageInfo, Subscription
@@ -102,7 +103,9 @@ class _Moments:
                                std_dev=math.sqrt(max(self.m2, 0.0) / self.count), sample_count=self.count)
 
 
-def _has_header(msg_type: type) -> bool:
+def _has_header(msg_type: type[Message] | None) -> bool:
+    if msg_type is None:   # a raw subscription of any type: no schema, so no header to read
+        return False
     return any(s.name == "header" and s.is_message and s.array is None for s in msg_type._fields_spec)
 
 

@@ -49,5 +49,5 @@ with Node(args.role, namespace=args.ns, config=cfg) as node:
                                        profile.replace(depth=100))
         print("READY", flush=True)
         node.spin(timeout=args.duration)
-        gaps = [b - a for a, b in zip(arrivals, arrivals[1:])]
+        gaps = [b - a for a, b in zip(arrivals, arrivals[1:], strict=False)]
         print(json.dumps({"seqs": seqs, "max_gap": max(gaps) if gaps else None}), flush=True)

@@ -43,11 +43,11 @@ PROBE_QOS = QoSProfile(ReliabilityPolicy.BEST_EFFORT, depth=8)
 
 @message(name="zenoh_robot/LinkProbe")
 class LinkProbe(Message):
-    id: int = ros_field("uint64", 0)          # the sending monitor (random per node)
-    seq: int = ros_field("uint32", 0)
-    period_ms: int = ros_field("uint16", 50)  # how often the sender probes
-    peers: list[int] = array("uint64")        # monitors the sender hears ...
-    loss: list[float] = array("float32")      # ... and the loss it measures on each (0..1)
+    id: int = ros_field("uint64", default=0)          # the sending monitor (random per node)
+    seq: int = ros_field("uint32", default=0)
+    period_ms: int = ros_field("uint16", default=50)  # how often the sender probes
+    peers: list[int] = array("uint64", default=None)        # monitors the sender hears ...
+    loss: list[float] = array("float32", default=None)      # ... and the loss it measures on each (0..1)
 
 
 @dataclass

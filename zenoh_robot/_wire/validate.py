@@ -371,11 +371,11 @@ def _emit_field(src: _Source, spec: "FieldSpec", v: str, ind: int, depth: int) -
             if depth < _INLINE_DEPTH:
                 _emit_message(src, sub, v, ind, depth + 1)
             else:
-                src.add(ind, f"{v} = {src.const(sub._zr_try_from_wire, 'T')}({v})")  # type: ignore[attr-defined]
+                src.add(ind, f"{v} = {src.const(sub._zr_try_from_wire, 'T')}({v})")
                 src.add(ind, f"if {v} is None: raise _FALL")
             return
         _emit_length(src, spec, v, ind, "MAX_SEQUENCE_LEN")
-        try_sub = src.const(sub._zr_try_from_wire, "T")    # type: ignore[attr-defined]
+        try_sub = src.const(sub._zr_try_from_wire, "T")
         src.add(ind, f"{v} = [{try_sub}(x) for x in {v}]")
         src.add(ind, f"if None in {v}: raise _FALL")
         return

@@ -44,14 +44,14 @@ class SensorCombined(Message):
     """PX4's SensorCombined uORB message, field for field."""
     header: Header = None  # type: ignore[assignment]
     timestamp: int = 0                       # us, PX4 boot time
-    gyro_rad: list[float] = array("float32", 3)
-    gyro_integral_dt: int = ros_field("uint32", 0)
-    accelerometer_timestamp_relative: int = ros_field("int32", 0)
-    accelerometer_m_s2: list[float] = array("float32", 3)
-    accelerometer_integral_dt: int = ros_field("uint32", 0)
-    magnetometer_ga: list[float] = array("float32", 3)
-    baro_alt_meter: float = ros_field("float32", 0.0)
-    baro_temp_celcius: float = ros_field("float32", 0.0)
+    gyro_rad: list[float] = array("float32", 3, default=None)
+    gyro_integral_dt: int = ros_field("uint32", default=0)
+    accelerometer_timestamp_relative: int = ros_field("int32", default=0)
+    accelerometer_m_s2: list[float] = array("float32", 3, default=None)
+    accelerometer_integral_dt: int = ros_field("uint32", default=0)
+    magnetometer_ga: list[float] = array("float32", 3, default=None)
+    baro_alt_meter: float = ros_field("float32", default=0.0)
+    baro_temp_celcius: float = ros_field("float32", default=0.0)
 
     def __post_init__(self) -> None:
         if self.header is None:
@@ -62,11 +62,11 @@ class SensorCombined(Message):
 class Image(Message):
     """An image; ``data`` is bytes (raw rows of ``step`` bytes, or one JPEG stream)."""
     header: Header = None  # type: ignore[assignment]
-    height: int = ros_field("uint32", 0)
-    width: int = ros_field("uint32", 0)
+    height: int = ros_field("uint32", default=0)
+    width: int = ros_field("uint32", default=0)
     encoding: str = "rgb8"
-    is_bigendian: int = ros_field("uint8", 0)
-    step: int = ros_field("uint32", 0)
+    is_bigendian: int = ros_field("uint8", default=0)
+    step: int = ros_field("uint32", default=0)
     data: bytes = b""
 
     _CHANNELS = {"rgb8": 3, "bgr8": 3, "mono8": 1, "rgba8": 4, "bgra8": 4}
@@ -95,14 +95,15 @@ class Image(Message):
     def to_array(self) -> np.ndarray:
         """A read-only numpy view over ``data`` (no copy); decodes JPEG when encoding is jpeg."""
         if self.encoding == "jpeg":
-            from ..image_transport import decode_strip   # lazy: Pillow only when JPEG is used
+            from ..image_transport import decode_strip  # lazy: Pillow only when JPEG is used
             return decode_strip(self.data)
         channels = self._CHANNELS.get(self.encoding)
         if channels is None:
             raise ValueError(f"Image.to_array: unsupported encoding {self.encoding!r}")
         expected = self.height * self.step
         if len(self.data) != expected:
-            raise ValueError(f"Image.to_array: {len(self.data)} bytes, expected {expected} ({self.height} rows x {self.step})")
+            raise ValueError(f"Image.to_array: {len(self.data)} bytes, expected {expected} "
+                             f"({self.height} rows x {self.step})")
         flat = np.frombuffer(self.data, dtype=np.uint8).reshape(self.height, self.step)
         arr = flat[:, : self.width * channels].reshape(self.height, self.width, channels)
         return arr[:, :, 0] if channels == 1 else arr
@@ -115,7 +116,7 @@ class String(Message):
 
 @message(name="std_msgs/Float32")
 class Float32(Message):
-    data: float = ros_field("float32", 0.0)
+    data: float = ros_field("float32", default=0.0)
 
 
 @message(name="geometry_msgs/Vector3")

@@ -45,9 +45,10 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, IO, Sequence
+from typing import IO, Any
 
 import yaml
 

@@ -11,8 +11,9 @@ import json
 import math
 import os
 import threading
+from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any
 
 from zenoh_robot.msgs import TopicStatistics
 from zenoh_robot.qos import QoSProfile, ReliabilityPolicy

@@ -11,8 +11,9 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Iterable, Iterator
+from typing import TYPE_CHECKING
 
 from .main import CliError
 
@@ -75,7 +76,7 @@ def quiet_exit(fn: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Na
 @contextlib.contextmanager
 def cli_node(kind: str, args: argparse.Namespace) -> Iterator["Node"]:
     """A hidden node (``_zr_<kind>_<hex>``) on the configured session, always closed."""
-    from zenoh_robot.node import Node   # imported late so `zenoh-robot --help` stays fast
+    from zenoh_robot.node import Node  # imported late so `zenoh-robot --help` stays fast
     from zenoh_robot.session_config import SessionConfigError
 
     try:

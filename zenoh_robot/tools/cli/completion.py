@@ -38,7 +38,10 @@ _zenoh_robot() {{
     local cur path="" w words
     cur="${{COMP_WORDS[COMP_CWORD]}}"
     for w in "${{COMP_WORDS[@]:1:COMP_CWORD-1}}"; do
-        case "$w" in -*) ;; *) case " $(_zenoh_robot_words "${{path:-_}}") " in *" $w "*) path="${{path:+$path }}$w" ;; esac ;; esac
+        case "$w" in
+            -*) ;;
+            *) case " $(_zenoh_robot_words "${{path:-_}}") " in *" $w "*) path="${{path:+$path }}$w" ;; esac ;;
+        esac
     done
     words=$(_zenoh_robot_words "${{path:-_}}")
     COMPREPLY=($(compgen -W "$words" -- "$cur"))

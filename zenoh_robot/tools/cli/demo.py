@@ -121,7 +121,8 @@ def run(args: argparse.Namespace) -> int:
             f.close()
     for name, proc in (("simulator", sim), ("companion", companion)):
         if proc.returncode not in (0, -signal.SIGINT, 130):
-            console.print(f"demo: {name} exited with {proc.returncode}; see {work / (name[:3] if name == 'simulator' else name)}.log")
+            log_name = name[:3] if name == "simulator" else name
+            console.print(f"demo: {name} exited with {proc.returncode}; see {work / log_name}.log")
     print_summary(console, work, args.drone)
     console.print(f"demo: flight log {flight_log} ({flight_log.stat().st_size / 1e6:.1f} MB): "
                   f"`zenoh-robot bag info {flight_log}`, or open it in Foxglove" if flight_log.exists()

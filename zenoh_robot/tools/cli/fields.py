@@ -11,7 +11,8 @@ from __future__ import annotations
 import ast
 import math
 import operator
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from .main import CliError
 
@@ -137,7 +138,7 @@ class Filter:
             return result
         if isinstance(node, ast.Compare):
             left = self._eval(node.left, data)
-            for op, right_node in zip(node.ops, node.comparators):
+            for op, right_node in zip(node.ops, node.comparators, strict=True):
                 right = self._eval(right_node, data)
                 if not _CMP[type(op)](left, right):
                     return False

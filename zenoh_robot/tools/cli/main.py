@@ -17,9 +17,9 @@ import importlib
 import logging
 import os
 import sys
-from typing import Any, Callable, Sequence
-
+from collections.abc import Callable, Sequence
 from importlib.metadata import PackageNotFoundError, entry_points, version
+from typing import Any
 
 # Others (security: keys, router) append theirs; a module that does not exist yet is skipped.
 SUBCOMMANDS = ["topic", "node", "interface", "stats", "param", "service", "launch", "doctor", "completion",

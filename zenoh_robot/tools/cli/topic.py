@@ -13,11 +13,25 @@ import math
 import sys
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any
 
-from .common import (HIDDEN_PREFIX, CallbackOutput, add_config_arg, add_duration_arg, add_zenoh_arg,  # noqa: F401
-                     cli_node, deadline_of, did_you_mean, lookup_type, one_line, quiet_exit, spin_until, topic_key)
+from .common import (  # noqa: F401
+    HIDDEN_PREFIX,
+    CallbackOutput,
+    add_config_arg,
+    add_duration_arg,
+    add_zenoh_arg,
+    cli_node,
+    deadline_of,
+    did_you_mean,
+    lookup_type,
+    one_line,
+    quiet_exit,
+    spin_until,
+    topic_key,
+)
 from .fields import Filter, csv_value, flatten, get_path
 from .main import CliError
 from .qos_args import add_qos_args, qos_from_args
@@ -254,7 +268,7 @@ def _find(args: argparse.Namespace) -> int:
         discover_graph(node, args.timeout)
         found = False
         all_types: set[str] = set()
-        for name, types in node.get_topic_names_and_types():
+        for name, _types in node.get_topic_names_and_types():
             pubs, subs = _endpoints(node, name, args.all)
             seen = {e.topic_type for e in pubs + subs}
             all_types |= seen
@@ -335,7 +349,7 @@ class RateWindow:
 
     def report(self) -> str | None:
         s = list(self.stamps)
-        intervals = [(b - a) / 1e9 for a, b in zip(s, s[1:])]
+        intervals = [(b - a) / 1e9 for a, b in zip(s, s[1:], strict=False)]
         if not intervals:
             return None
         mean = sum(intervals) / len(intervals)
