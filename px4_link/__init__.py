@@ -3,17 +3,33 @@
 Knows nothing of Zenoh: the companion process bridges the two.
 """
 from .action import Action, ActionError
-from .commands import (CommandAck, CommandDenied, CommandError, CommandFailed,
-                       CommandTemporarilyRejected, CommandTimeout, CommandUnsupported, NotConnected)
+from .commands import (
+                       CommandAck,
+                       CommandDenied,
+                       CommandError,
+                       CommandFailed,
+                       CommandTemporarilyRejected,
+                       CommandTimeout,
+                       CommandUnsupported,
+                       NotConnected,
+)
 from .link import DEFAULT_CONNECTION, Px4Link
 from .modes import decode_custom_mode, encode_custom_mode, mode_to_main_sub, normalize_mode_name
 from .offboard import Offboard, OffboardError
 from .param import Param, ParamError
-from .setpoints import (Geofence, OffboardSetpoint, PositionSetpoint, Setpoint, SetpointRejected,
-                        VelocitySetpoint)
+from .setpoints import Geofence, OffboardSetpoint, PositionSetpoint, Setpoint, SetpointRejected, VelocitySetpoint
 from .stats import LinkStats
-from .telemetry import (Attitude, Battery, ExtendedSysState, GlobalPosition, Imu, LocalPosition,
-                        Px4State, SysStatus, VehicleState)
+from .telemetry import (
+                       Attitude,
+                       Battery,
+                       ExtendedSysState,
+                       GlobalPosition,
+                       Imu,
+                       LocalPosition,
+                       Px4State,
+                       SysStatus,
+                       VehicleState,
+)
 from .telemetry_service import Telemetry
 
 __all__ = [

@@ -3,7 +3,8 @@ of ``link.action`` / ``link.offboard`` / ``link.param`` / ``link.telemetry``."""
 from __future__ import annotations
 
 import warnings
-from typing import TYPE_CHECKING, Any, Callable
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from .action import Action

@@ -6,7 +6,7 @@ import time
 from typing import TYPE_CHECKING
 
 from .commands import CommandAck
-from .setpoints import Geofence, OffboardSetpoint, SetpointRejected, SetpointValidator, mavlink_fields
+from .setpoints import Geofence, OffboardSetpoint, SetpointRejected, SetpointValidator
 from .telemetry import LocalPosition
 
 if TYPE_CHECKING:

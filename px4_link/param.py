@@ -3,7 +3,8 @@ from __future__ import annotations
 
 import math
 import threading
-from typing import TYPE_CHECKING, Any, Callable
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 from .commands import CommandError, CommandTimeout, NotConnected
 from .wire import float_bits_to_int, int_to_float_bits, mavlink2

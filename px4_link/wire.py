@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import struct
 import threading
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink2
 

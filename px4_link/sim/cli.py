@@ -5,7 +5,7 @@ import argparse
 import logging
 import signal
 import sys
-from typing import Sequence
+from collections.abc import Sequence
 
 from .protocol import DEFAULT_RATES_HZ
 from .simulator import DEFAULT_HOME, Simulator

@@ -10,8 +10,9 @@ import errno
 import math
 import socket
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 from ..modes import encode_custom_mode
 from ..wire import Encoder, Parser, float_bits_to_int, int_to_float_bits, mavlink2
