@@ -77,6 +77,7 @@ _GRAPH_READ = ["declare_liveliness_subscriber", "liveliness_query"]
 _GRAPH = "@zr/lv"            # graph tokens: @zr/lv/<kind>/<zid>/<gid>/<namespace>/<node>/...
 _ALIVE = "@zr/alive"         # MANUAL_BY_TOPIC / leased publishers' heartbeats: @zr/alive/<topic key>
 _CONTROL = "zr_gcs"          # a GCS's liveliness token zr_gcs/<client id> (companion.interface)
+_LINK = "zr_link"            # loss-feedback probes every node sends and hears (_wire/feedback.LINK_TOPIC)
 # Nodes a GCS runs in the root namespace (gcs app, `gcs cmd`): their parameter services live at
 # @srv/<node>/... whatever the certificate's name.
 _GCS_NODES = ("gcs", "gcs_cmd")
@@ -113,15 +114,19 @@ def acl_config(nodes: dict[str, NodeEntry], domain: int = 0) -> dict[str, Any]:
     egress = rule("egress_all", _ALL, everything, ["egress"])
     # Every node keeps the graph (node list, matching, QoS checks, duplicate-name refusal).
     graph_read = rule("graph_read", _GRAPH_READ, [f"{p}{_GRAPH}/**"])
+    # Loss feedback: every node probes the link and reports the loss it hears, so every node
+    # sends and hears probes. A node with a valid certificate can report false loss; the worst
+    # it gets is its peers' copies raised to the repeat plan's bound (docs/security.md).
+    link_probe = rule("link_probe", ["put", "declare_subscriber"], [f"{p}{_LINK}"])
     router_all = rule("router_all", _ALL, everything + [f"{p}{_CONTROL}/**"])
     for node in sorted(nodes.values(), key=lambda n: n.name):
         subjects.append({"id": f"cn_{node.name}", "cert_common_names": [node.name]})
         if node.role == "router":
             own = [router_all, egress]
         elif node.role == "drone":
-            own = [egress, graph_read, *_drone_rules(rule, p, node.name)]
+            own = [egress, graph_read, link_probe, *_drone_rules(rule, p, node.name)]
         else:
-            own = [egress, graph_read, *_gcs_rules(rule, p, node)]
+            own = [egress, graph_read, link_probe, *_gcs_rules(rule, p, node)]
         policies.append({"id": f"policy_{node.name}", "rules": own, "subjects": [f"cn_{node.name}"]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
             "policies": policies}
@@ -157,6 +162,8 @@ def _gcs_rules(rule: Any, p: str, node: NodeEntry) -> list[str]:
         # Its own topics and services; its root-namespace nodes' parameter services.
         rule(f"gcs_{name}_own", ["put", "delete", "declare_queryable", "reply", "query"],
              [f"{p}{name}/**", *own_srv]),
+        # Statistics of its root-namespace nodes' other subscriptions (statistics/zr_link, ...).
+        rule(f"gcs_{name}_root_statistics", ["put"], [f"{p}statistics/**"]),
         # Graph tokens of its nodes: root namespace (gcs, gcs_cmd) or its own.
         rule(f"gcs_{name}_graph", ["liveliness_token"], [f"{p}{_GRAPH}/*/*/*/%/**", f"{p}{_GRAPH}/*/*/*/{name}/**"]),
         # The liveliness token by which drones know it is alive (zr_gcs/<client id>), and the others'.

@@ -45,7 +45,7 @@ SENSOR_HZ = 200.0
 SETPOINT_HZ = 10.0
 # Receivers listen this long after the senders stop: a sample delivered late is delivered (its
 # age says how late), a sample never delivered is lost.
-DRAIN_S = 2.0
+DRAIN_S = 1.5
 # On a congestion-controlled link (QUIC datagrams) the resilient setpoint QoS's 64 repeats, made
 # for raw multicast UDP, fill the congestion window at loss; the lean variant keeps qos.RESILIENT's 3.
 LEAN = ("secure-quic-lean",)
