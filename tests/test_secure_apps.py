@@ -12,7 +12,6 @@ import json
 import re
 import signal
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -173,7 +172,5 @@ def test_mission_through_secure_router_and_rogue_drone_is_denied(tmp_path: Path)
     assert ("Put", "uav1/setpoint") in rogue_denied, rogue_denied
     assert ("Query", "@srv/uav1/command") in rogue_denied, rogue_denied
     # The companion never saw the rogue's setpoints: no more than the GCS sent, none refused.
-    received = summary["logs"]["received"]["setpoint"]
-    print("companion setpoints", summary["setpoints"], "gcs sent", sent, file=sys.stderr)
-    assert summary["setpoints"]["received"] <= sent, (summary["setpoints"], sent, received.keys())
+    assert summary["setpoints"]["received"] <= sent, (summary["setpoints"], sent)
     assert summary["setpoints_rejected"] == 0 and summary["commands_refused"] == 0, summary
