@@ -86,6 +86,8 @@ def test_pub_with_a_qos_file_profile(ns):
         with Node("inbox", namespace=ns) as node:
             node.create_subscription(msgs.String, "state_in", lambda m: got.append(m.data), 10)
             assert node.spin_until(lambda: bool(got), timeout=8.0), got
+            # A sample may arrive before the publisher's graph token does: wait for the graph too.
+            assert node.spin_until(lambda: bool(node.get_publishers_info_by_topic(f"/{ns}/state_in")), 5.0)
             pubs = node.get_publishers_info_by_topic(f"/{ns}/state_in")
             assert len(pubs) == 1
             q = pubs[0].qos_profile

@@ -22,7 +22,7 @@ p.add_argument("--duration", type=float, default=4.0)
 p.add_argument("--start-file")
 args = p.parse_args()
 
-cfg = SessionConfig.resilient(args.iface, "239.255.74.79")
+cfg = SessionConfig.resilient(args.iface, "239.255.74.79:7460")
 with Node(args.role, namespace=args.ns, config=cfg) as node:
     if args.role == "pub":
         pub = FecImagePublisher(node, "image", IMAGE, quality=60, loss=args.loss)

@@ -43,6 +43,9 @@ PROBE_QOS = QoSProfile(ReliabilityPolicy.BEST_EFFORT, depth=8)
 
 @message(name="zenoh_robot/LinkProbe")
 class LinkProbe(Message):
+    # Probes are the link's own bookkeeping: statistics of them would be noise (and a put
+    # outside the node's namespace that the secure profile's ACL has to allow).
+    __zr_no_statistics__ = True
     id: int = ros_field("uint64", default=0)          # the sending monitor (random per node)
     seq: int = ros_field("uint32", default=0)
     period_ms: int = ros_field("uint16", default=50)  # how often the sender probes
