@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import os
 import secrets
+import signal
 import subprocess
 import sys
 import time
@@ -78,3 +79,16 @@ def linked_nodes(ns: str, links: int = 2):
         assert wait_for(lambda: len([l for l in a.session.info.links() if l.zid == peer]) >= links, 10.0), \
             "the two sessions never linked"
         yield a, b
+
+
+def stop_process(proc: subprocess.Popen, timeout: float = 15.0) -> str:
+    """Ctrl-C a process as a user would (it stops cleanly and prints its summary), kill it if it
+    hangs; returns what it printed."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+    try:
+        out, _ = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, _ = proc.communicate()
+    return out or ""

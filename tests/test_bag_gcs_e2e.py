@@ -10,7 +10,6 @@ from __future__ import annotations
 import asyncio
 import json
 import secrets
-import signal
 import socket
 import subprocess
 import sys
@@ -18,7 +17,7 @@ import time
 from collections.abc import Iterator
 
 import pytest
-from conftest import ROOT, free_port, python_proc
+from conftest import ROOT, free_port, python_proc, stop_process
 
 pytest.importorskip("mcap")
 pytest.importorskip("foxglove")
@@ -37,14 +36,7 @@ def _strict(text: str) -> object:
 
 
 def _stop(proc: subprocess.Popen, timeout: float = 20.0) -> str:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-    try:
-        out, _ = proc.communicate(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        out, _ = proc.communicate()
-    return out or ""
+    return stop_process(proc, timeout)
 
 
 @pytest.fixture(scope="module")

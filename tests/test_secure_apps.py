@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import re
-import signal
 import subprocess
 import threading
 import time
@@ -18,7 +17,7 @@ from pathlib import Path
 
 import pytest
 import zenoh
-from conftest import free_port, python_proc, wait_for
+from conftest import free_port, python_proc, stop_process, wait_for
 
 pytest.importorskip("cryptography")
 from companion.interface import Command, CommandResult, DroneSetpoint  # noqa: E402
@@ -89,14 +88,7 @@ class RouterLog:
 
 
 def _stop(proc: subprocess.Popen, timeout: float = 15.0) -> str:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-    try:
-        out, _ = proc.communicate(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        out, _ = proc.communicate()
-    return out or ""
+    return stop_process(proc, timeout)
 
 
 def _client(keys: Path, name: str, endpoint: str) -> SessionConfig:

@@ -17,7 +17,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from conftest import python_proc, wait_for
+from conftest import python_proc, stop_process, wait_for
 from px4_helpers import assert_no_px4_failsafe
 
 from companion.interface import Command, CommandResult, DroneSetpoint, FailsafeEvent, VehicleState
@@ -40,14 +40,7 @@ def _free_port() -> int:
 
 
 def _stop(proc: subprocess.Popen, timeout: float = 10.0) -> str:
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGINT)
-    try:
-        out, _ = proc.communicate(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        out, _ = proc.communicate()
-    return out or ""
+    return stop_process(proc, timeout)
 
 
 @contextmanager
