@@ -92,3 +92,25 @@ def stop_process(proc: subprocess.Popen, timeout: float = 15.0) -> str:
         proc.kill()
         out, _ = proc.communicate()
     return out or ""
+
+
+def wait_ready(proc: subprocess.Popen, max_lines: int = 50) -> bool:
+    """Read a helper process's stdout up to its READY line. Zenoh 1.10 logs its own errors to stdout
+    (e.g. a transient "Unknown wire expr" while sessions meet): those lines are not the protocol."""
+    assert proc.stdout is not None
+    for _ in range(max_lines):
+        line = proc.stdout.readline()
+        if not line:
+            return False
+        if line.strip() == "READY":
+            return True
+    return False
+
+
+def last_json(out: str) -> dict:
+    """The last JSON object a helper process printed (its summary), skipping Zenoh's log lines."""
+    import json
+    for line in reversed(out.strip().splitlines()):
+        if line.startswith("{"):
+            return json.loads(line)
+    raise AssertionError(f"no JSON summary in: {out[-2000:]!r}")

@@ -8,7 +8,7 @@ so the >= 90 % bound fails; without the server's idempotency cache the retries e
 from __future__ import annotations
 
 import pytest
-from conftest import skip_unless_required
+from conftest import skip_unless_required, wait_ready
 
 
 @pytest.mark.netns
@@ -73,7 +73,7 @@ def test_link_up_and_peers_on_a_multicast_session() -> None:
         peer = child("drone", PEER_SCRIPT)
         check = child("gcs", CHECK_SCRIPT)
         try:
-            assert peer.stdout is not None and peer.stdout.readline().strip() == "READY"
+            assert peer.stdout is not None and wait_ready(peer)
             assert check.stdout is not None and check.stdin is not None
             up, n_peers, n_peers_zid, n_subs = check.stdout.readline().split()
             assert (up, n_peers) == ("UP", "1"), (up, n_peers)

@@ -5,14 +5,13 @@ skipping it, so CI can never pass by silently skipping the one thing it must pro
 """
 from __future__ import annotations
 
-import json
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 import pytest
-from conftest import skip_unless_required
+from conftest import last_json, skip_unless_required, wait_ready
 
 from zenoh_robot.tools.experiment.netns import LossyLink, unavailable_reason
 
@@ -43,17 +42,17 @@ def _cell(link: LossyLink, profile: str, loss: float, tmp_path: Path, duration: 
                            "--connect", f"tcp/{link.addr('drone')}:7447", "--connect", f"udp/{link.addr('drone')}:7447",
                            "--duration", str(duration), "--start-file", str(start)],
                            stdout=subprocess.PIPE, text=True, cwd=ROOT)
-    assert sub.stdout.readline().strip() == "READY"
-    assert pub.stdout.readline().strip() == "READY"
+    assert wait_ready(sub)
+    assert wait_ready(pub)
     time.sleep(1.5)                 # sessions up (the thesis applied loss after set-up)
     link.set_loss(loss)
     start.touch()
     pub_out, _ = pub.communicate(timeout=duration + 20)
     sub_out, _ = sub.communicate(timeout=duration + 20)
     assert pub.returncode == 0 and sub.returncode == 0, (pub_out, sub_out)
-    sent = json.loads(pub_out.strip().splitlines()[-1])["sent"]
+    sent = last_json(pub_out)["sent"]
     _ = gcs
-    return sent, json.loads(sub_out.strip().splitlines()[-1])
+    return sent, last_json(sub_out)
 
 
 @pytest.mark.netns
@@ -100,16 +99,16 @@ def test_fec_images_arrive_whole_at_30_percent_loss(lossy_link: LossyLink, tmp_p
     pub = subprocess.Popen(lossy_link.exec_in("gcs") + [sys.executable, peer, "pub", *common, "--iface",
                            lossy_link.dev("gcs"), "--duration", str(duration), "--start-file", str(start)],
                            stdout=subprocess.PIPE, text=True, cwd=ROOT)
-    assert sub.stdout.readline().strip() == "READY"
-    assert pub.stdout.readline().strip() == "READY"
+    assert wait_ready(sub)
+    assert wait_ready(pub)
     time.sleep(1.5)
     lossy_link.set_loss(30)
     start.touch()
     pub_out, _ = pub.communicate(timeout=duration + 20)
     sub_out, _ = sub.communicate(timeout=duration + 20)
     assert pub.returncode == 0 and sub.returncode == 0, (pub_out, sub_out)
-    sent = json.loads(pub_out.strip().splitlines()[-1])
-    got = json.loads(sub_out.strip().splitlines()[-1])
+    sent = last_json(pub_out)
+    got = last_json(sub_out)
     whole = len(set(got["frames"]))
     assert sent["n"] > sent["k"] and got["decode_errors"] == 0
     # Generous (the old figure was ~1 %), yet fails if parity did not work: 30 % loss on ~8 shares

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import pytest
-from conftest import python_proc
+from conftest import python_proc, wait_ready
 
 from zenoh_robot import History, Node, QoSError, QoSProfile, Reliability
 from zenoh_robot.parameters import (
@@ -143,7 +143,7 @@ def test_remote_param_cli(ns):
     node = python_proc("tests/procs/svc_param_node.py", "--ns", ns, "-p", "depth:=4")
     target = f"/{ns}/pnode"
     try:
-        assert node.stdout.readline().strip() == "READY"
+        assert wait_ready(node)
         rc, out = _cli("list", target)
         assert rc == 0, out
         assert out.split() == ["depth", "frames", "gain", "mode"]

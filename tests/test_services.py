@@ -6,7 +6,7 @@ import time
 from concurrent.futures import Future
 
 import pytest
-from conftest import python_proc
+from conftest import python_proc, wait_ready
 
 from zenoh_robot import Message, Node, message
 from zenoh_robot.services import ServiceCallError, ServiceError, ServiceTimeout, ServiceUnavailable, service_key
@@ -134,7 +134,7 @@ def test_call_from_a_callback_of_a_single_threaded_executor(server, ns):
 def test_service_cli_list_and_call(ns):
     proc = python_proc("tests/procs/svc_param_node.py", "--ns", ns)
     try:
-        assert proc.stdout.readline().strip() == "READY"
+        assert wait_ready(proc)
         out = python_proc(*CLI, "service", "list", f"/{ns}", "-t")
         text, _ = out.communicate(timeout=30)
         assert out.returncode == 0, text

@@ -19,6 +19,7 @@ from contextlib import ExitStack
 from pathlib import Path
 
 import pytest
+from conftest import last_json, wait_ready
 
 ROOT = Path(__file__).resolve().parents[1]
 RUNS = 8            # at once: the stall needs load, and the runs are part of it
@@ -84,7 +85,7 @@ def test_resilient_setpoints_never_stall_on_multicast_under_cpu_load(cpu_hogs: N
                                          str(SECONDS)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
                                          cwd=ROOT))
         for p in subs + pubs:
-            assert p.stdout is not None and p.stdout.readline().strip() == "READY"
+            assert p.stdout is not None and wait_ready(p)
         time.sleep(1.0)       # a few Join rounds (every 250 ms): the peers know each other
         for p in pubs:
             assert p.stdin is not None
@@ -95,7 +96,7 @@ def test_resilient_setpoints_never_stall_on_multicast_under_cpu_load(cpu_hogs: N
             pub_out, _ = pub.communicate(timeout=SECONDS + 30)
             sub_out, _ = sub.communicate(timeout=SECONDS + 30)
             assert pub.returncode == 0 and sub.returncode == 0, (pub_out, sub_out)
-            results.append((json.loads(pub_out.strip().splitlines()[-1]), json.loads(sub_out.strip().splitlines()[-1])))
+            results.append((last_json(pub_out), last_json(sub_out)))
     assert all(not p["express_on_wire"] for p, _ in results), "express reached a multicast session"
     stalled = [(p["sent"], s) for p, s in results if s["unique"] < 0.9 * p["sent"] or s["last"] < p["sent"] - 3]
     assert not stalled, f"{len(stalled)}/{RUNS} setpoint streams stalled (sent, received): {stalled}"
