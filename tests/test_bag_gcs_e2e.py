@@ -15,6 +15,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
+from dataclasses import dataclass, field
 
 import pytest
 from conftest import ROOT, free_port, python_proc, stop_process
@@ -57,7 +58,8 @@ def _gcs(drone_id: str, *args: str) -> subprocess.Popen:
 
 def test_gcs_record_writes_a_flight_log_with_positions_and_a_strict_summary(drone, tmp_path):
     path = tmp_path / "flight.mcap"
-    gcs = _gcs(drone, "--mission", "--duration", "3", "--pattern", "hover", "--record", str(path))
+    # 2 m: the climb above 1 m and the landing it checks, without PX4's slow descent from the default 5 m
+    gcs = _gcs(drone, "--mission", "--duration", "3", "--pattern", "hover", "--altitude", "2", "--record", str(path))
     try:
         out, _ = gcs.communicate(timeout=90)
     finally:
@@ -83,41 +85,62 @@ def test_gcs_record_writes_a_flight_log_with_positions_and_a_strict_summary(dron
     assert info.returncode == 0 and _strict(info.stdout)["complete"] is True, info.stderr
 
 
-def test_mavlink_tunnel_reaches_a_local_qgc_port(drone):
-    from pymavlink.dialects.v20 import common as mavlink2
+@dataclass
+class LiveGcs:
+    """One GCS process with both live outputs on: a MAVLink stream to a local QGC port and Foxglove."""
+    proc: subprocess.Popen
+    qgc: socket.socket
+    foxglove_port: int
+    output: list[str] = field(default_factory=list)
 
+    def out(self) -> str:
+        """What the GCS printed (it is stopped first: its output is read once it ended)."""
+        if not self.output:
+            self.output.append(_stop(self.proc))
+        return self.output[0]
+
+
+@pytest.fixture(scope="module")
+def live_gcs(drone) -> Iterator[LiveGcs]:
     qgc = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     qgc.bind(("127.0.0.1", 0))
     qgc.settimeout(1.0)
-    port = qgc.getsockname()[1]
-    gcs = _gcs(drone, "--duration", "40", "--mavlink-out", f"udpout:127.0.0.1:{port}")
+    port = free_port()
+    gcs = _gcs(drone, "--duration", "60", "--mavlink-out", f"udpout:127.0.0.1:{qgc.getsockname()[1]}",
+               "--foxglove", str(port))
+    live = LiveGcs(gcs, qgc, port)
+    try:
+        yield live
+    finally:
+        live.out()
+        qgc.close()
+
+
+def test_mavlink_tunnel_reaches_a_local_qgc_port(live_gcs):
+    from pymavlink.dialects.v20 import common as mavlink2
+
     parser = mavlink2.MAVLink(None)
     parser.robust_parsing = True
     heartbeats = []
-    try:
-        deadline = time.monotonic() + 40
-        while len(heartbeats) < 2 and time.monotonic() < deadline and gcs.poll() is None:
-            try:
-                data = qgc.recv(65535)
-            except TimeoutError:
-                continue
-            for msg in parser.parse_buffer(data) or []:
-                if msg.get_type() == "HEARTBEAT":
-                    heartbeats.append(msg)
-    finally:
-        out = _stop(gcs)
-        qgc.close()
-    assert len(heartbeats) >= 2, out[-3000:]
+    deadline = time.monotonic() + 40
+    while len(heartbeats) < 2 and time.monotonic() < deadline and live_gcs.proc.poll() is None:
+        try:
+            data = live_gcs.qgc.recv(65535)
+        except TimeoutError:
+            continue
+        for msg in parser.parse_buffer(data) or []:
+            if msg.get_type() == "HEARTBEAT":
+                heartbeats.append(msg)
+    assert len(heartbeats) >= 2, live_gcs.out()[-3000:]
     # PX4's own heartbeat (the simulator's system 1, an autopilot), byte for byte through Zenoh
     assert any(h.get_srcSystem() == 1 and h.autopilot == mavlink2.MAV_AUTOPILOT_PX4 for h in heartbeats), heartbeats
 
 
-def test_gcs_foxglove_serves_the_live_view(drone):
+def test_gcs_foxglove_serves_the_live_view(drone, live_gcs):
     websockets = pytest.importorskip("websockets")
     from test_foxglove import SUBPROTOCOLS
 
-    port = free_port()
-    gcs = _gcs(drone, "--duration", "40", "--foxglove", str(port))
+    port = live_gcs.foxglove_port
 
     async def advertised(timeout: float) -> dict[str, dict]:
         channels: dict[str, dict] = {}
@@ -143,10 +166,8 @@ def test_gcs_foxglove_serves_the_live_view(drone):
                         channels.update({ch["topic"]: ch for ch in msg["channels"]})
         return channels
 
-    try:
-        channels = asyncio.run(advertised(30.0))
-    finally:
-        out = _stop(gcs)
-    assert f"/{drone}/state/pose" in channels and f"/{drone}/state" in channels, (sorted(channels), out[-2000:])
+    channels = asyncio.run(advertised(30.0))
+    assert f"/{drone}/state/pose" in channels and f"/{drone}/state" in channels, \
+        (sorted(channels), live_gcs.out()[-2000:])
     assert channels[f"/{drone}/state"]["schemaName"] == "zenoh_robot/VehicleState"
     assert channels[f"/{drone}/state/pose"]["schemaName"] == "foxglove.PoseInFrame"

@@ -18,7 +18,8 @@ def test_ctrl_c_stops_the_demo_in_order_and_prints_the_summary():
     try:
         out = Lines(proc)
         assert out.wait_for(r"^demo: simulator, companion and GCS on localhost", 20.0), out.text()
-        time.sleep(12)                                # flying by now: take-off takes a few seconds
+        # flying: the GCS's mission says so once the climb is done (not a fixed wait)
+        assert out.wait_for(r"flying the \S+ pattern", 40.0), out.text()
         assert proc.poll() is None, out.text()        # --duration 45: still running, Ctrl-C ends it
         os.killpg(proc.pid, signal.SIGINT)            # the terminal's Ctrl-C: the whole foreground group
         rc = proc.wait(timeout=45)

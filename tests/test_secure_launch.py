@@ -33,7 +33,7 @@ def test_secure_launch_file_flies_a_mission(tmp_path: Path) -> None:
     d = tmp_path / "keys"
     _keys(d)
     proc = python_proc("-m", "zenoh_robot.tools.cli.main", "launch", str(LAUNCH), f"keys:={d}",
-                       f"port:={free_port()}", "duration:=4")
+                       f"port:={free_port()}", "duration:=2")
     try:
         out, _ = proc.communicate(timeout=120)
     except subprocess.TimeoutExpired:

@@ -86,7 +86,7 @@ def _spin(node: Node) -> None:
 def test_mission_end_to_end(ns: str, tmp_path: Path) -> None:
     record = tmp_path / "gcs.json"
     with drone(ns) as (sim, companion):
-        gcs = gcs_proc("--drones", ns, "--mission", "--duration", "6", "--pattern", "square", "--size", "4",
+        gcs = gcs_proc("--drones", ns, "--mission", "--duration", "4", "--pattern", "square", "--size", "4",
                        "--altitude", "2.5", "--record", str(record))
         out, _ = gcs.communicate(timeout=120)
         assert gcs.returncode == 0, out
