@@ -115,3 +115,32 @@ def test_fec_images_arrive_whole_at_30_percent_loss(lossy_link: LossyLink, tmp_p
     # without parity leaves ~6 % of frames whole.
     assert whole >= 0.6 * sent["sent"], (whole, sent)
     assert 0.15 < got["share_loss"] < 0.5, got["share_loss"]
+
+
+@pytest.mark.netns
+def test_experiment_cell_window_lies_within_both_apps_streams(tmp_path: Path) -> None:
+    """A cell's window must be timed from the streams (docs/zenoh-multicast-stall.md, 2026-11-23).
+
+    Timed from the launch, a window opened before the apps streamed when start-up outlasted the
+    warm-up (6-11 s seen under load) and ran past their exit when the parent's own steps were slow;
+    the analysis read those seconds as every stream silent at once. A warm-up shorter than any
+    start-up (launch -> first setpoint took 3.2 s on an idle run) made the old timing fail."""
+    from zenoh_robot.tools.experiment.cell import CellSpec, run_cell
+
+    reason = unavailable_reason()
+    if reason:
+        skip_unless_required(f"experiment cell test: network namespaces are unavailable: {reason}")
+    r = run_cell(CellSpec("resilient", 0, duration=2.0, warmup=2.5), tmp_path)
+    assert not r.get("error"), r.get("error")
+    assert r["exit_codes"] == {"drone": 0, "gcs": 0}, r["exit_codes"]
+    assert r["startup_s"] is not None
+    assert "invalid" not in r, r["invalid"]
+    t0, t1 = r["window_ns"]
+    import json
+    gcs = json.loads((tmp_path / "gcs.json").read_text())["drones"]["uav1"]["logs"]
+    drone = json.loads((tmp_path / "drone.json").read_text())["logs"]
+    for name, rec in (("setpoints sent", gcs["sent"]["setpoint"]), ("setpoints received", drone["received"]["setpoint"]),
+                      ("sensor sent", drone["sent"]["sensor"]), ("sensor received", gcs["received"]["sensor"])):
+        assert min(rec["arrival_ns"]) < t0 and max(rec["arrival_ns"]) > t1, f"{name} do not cover the window"
+    # Nothing in the window is a start-up or shut-down artefact: at 0 % loss every setpoint sent in it arrived.
+    assert r["topics"]["setpoint"]["delivered_pct"] == 100.0

@@ -9,6 +9,7 @@ window, so delivered % is exact (unique sequence numbers received / sent).
 from __future__ import annotations
 
 import json
+import signal
 import subprocess
 import sys
 import time
@@ -25,6 +26,7 @@ from .netns import LossyLink
 DRONE_ID = "uav1"
 PORT = 7447
 MCAST = RESILIENT_GROUP
+STARTUP_TIMEOUT_S = 60.0   # launch -> the GCS hears the drone; seen 6-11 s on a loaded 2-core machine
 OFFBOARD_GAP_MS = 500.0     # PX4 leaves OFFBOARD when setpoints stop for longer (the 2 Hz rule)
 
 
@@ -72,24 +74,64 @@ def transport_for(profile: str, link: LossyLink, side: str, transport: str = "de
     return cfg.to_json5()
 
 
+def _wait_joined(log_path: Path, procs: dict[str, subprocess.Popen[bytes]], timeout: float) -> float | None:
+    """Seconds until the GCS logs the drone's first state ("drone uav1 joined"), None on timeout or exit."""
+    t_start = time.monotonic()
+    while time.monotonic() - t_start < timeout:
+        try:
+            if f"drone {DRONE_ID} joined" in log_path.read_text(errors="replace"):
+                return time.monotonic() - t_start
+        except OSError:
+            pass
+        if any(p.poll() is not None for p in procs.values()):
+            return None
+        time.sleep(0.1)
+    return None
+
+
+def _default_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def _stop(procs: dict[str, subprocess.Popen[bytes]], timeout: float) -> None:
+    """Ctrl-C both apps (each writes its record on the way out); kill what is left after ``timeout``."""
+    for p in procs.values():
+        if p.poll() is None:
+            p.send_signal(signal.SIGINT)    # `ip netns exec` execs the app: the pid is the app's
+    end = time.monotonic() + timeout
+    for p in procs.values():
+        try:
+            p.wait(timeout=max(0.1, end - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+
 def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
+    """The window [t0, t1] is timed from the streams, not from the launch: it opens ``warmup`` s after
+    the GCS heard the drone, and the apps run until the parent stops them after t1. On a loaded
+    machine start-up took 6-11 s and the parent's own steps (nft, ip) seconds more; a window timed
+    from the launch then covered seconds before the apps streamed or after they had exited, and the
+    analysis read that as every stream going silent at once (docs/zenoh-multicast-stall.md)."""
     workdir.mkdir(parents=True, exist_ok=True)
-    total = spec.warmup + spec.duration + 2.0
     with LossyLink(loss_pct=spec.loss if spec.start == "startup" else 0.0) as link:
         procs = {}
         for side in ("gcs", "drone"):
             (workdir / f"{side}.json5").write_text(
                 json.dumps(transport_for(spec.profile, link, side, spec.transport), indent=1))
-        common = ["--profile", spec.profile, "--duration", str(total)]
+        # A backstop only (the parent stops the apps): they must outlive any start-up and the window.
+        common = ["--profile", spec.profile, "--duration", str(STARTUP_TIMEOUT_S + spec.warmup + spec.duration + 30)]
         drone_cmd = [sys.executable, "-m", "companion", "--id", DRONE_ID, "--px4", "sim",
                      "--zenoh", str(workdir / "drone.json5"), "--record", str(workdir / "drone.json"), *common]
         gcs_cmd = [sys.executable, "-m", "gcs", "--drones", DRONE_ID, "--no-dashboard", "--pattern", "thesis",
                    "--zenoh", str(workdir / "gcs.json5"), "--record", str(workdir / "gcs.json"), *common]
-        t_launch = time.time()
         for side, cmd in (("drone", drone_cmd), ("gcs", gcs_cmd)):
             log = open(workdir / f"{side}.log", "w")
-            procs[side] = subprocess.Popen(link.exec_in(side) + cmd, stdout=log, stderr=subprocess.STDOUT)
+            # Ctrl-C must reach the app even when this runs in the background (nohup, `&`: SIGINT ignored).
+            procs[side] = subprocess.Popen(link.exec_in(side) + cmd, stdout=log, stderr=subprocess.STDOUT,
+                                           preexec_fn=_default_sigint)
         try:
+            startup_s = _wait_joined(workdir / "gcs.log", procs, STARTUP_TIMEOUT_S)
             time.sleep(spec.warmup)
             if spec.start == "after":
                 link.set_loss(spec.loss)
@@ -99,8 +141,8 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
             t1 = time.time_ns()
             tx1 = {side: link.tx_bytes(side) for side in link.sides}
             link.set_loss(0)
-            for p in procs.values():
-                p.wait(timeout=total + 30 - (time.time() - t_launch))
+            time.sleep(1.0)       # the last samples of the window land
+            _stop(procs, timeout=30.0)
         finally:
             for p in procs.values():
                 if p.poll() is None:
@@ -109,6 +151,8 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
     result = analyse_cell(spec, workdir, t0, t1, {k: p.returncode for k, p in procs.items()})
     # Everything each side put on the wire in the window (all streams, copies and joins included).
     result["bandwidth_kBps"] = {side: (tx1[side] - tx0[side]) / 1000 / spec.duration for side in tx0}
+    result["startup_s"] = startup_s        # launch -> the GCS heard the drone (None: never, within the timeout)
+    result["window_ns"] = [t0, t1]
     return result
 
 
@@ -148,4 +192,10 @@ def analyse_cell(spec: CellSpec, workdir: Path, t0: int, t1: int, exit_codes: di
         result["topics"][topic] = analyse(rec(received), rec(sent), t0, t1).as_dict()
     sp = result["topics"]["setpoint"]
     result["offboard_kept"] = sp["unique"] > 0 and sp["longest_gap_ms"] <= OFFBOARD_GAP_MS
+    # A window the senders did not stream through measures their start-up or exit, not the link:
+    # every stream then "goes silent" at once at its edge. Say so instead of reporting a gap.
+    late = [name for name, sent in (("setpoint", g["sent"]["setpoint"]), ("sensor", d["sent"]["sensor"]))
+            if not sent["arrival_ns"] or min(sent["arrival_ns"]) > t0 or max(sent["arrival_ns"]) < t1]
+    if late:
+        result["invalid"] = f"{', '.join(late)} not sent through the whole window (start-up or exit inside it)"
     return result
