@@ -5,6 +5,7 @@ skipping it, so CI can never pass by silently skipping the one thing it must pro
 """
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import time
@@ -136,11 +137,11 @@ def test_experiment_cell_window_lies_within_both_apps_streams(tmp_path: Path) ->
     assert r["startup_s"] is not None
     assert "invalid" not in r, r["invalid"]
     t0, t1 = r["window_ns"]
-    import json
     gcs = json.loads((tmp_path / "gcs.json").read_text())["drones"]["uav1"]["logs"]
     drone = json.loads((tmp_path / "drone.json").read_text())["logs"]
-    for name, rec in (("setpoints sent", gcs["sent"]["setpoint"]), ("setpoints received", drone["received"]["setpoint"]),
-                      ("sensor sent", drone["sent"]["sensor"]), ("sensor received", gcs["received"]["sensor"])):
+    records = {"setpoints sent": gcs["sent"]["setpoint"], "setpoints received": drone["received"]["setpoint"],
+               "sensor sent": drone["sent"]["sensor"], "sensor received": gcs["received"]["sensor"]}
+    for name, rec in records.items():
         assert min(rec["arrival_ns"]) < t0 and max(rec["arrival_ns"]) > t1, f"{name} do not cover the window"
     # Nothing in the window is a start-up or shut-down artefact: at 0 % loss every setpoint sent in it arrived.
     assert r["topics"]["setpoint"]["delivered_pct"] == 100.0
