@@ -6,6 +6,7 @@ skipping it, so CI can never pass by silently skipping the one thing it must pro
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import time
@@ -119,26 +120,32 @@ def test_fec_images_arrive_whole_at_30_percent_loss(lossy_link: LossyLink, tmp_p
 
 
 @pytest.mark.netns
-def test_experiment_cell_window_lies_within_both_apps_streams(tmp_path: Path) -> None:
-    """A cell's window must be timed from the streams (docs/zenoh-multicast-stall.md, 2026-11-23).
+def test_experiment_cell_window_lies_within_both_apps_streams(tmp_path: Path,
+                                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    """A cell's window must be timed from the apps (docs/zenoh-multicast-stall.md, 2026-11-23).
 
     Timed from the launch, a window opened before the apps streamed when start-up outlasted the
     warm-up (6-11 s seen under load) and ran past their exit when the parent's own steps were slow;
-    the analysis read those seconds as every stream silent at once. A warm-up shorter than any
-    start-up (launch -> first setpoint took 3.2 s on an idle run) made the old timing fail."""
+    the analysis read those seconds as every stream silent at once. Here both apps start slowly on
+    purpose (a sitecustomize that sleeps 3 s, as imports on a loaded machine do): with the old timing
+    the window opened before any stream, every run; now it must lie within both apps' streams."""
     from zenoh_robot.tools.experiment.cell import CellSpec, run_cell
 
     reason = unavailable_reason()
     if reason:
         skip_unless_required(f"experiment cell test: network namespaces are unavailable: {reason}")
-    r = run_cell(CellSpec("resilient", 0, duration=2.0, warmup=2.5), tmp_path)
+    slow = tmp_path / "slow_start"
+    slow.mkdir()
+    (slow / "sitecustomize.py").write_text("import time\ntime.sleep(3.0)\n")
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(filter(None, [str(slow), os.environ.get("PYTHONPATH")])))
+    r = run_cell(CellSpec("resilient", 0, duration=2.0, warmup=2.5), tmp_path / "cell")
     assert not r.get("error"), r.get("error")
     assert r["exit_codes"] == {"drone": 0, "gcs": 0}, r["exit_codes"]
     assert r["startup_s"] is not None
     assert "invalid" not in r, r["invalid"]
     t0, t1 = r["window_ns"]
-    gcs = json.loads((tmp_path / "gcs.json").read_text())["drones"]["uav1"]["logs"]
-    drone = json.loads((tmp_path / "drone.json").read_text())["logs"]
+    gcs = json.loads((tmp_path / "cell" / "gcs.json").read_text())["drones"]["uav1"]["logs"]
+    drone = json.loads((tmp_path / "cell" / "drone.json").read_text())["logs"]
     records = {"setpoints sent": gcs["sent"]["setpoint"], "setpoints received": drone["received"]["setpoint"],
                "sensor sent": drone["sent"]["sensor"], "sensor received": gcs["received"]["sensor"]}
     for name, rec in records.items():

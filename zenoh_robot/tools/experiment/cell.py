@@ -26,7 +26,7 @@ from .netns import LossyLink
 DRONE_ID = "uav1"
 PORT = 7447
 MCAST = RESILIENT_GROUP
-STARTUP_TIMEOUT_S = 60.0   # launch -> the GCS hears the drone; seen 6-11 s on a loaded 2-core machine
+STARTUP_TIMEOUT_S = 60.0   # launch -> both apps up; streams began 6-11 s after launch on a loaded 2-core machine
 OFFBOARD_GAP_MS = 500.0     # PX4 leaves OFFBOARD when setpoints stop for longer (the 2 Hz rule)
 
 
@@ -74,12 +74,14 @@ def transport_for(profile: str, link: LossyLink, side: str, transport: str = "de
     return cfg.to_json5()
 
 
-def _wait_joined(log_path: Path, procs: dict[str, subprocess.Popen[bytes]], timeout: float) -> float | None:
-    """Seconds until the GCS logs the drone's first state ("drone uav1 joined"), None on timeout or exit."""
+def _wait_started(workdir: Path, procs: dict[str, subprocess.Popen[bytes]], timeout: float) -> float | None:
+    """Seconds until both apps have logged their start (the GCS has its drone, the companion its PX4);
+    None on timeout or exit. The streams follow within ~1-2 s: the warm-up covers that."""
+    marks = {"gcs.log": f"drone {DRONE_ID} joined", "drone.log": f"companion {DRONE_ID}: PX4 at"}
     t_start = time.monotonic()
     while time.monotonic() - t_start < timeout:
         try:
-            if f"drone {DRONE_ID} joined" in log_path.read_text(errors="replace"):
+            if all(mark in (workdir / name).read_text(errors="replace") for name, mark in marks.items()):
                 return time.monotonic() - t_start
         except OSError:
             pass
@@ -108,8 +110,8 @@ def _stop(procs: dict[str, subprocess.Popen[bytes]], timeout: float) -> None:
 
 
 def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
-    """The window [t0, t1] is timed from the streams, not from the launch: it opens ``warmup`` s after
-    the GCS heard the drone, and the apps run until the parent stops them after t1. On a loaded
+    """The window [t0, t1] is timed from the apps, not from the launch: it opens ``warmup`` s after
+    both have started, and the apps run until the parent stops them after t1. On a loaded
     machine start-up took 6-11 s and the parent's own steps (nft, ip) seconds more; a window timed
     from the launch then covered seconds before the apps streamed or after they had exited, and the
     analysis read that as every stream going silent at once (docs/zenoh-multicast-stall.md)."""
@@ -131,7 +133,7 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
             procs[side] = subprocess.Popen(link.exec_in(side) + cmd, stdout=log, stderr=subprocess.STDOUT,
                                            preexec_fn=_default_sigint)
         try:
-            startup_s = _wait_joined(workdir / "gcs.log", procs, STARTUP_TIMEOUT_S)
+            startup_s = _wait_started(workdir, procs, STARTUP_TIMEOUT_S)
             time.sleep(spec.warmup)
             if spec.start == "after":
                 link.set_loss(spec.loss)
@@ -151,7 +153,7 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
     result = analyse_cell(spec, workdir, t0, t1, {k: p.returncode for k, p in procs.items()})
     # Everything each side put on the wire in the window (all streams, copies and joins included).
     result["bandwidth_kBps"] = {side: (tx1[side] - tx0[side]) / 1000 / spec.duration for side in tx0}
-    result["startup_s"] = startup_s        # launch -> the GCS heard the drone (None: never, within the timeout)
+    result["startup_s"] = startup_s        # launch -> both apps started (None: not within the timeout)
     result["window_ns"] = [t0, t1]
     return result
 
