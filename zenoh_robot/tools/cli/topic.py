@@ -179,15 +179,21 @@ def _list(args: argparse.Namespace) -> int:
     return 0
 
 
+def _found_endpoints(node: Any, name: str, args: argparse.Namespace) -> tuple[list[Any], list[Any]]:
+    """The topic's publishers and subscriptions once discovery settles; a one-line error if none."""
+    discover_graph(node, args.timeout, lambda: any(_endpoints(node, name, args.all)))
+    pubs, subs = _endpoints(node, name, args.all)
+    if not (pubs or subs):
+        known = [t for t, _ in node.get_topic_names_and_types()]
+        raise CliError(f"topic {name} not found: no publisher or subscription on the graph"
+                       + did_you_mean(name, known))
+    return pubs, subs
+
+
 def _info(args: argparse.Namespace) -> int:
     name = "/" + topic_key(args.topic)
     with cli_node("topic", args) as node:
-        discover_graph(node, args.timeout, lambda: any(_endpoints(node, name, args.all)))
-        pubs, subs = _endpoints(node, name, args.all)
-        if not (pubs or subs):
-            known = [t for t, _ in node.get_topic_names_and_types()]
-            raise CliError(f"topic {name} not found: no publisher or subscription on the graph"
-                           + did_you_mean(name, known))
+        pubs, subs = _found_endpoints(node, name, args)
         pairs = [(p, s, _verdict(p, s)) for p in pubs for s in subs]
         print(f"Type: {', '.join(sorted({shown_type(e.topic_type) for e in pubs + subs}))}")
         print(f"Publisher count: {len(pubs)}")
@@ -251,11 +257,7 @@ def qos_lines(q: "QoSProfile") -> list[str]:
 def _type(args: argparse.Namespace) -> int:
     name = "/" + topic_key(args.topic)
     with cli_node("topic", args) as node:
-        discover_graph(node, args.timeout, lambda: any(_endpoints(node, name, args.all)))
-        pubs, subs = _endpoints(node, name, args.all)
-        if not (pubs or subs):
-            known = [t for t, _ in node.get_topic_names_and_types()]
-            raise CliError(f"topic {name} not found" + did_you_mean(name, known))
+        pubs, subs = _found_endpoints(node, name, args)
         for t in sorted({shown_type(e.topic_type) for e in pubs + subs}):
             print(t)
     return 0
