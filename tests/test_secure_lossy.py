@@ -3,7 +3,9 @@
 Two bounded cells of ``zenoh_robot.tools.experiment.secure_sweep`` (the one behind the table
 in docs/security.md): at 0 % the secure session must form and deliver everything; with 30 %
 loss per direction applied once it is up, the resilient setpoint stream must still deliver
->= 90 % (the sweep measured 100 %; a stalled or closed session delivers far less). Root only.
+most setpoints. The sweep measured 76-100 % in repeated runs of that cell (QUIC's congestion
+control reads random loss as congestion, docs/security.md), so the bound is 60 %: what it
+catches is a session that stalls or closes under loss, which delivers far less. Root only.
 """
 from __future__ import annotations
 
@@ -41,7 +43,7 @@ def test_secure_session_forms_and_delivers_through_loss(link: LossyLink, tmp_pat
     lossy = ss.run_cell(cell, tmp_path / "c30", link, keys)
     assert "error" not in lossy, lossy
     sp = lossy["topics"]["setpoint"]
-    assert sp["sent"] > 40 and sp["delivered_pct"] >= 90.0, sp
+    assert sp["sent"] > 40 and sp["delivered_pct"] >= 60.0, sp
     # The session was up before the loss started: both ends heard each other within the warm-up.
     assert sp["setup_s"] is not None and sp["setup_s"] < cell.warmup, sp
     assert set(lossy["exit_codes"].values()) == {0}, lossy["exit_codes"]
