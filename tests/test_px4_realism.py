@@ -1,4 +1,4 @@
-"""The simulator against real PX4 SITL (traces in /work/shared/px4_traces): one test per
+"""The simulator against real PX4 SITL (traces in ../shared/px4_traces beside the clone): one test per
 row of the realism table, with the reference figure read from the trace where it has one."""
 from __future__ import annotations
 
