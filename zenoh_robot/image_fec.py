@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from .image_transport import encode_strip, frame_array, publish_paced
 from .message import Message, message, ros_field
 from .msgs import Header, Image
 from .qos import IMAGE, QoSProfile
@@ -124,7 +125,6 @@ def join(k: int, n: int, size: int, shares: dict[int, bytes]) -> bytes:
 
 
 def encode_jpeg(arr: np.ndarray, quality: int) -> bytes:
-    from .image_transport import encode_strip
     return encode_strip(arr, quality)
 
 
@@ -160,22 +160,13 @@ class FecImagePublisher:
     def publish(self, frame: Image | np.ndarray, header: Header | None = None) -> int:
         """Send one frame; returns its frame number (the shares' header.seq)."""
         shares = self.encode(frame, header)
-        for i, share in enumerate(shares):
-            if i and self.pace_s:
-                time.sleep(self.pace_s)
-            self.publisher.publish(share)
+        publish_paced(self.publisher, shares, self.pace_s)
         self.shares_sent += len(shares)
         self.frames += 1
         return shares[0].header.seq
 
     def encode(self, frame: Image | np.ndarray, header: Header | None = None) -> list[ImageShare]:
-        if isinstance(frame, Image):
-            header = header or frame.header
-            arr = frame.to_array()
-        else:
-            arr = frame
-        if arr.dtype != np.uint8 or arr.ndim not in (2, 3) or (arr.ndim == 3 and arr.shape[2] != 3):
-            raise ValueError(f"FecImagePublisher takes HxW or HxWx3 uint8 frames, got {arr.dtype} {arr.shape}")
+        arr, header = frame_array(frame, header, "FecImagePublisher")
         h, w = arr.shape[:2]
         blob = encode_jpeg(arr, self.quality)
         k, n, parts = split(blob, self.share_bytes, self.loss, self.target, self.max_expansion)

@@ -84,6 +84,26 @@ def decode_strip(data: bytes, max_width: int | None = None, max_height: int | No
         return np.asarray(im)
 
 
+def frame_array(frame: Image | np.ndarray, header: Header | None, who: str) -> tuple[np.ndarray, Header | None]:
+    """A camera frame as an HxW or HxWx3 uint8 array, and the header to stamp it with."""
+    if isinstance(frame, Image):
+        header = header or frame.header
+        arr = frame.to_array()
+    else:
+        arr = frame
+    if arr.dtype != np.uint8 or arr.ndim not in (2, 3) or (arr.ndim == 3 and arr.shape[2] != 3):
+        raise ValueError(f"{who} takes HxW or HxWx3 uint8 frames, got {arr.dtype} {arr.shape}")
+    return arr, header
+
+
+def publish_paced(publisher: Any, pieces: list[Any], pace_s: float) -> None:
+    """Publish a frame's pieces ``pace_s`` apart, past Zenoh's batching window (see ImagePublisher)."""
+    for i, piece in enumerate(pieces):
+        if i and pace_s:
+            time.sleep(pace_s)
+        publisher.publish(piece)
+
+
 class ImagePublisher:
     """Publishes ``Image`` frames as independently decodable JPEG slices."""
 
@@ -111,22 +131,13 @@ class ImagePublisher:
 
     def publish(self, frame: Image | np.ndarray, header: Header | None = None) -> None:
         pieces = self.encode(frame, header)
-        for i, piece in enumerate(pieces):
-            if i and self.pace_s:
-                time.sleep(self.pace_s)
-            self._pub.publish(piece)
+        publish_paced(self._pub, pieces, self.pace_s)
         self.last_count = len(pieces)
         self.frames += 1
 
     def encode(self, frame: Image | np.ndarray, header: Header | None = None) -> list[ImageSlice]:
         """The slices of one frame (numbered ``self.frames``), without publishing them."""
-        if isinstance(frame, Image):
-            header = header or frame.header
-            arr = frame.to_array()
-        else:
-            arr = frame
-        if arr.dtype != np.uint8 or arr.ndim not in (2, 3) or (arr.ndim == 3 and arr.shape[2] != 3):
-            raise ValueError(f"ImagePublisher takes HxW or HxWx3 uint8 frames, got {arr.dtype} {arr.shape}")
+        arr, header = frame_array(frame, header, "ImagePublisher")
         h, w = arr.shape[:2]
         encoding = "mono8" if arr.ndim == 2 else "rgb8"
         rows = self._slice_rows or self._rows_for(w, arr.ndim)
