@@ -190,33 +190,35 @@ class DroneLink:
     def _on_slice(self, s: ImageSlice, info: Any) -> None:
         # Executor: file the slice, never decode it here (see gcs/frames.py).
         complete = self.frames.complete
-        if self.frames.add(s):
-            self.streams["image"].record(s.header.seq, s.header.stamp, info.received_stamp_ns)
+        if self.frames.add(s, info):
+            self.streams["image"].record(s.frame, s.header.stamp, info.received_stamp_ns)
             self.image.last_age_ms = info.age_ms
         if 0 <= s.index < MAX_SLICES:
-            self.streams["image_strip"].record(s.header.seq * MAX_SLICES + s.index, s.header.stamp,
+            self.streams["image_strip"].record(s.frame * MAX_SLICES + s.index, s.header.stamp,
                                                info.received_stamp_ns)
         if self.frames.complete > complete:
-            self.streams["image_whole"].record(s.header.seq, s.header.stamp, info.received_stamp_ns)
+            self.streams["image_whole"].record(s.frame, s.header.stamp, info.received_stamp_ns)
         self.image.frames, self.image.complete = self.frames.frames, self.frames.complete
 
     def _on_share(self, s: ImageShare, info: Any) -> None:
         # Executor: file the share; a rebuilt frame is kept as JPEG and decoded only when looked at.
-        got = self.fec.add(s, info.received_stamp_ns)
+        got = self.fec.add(s, info.received_stamp_ns, info)
         if got is None:
             return
         frame, now = got.info.frame, info.received_stamp_ns
         # A rebuilt FEC frame is whole and fresh: one "strip" per frame, numbered by frame.
         for name in ("image", "image_whole", "image_strip"):
             self.streams[name].record(frame, got.stamp, now)
-        img = Image(Header(got.stamp, "", frame), got.height, got.width, "jpeg", 0, 0, got.jpeg)
-        self.frames.add_image(img, FrameInfo(frame, 1, 1, got.info.age_ms))
+        img = Image(got.header, got.height, got.width, "jpeg", 0, 0, got.jpeg)
+        self.frames.add_image(img, got.info)
         self.image.frames, self.image.complete = self.frames.frames, self.frames.complete
         self.image.last_age_ms = got.info.age_ms
 
     def _on_raw_image(self, img: Image, info: Any) -> None:
         self.streams["image"].record(info.seq, info.source_stamp_ns, info.received_stamp_ns)
-        self.frames.add_image(img, FrameInfo(info.seq, 1, 1, info.age_ms))
+        self.frames.add_image(img, FrameInfo(info.publisher_id, img.header.seq, info.source_stamp_ns,
+                                             info.received_stamp_ns, info.type_name, frame=info.seq,
+                                             slices_received=1, slice_count=1))
         self.image.frames, self.image.complete = self.frames.frames, self.frames.complete
         self.image.last_age_ms = info.age_ms
 

@@ -17,7 +17,13 @@ Usage::
 
     pub = FecImagePublisher(node, "image", qos.IMAGE, loss=0.1)
     pub.publish(frame)                                   # HxW or HxWx3 uint8
+    pub.get_subscription_count()                         # pub.publisher: the underlying Publisher
     FecImageSubscription(node, "image", on_image)        # on_image(Image, FecFrameInfo)
+
+As ``image_transport``: the user's ``Image.header`` arrives unchanged, the frame counter travels
+in ``ImageShare.frame``, and ``FecFrameInfo`` is a ``FrameInfo`` (so a ``MessageInfo``: seq is the
+user's header.seq) with ``shares_received``/``shares_needed``/``shares_sent``; a FEC frame is
+whole or not shown, so ``complete`` always, ``patched`` never, ``fresh_fraction`` 1.
 """
 from __future__ import annotations
 
@@ -30,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from .image_transport import encode_strip, frame_array, publish_paced
+from .image_transport import IMAGE_TYPE, FrameInfo, encode_strip, frame_array, publish_paced
 from .message import Message, message, ros_field
 from .msgs import Header, Image
 from .qos import IMAGE, QoSProfile
@@ -46,7 +52,8 @@ LOSS_WINDOW_FRAMES = 60       # frames over which the receiver measures share lo
 
 @message(name="zenoh_robot/ImageShare")
 class ImageShare(Message):
-    header: Header = None  # type: ignore[assignment]    # capture stamp; header.seq is the frame number
+    header: Header = None  # type: ignore[assignment]    # the user's Image header, unchanged
+    frame: int = ros_field("uint64", default=0)     # the transport's frame counter (reassembly, latest-frame)
     index: int = ros_field("uint16", default=0)     # share number: < k data, >= k parity
     k: int = ros_field("uint16", default=0)         # shares needed to rebuild the frame
     n: int = ros_field("uint16", default=0)         # shares sent for the frame
@@ -62,19 +69,19 @@ class ImageShare(Message):
 
 
 @dataclass(slots=True)
-class FecFrameInfo:
+class FecFrameInfo(FrameInfo):
     """What the viewer is shown: a FEC frame is whole or not delivered, so always fully fresh."""
-    frame: int
-    shares_received: int      # when the frame was rebuilt (== k)
-    k: int
-    n: int
-    age_ms: float             # delivery time - capture stamp
-    complete: bool = True
-    fresh_fraction: float = 1.0
+    shares_received: int = 0      # when the frame was rebuilt (== shares_needed)
+    shares_needed: int = 0         # k
+    shares_sent: int = 0           # n
 
     @property
-    def oldest_strip_age_ms(self) -> float:
-        return self.age_ms
+    def k(self) -> int:
+        return self.shares_needed
+
+    @property
+    def n(self) -> int:
+        return self.shares_sent
 
 
 def shares_for(k: int, loss: float, target: float = 0.99, max_expansion: float = 3.0) -> int:
@@ -157,13 +164,17 @@ class FecImagePublisher:
         """The packet loss to size parity for (0..1): a configured value or the receiver's feedback."""
         self.loss = min(max(float(loss), 0.0), 0.99)
 
+    def get_subscription_count(self) -> int:
+        """Subscriptions matched to the share publisher (as rclpy's Publisher.get_subscription_count)."""
+        return int(self.publisher.get_subscription_count())
+
     def publish(self, frame: Image | np.ndarray, header: Header | None = None) -> int:
-        """Send one frame; returns its frame number (the shares' header.seq)."""
+        """Send one frame; returns its frame number (the shares' ``frame``)."""
         shares = self.encode(frame, header)
         publish_paced(self.publisher, shares, self.pace_s)
         self.shares_sent += len(shares)
         self.frames += 1
-        return shares[0].header.seq
+        return shares[0].frame
 
     def encode(self, frame: Image | np.ndarray, header: Header | None = None) -> list[ImageShare]:
         arr, header = frame_array(frame, header, "FecImagePublisher")
@@ -171,10 +182,9 @@ class FecImagePublisher:
         blob = encode_jpeg(arr, self.quality)
         k, n, parts = split(blob, self.share_bytes, self.loss, self.target, self.max_expansion)
         self.last_k, self.last_n = k, n
-        head = header or Header()
-        head = Header(head.stamp or time.time_ns(), head.frame_id, self.frames)
+        head = header if header is not None else Header(time.time_ns(), "", self.frames)   # as ImagePublisher
         enc = "mono8" if arr.ndim == 2 else "rgb8"
-        return [ImageShare(head, i, k, n, len(blob), h, w, enc, part) for i, part in enumerate(parts)]
+        return [ImageShare(head, self.frames, i, k, n, len(blob), h, w, enc, part) for i, part in enumerate(parts)]
 
 
 @dataclass(slots=True)
@@ -183,8 +193,9 @@ class RebuiltFrame:
     height: int
     width: int
     encoding: str
-    stamp: int
+    stamp: int                # the user's header.stamp
     info: FecFrameInfo
+    header: Header = None  # type: ignore[assignment]    # the user's header, unchanged
 
 
 class FecAssembler:
@@ -200,6 +211,8 @@ class FecAssembler:
         self._frame = -1
         self._shares: dict[int, bytes] = {}
         self._first: ImageShare | None = None
+        self._source_ns = 0               # the current frame's first share: its publication stamp
+        self._publisher_id = 0
         self._done = True
         self._seen = 0                    # shares of the current frame seen, rebuilt or not
         self._window: deque[tuple[int, int]] = deque(maxlen=LOSS_WINDOW_FRAMES)   # (seen, sent)
@@ -231,12 +244,14 @@ class FecAssembler:
         sent = sum(n for _, n in self._window)
         return 1.0 - sum(s for s, _ in self._window) / sent if sent else math.nan
 
-    def add(self, s: ImageShare, now_ns: int | None = None) -> RebuiltFrame | None:
-        """File one share; the frame it completes (once, at its k-th share), else None."""
+    def add(self, s: ImageShare, now_ns: int | None = None, info: Any = None) -> RebuiltFrame | None:
+        """File one share; the frame it completes (once, at its k-th share), else None.
+
+        ``info``: the share's MessageInfo, when there is one (publisher id, publication stamp)."""
         if self.share_error(s) is not None:
             self.bad_shares += 1
             return None
-        frame = s.header.seq
+        frame = s.frame
         if frame < self._frame:
             if frame > self._stale_last:
                 self._stale_run += 1
@@ -247,6 +262,8 @@ class FecAssembler:
         if frame != self._frame:
             self._close(frame)
             self._frame, self._first, self._shares, self._done, self._seen = frame, s, {}, False, 0
+            self._source_ns = int(getattr(info, "source_stamp_ns", 0)) or s.header.stamp
+            self._publisher_id = int(getattr(info, "publisher_id", 0))
             self._stale_run, self._stale_last = 0, -1
             self.frames_seen += 1
         first = self._first
@@ -273,10 +290,11 @@ class FecAssembler:
             self._shares = {}        # keep only counts once rebuilt
         self.frames_rebuilt += 1
         now_ns = now_ns or time.time_ns()
-        stamp = first.header.stamp
-        age = (now_ns - stamp) / 1e6 if stamp else math.nan
-        return RebuiltFrame(jpeg, s.height, s.width, s.encoding, stamp,
-                            FecFrameInfo(frame, s.k, s.k, s.n, age))
+        head = first.header
+        got = FecFrameInfo(self._publisher_id, head.seq, self._source_ns, now_ns, IMAGE_TYPE, frame=frame,
+                           slices_received=1, slice_count=1, oldest_stamp_ns=self._source_ns,
+                           shares_received=s.k, shares_needed=s.k, shares_sent=s.n)
+        return RebuiltFrame(jpeg, s.height, s.width, s.encoding, head.stamp, got, head)
 
     def _close(self, next_frame: int) -> None:
         """The current frame is over: file its share counts, and whole frames skipped."""
@@ -300,15 +318,16 @@ class FecImageSubscription:
                                             qos.replace(depth=max(qos.depth, 512)))
 
     def _on_share(self, s: ImageShare, info: Any = None) -> None:
-        got = self.assembler.add(s)
+        got = self.assembler.add(s, info=info)
         if got is None:
             return
         try:
-            img = Image(Header(got.stamp, "", got.info.frame), got.height, got.width, "jpeg", 0, 0, got.jpeg)
+            img = Image(got.header, got.height, got.width, "jpeg", 0, 0, got.jpeg)
             arr = img.to_array()
             if arr.shape[:2] != (got.height, got.width):
                 raise ValueError(f"JPEG of {arr.shape} in a {got.width}x{got.height} frame")
         except Exception:
             self.assembler.decode_errors += 1
             return
-        self.callback(Image.from_array(arr, header=Header(got.stamp, "", got.info.frame)), got.info)
+        got.info.received_stamp_ns = time.time_ns()    # delivered now, after the decode
+        self.callback(Image.from_array(arr, header=got.header), got.info)

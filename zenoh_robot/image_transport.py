@@ -10,8 +10,18 @@ the current one (delivered as it is) and older slices are dropped.
 Usage (any ``Image`` stream)::
 
     pub = ImagePublisher(node, "image", qos.IMAGE, quality=70)
-    pub.publish(Image.from_array(frame))            # or pub.publish(ndarray)
+    pub.publish(Image.from_array(frame, header=Header.now("camera", seq=n)))   # or pub.publish(ndarray)
+    pub.get_subscription_count()                    # pub.publisher: the underlying Publisher
     ImageSubscription(node, "image", on_image)      # on_image(Image, FrameInfo)
+
+The subscriber gets the publisher's ``Image.header`` unchanged (stamp, frame_id, seq as set;
+a bare ndarray gets ``Header(now, "", frame number)``). The transport's own frame counter
+travels in ``ImageSlice.frame``. ``FrameInfo`` is a ``MessageInfo`` (publisher_id, seq = the
+user's header.seq, source_stamp_ns = when the frame's first slice was published,
+received_stamp_ns = delivery, type_name, age_ms) plus what a patched picture needs said:
+``complete`` (every strip of this frame, all fresh), ``patched`` (some strips shown come from
+older frames), ``fresh_fraction``, ``oldest_strip_age_ms`` (delivery - publication of the
+oldest strip shown), ``frame``, ``slices_received``/``slice_count``.
 """
 from __future__ import annotations
 
@@ -26,6 +36,7 @@ import numpy as np
 from .message import Message, message, ros_field
 from .msgs import Header, Image
 from .qos import IMAGE, QoSProfile
+from .subscription import MessageInfo
 
 DEFAULT_SLICE_BYTES = 1100   # under one UDP datagram with Zenoh's headers at a 1500-byte MTU
 # Receive-side bounds: what a slice may claim before anything is allocated for it.
@@ -38,7 +49,8 @@ STALE_FRAMES_TO_RESTART = 2  # older frames in a row, each newer than the last: 
 
 @message(name="zenoh_robot/ImageSlice")
 class ImageSlice(Message):
-    header: Header = None  # type: ignore[assignment]    # capture stamp; header.seq is the frame number
+    header: Header = None  # type: ignore[assignment]    # the user's Image header, unchanged
+    frame: int = ros_field("uint64", default=0)      # the transport's frame counter (reassembly, latest-frame)
     index: int = ros_field("uint16", default=0)      # slice number in the frame
     count: int = ros_field("uint16", default=0)      # slices in the frame
     row: int = ros_field("uint32", default=0)        # first image row of this slice
@@ -52,16 +64,42 @@ class ImageSlice(Message):
             self.header = Header()
 
 
+IMAGE_TYPE = "sensor_msgs/Image"
+
+
 @dataclass(slots=True)
-class FrameInfo:
-    frame: int
-    slices_received: int
-    slice_count: int
-    age_ms: float            # delivery time - capture stamp
+class FrameInfo(MessageInfo):
+    """A delivered frame: MessageInfo's fields (``seq`` is the user's header.seq) and how fresh it is.
+
+    ``source_stamp_ns`` is when the frame's first piece was published (the envelope's stamp; the
+    header's stamp when fed without one), ``received_stamp_ns`` when the frame was delivered.
+    """
+    frame: int = 0                 # the transport's frame counter (ImageSlice.frame)
+    slices_received: int = 0       # strips of this frame shown (fresh)
+    slice_count: int = 0           # strips in the frame
+    oldest_stamp_ns: int = 0       # publication stamp of the oldest strip shown (0: none known)
+    patched: bool = False          # some strips shown come from older frames
+
+    @property
+    def age_ms(self) -> float:
+        if not self.source_stamp_ns:
+            return float("nan")
+        return (self.received_stamp_ns - self.source_stamp_ns) / 1e6
 
     @property
     def complete(self) -> bool:
-        return self.slices_received == self.slice_count
+        """Every strip of this frame arrived: the picture is entirely this frame."""
+        return self.slice_count > 0 and self.slices_received >= self.slice_count
+
+    @property
+    def fresh_fraction(self) -> float:
+        return self.slices_received / self.slice_count if self.slice_count else 0.0
+
+    @property
+    def oldest_strip_age_ms(self) -> float:
+        """Delivery - publication of the oldest strip in the picture (== age_ms when complete)."""
+        oldest = self.oldest_stamp_ns or self.source_stamp_ns
+        return (self.received_stamp_ns - oldest) / 1e6 if oldest else float("nan")
 
 
 def encode_strip(rows: np.ndarray, quality: int) -> bytes:
@@ -87,7 +125,7 @@ def decode_strip(data: bytes, max_width: int | None = None, max_height: int | No
 def frame_array(frame: Image | np.ndarray, header: Header | None, who: str) -> tuple[np.ndarray, Header | None]:
     """A camera frame as an HxW or HxWx3 uint8 array, and the header to stamp it with."""
     if isinstance(frame, Image):
-        header = header or frame.header
+        header = header if header is not None else frame.header
         arr = frame.to_array()
     else:
         arr = frame
@@ -119,7 +157,7 @@ class ImagePublisher:
         # congestion control discards what does not fit within 1 ms, i.e. most of the burst.
         # BLOCK (KEEP_ALL) makes the camera thread wait microseconds instead; latest-frame
         # semantics are kept on the receiving side.
-        self._pub = node.create_publisher(ImageSlice, topic, qos.replace(history="keep_all", depth=0))
+        self.publisher = node.create_publisher(ImageSlice, topic, qos.replace(history="keep_all", depth=0))
         self.frames = 0
         self.last_count = 0      # slices of the last frame published
         self.oversize_slices = 0
@@ -129,27 +167,35 @@ class ImagePublisher:
         # the slices past the batching window keeps each in its own datagram.
         self.pace_s = pace_s   # slices that did not fit one datagram (Zenoh fragments them)
 
-    def publish(self, frame: Image | np.ndarray, header: Header | None = None) -> None:
+    def get_subscription_count(self) -> int:
+        """Subscriptions matched to the slice publisher (as rclpy's Publisher.get_subscription_count)."""
+        return int(self.publisher.get_subscription_count())
+
+    def publish(self, frame: Image | np.ndarray, header: Header | None = None) -> int:
+        """Send one frame; returns its frame number (the slices' ``frame``)."""
         pieces = self.encode(frame, header)
-        publish_paced(self._pub, pieces, self.pace_s)
+        publish_paced(self.publisher, pieces, self.pace_s)
         self.last_count = len(pieces)
         self.frames += 1
+        return pieces[0].frame
 
     def encode(self, frame: Image | np.ndarray, header: Header | None = None) -> list[ImageSlice]:
-        """The slices of one frame (numbered ``self.frames``), without publishing them."""
+        """The slices of one frame (numbered ``self.frames``), without publishing them.
+
+        The header goes out as given (``header``, else the Image's); a bare ndarray gets
+        ``Header(now, "", frame number)`` so it still carries a capture stamp."""
         arr, header = frame_array(frame, header, "ImagePublisher")
         h, w = arr.shape[:2]
         encoding = "mono8" if arr.ndim == 2 else "rgb8"
         rows = self._slice_rows or self._rows_for(w, arr.ndim)
         count = (h + rows - 1) // rows
-        head = header or Header()
-        head = Header(head.stamp or time.time_ns(), head.frame_id, self.frames)
+        head = header if header is not None else Header(time.time_ns(), "", self.frames)
         pieces = []
         for i in range(count):
             data = encode_strip(arr[i * rows:(i + 1) * rows], self.quality)
             if len(data) > self.max_slice_bytes:
                 self.oversize_slices += 1
-            pieces.append(ImageSlice(head, i, count, i * rows, h, w, encoding, data))
+            pieces.append(ImageSlice(head, self.frames, i, count, i * rows, h, w, encoding, data))
         return pieces
 
     def _rows_for(self, width: int, ndim: int) -> int:
@@ -170,12 +216,18 @@ class ImageSubscription:
         self.sub = node.create_subscription(ImageSlice, topic, self._on_slice, qos.replace(depth=max(qos.depth, 256)))
         self._canvas: np.ndarray | None = None
         self._frame = -1
-        self._stamp = 0
+        self._header = Header()
+        self._source_ns = 0          # the current frame's first slice: its publication stamp
+        self._publisher_id = 0
         self._got: set[int] = set()
         self._count = 0
         self._delivered = True
+        # Per strip index of the canvas: publication stamp of the frame it was drawn from (bounded by
+        # MAX_SLICES; reset with the canvas's geometry), for `patched` and the oldest strip's age.
+        self._strip_stamp: dict[int, int] = {}
         self.frames_delivered = 0
         self.frames_complete = 0
+        self.frames_patched = 0
         self.stale_slices = 0
         self.bad_slices = 0
         self._stale_run = 0          # distinct older frames seen in a row since the current one began
@@ -199,7 +251,7 @@ class ImageSubscription:
         if self._slice_error(s) is not None:
             self.bad_slices += 1
             return
-        frame = s.header.seq
+        frame = s.frame
         if frame < self._frame:
             # Older than the current frame: a late slice, or the current frame was forged far ahead
             # (or the publisher restarted). Older frames that keep coming, each newer than the one
@@ -214,7 +266,7 @@ class ImageSubscription:
         if frame != self._frame:
             if not self._delivered:
                 self._deliver()
-            self._start(s)
+            self._start(s, info)
         elif (s.count != self._count or self._canvas is None
               or self._canvas.shape[:2] != (s.height, s.width)
               or (self._canvas.ndim == 2) != (s.encoding == "mono8")):
@@ -233,14 +285,20 @@ class ImageSubscription:
             self.bad_slices += 1
             return
         self._got.add(s.index)
+        self._strip_stamp[s.index] = self._source_ns
         if len(self._got) >= self._count and not self._delivered:
             self._deliver()
 
-    def _start(self, s: ImageSlice) -> None:
+    def _start(self, s: ImageSlice, info: Any) -> None:
         shape = (s.height, s.width) if s.encoding == "mono8" else (s.height, s.width, 3)
         if self._canvas is None or self._canvas.shape != shape:
             self._canvas = np.zeros(shape, dtype=np.uint8)   # first frame: missing strips black
-        self._frame, self._stamp, self._count = s.header.seq, s.header.stamp, s.count
+            self._strip_stamp = {}
+        elif s.count != self._count:
+            self._strip_stamp = {}   # strips cut differently: old pixels stay, their ages are unknown
+        self._frame, self._header, self._count = s.frame, s.header, s.count
+        self._source_ns = int(getattr(info, "source_stamp_ns", 0)) or s.header.stamp
+        self._publisher_id = int(getattr(info, "publisher_id", 0))
         self._got = set()
         self._stale_run, self._stale_last = 0, -1
         self._delivered = False
@@ -248,9 +306,14 @@ class ImageSubscription:
     def _deliver(self) -> None:
         assert self._canvas is not None
         self._delivered = True
-        complete = len(self._got) >= self._count
+        shown = [self._strip_stamp[i] for i in range(self._count) if i in self._strip_stamp]
+        info = FrameInfo(self._publisher_id, self._header.seq, self._source_ns, time.time_ns(), IMAGE_TYPE,
+                         frame=self._frame, slices_received=len(self._got), slice_count=self._count,
+                         oldest_stamp_ns=min((t for t in shown if t), default=0),
+                         patched=len(shown) > len(self._got))
         self.frames_delivered += 1
-        self.frames_complete += complete
-        img = Image.from_array(self._canvas, header=Header(self._stamp, "", self._frame))
-        age = (time.time_ns() - self._stamp) / 1e6 if self._stamp else float("nan")
-        self.callback(img, FrameInfo(self._frame, len(self._got), self._count, age))
+        self.frames_complete += info.complete
+        self.frames_patched += info.patched
+        img = Image.from_array(self._canvas, header=Header(self._header.stamp, self._header.frame_id,
+                                                           self._header.seq))
+        self.callback(img, info)

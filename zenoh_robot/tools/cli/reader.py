@@ -143,10 +143,10 @@ class FrameAssembler:
 
     def __init__(self, deliver: Deliver) -> None:
         self._deliver = deliver
-        self._open: dict[int, list[Any]] = {}    # seq -> [first slice, indices seen, bytes, last received]
+        self._open: dict[int, list[Any]] = {}    # frame -> [first slice, indices seen, bytes, last received]
 
     def add(self, msg: Any, received_ns: int, size: int) -> None:
-        seq = int(msg.header.seq)
+        seq = int(msg.frame)    # the transport's frame counter; header.seq is the user's
         entry = self._open.get(seq)
         if entry is None:
             for old in sorted(s for s in self._open if s < seq):
@@ -162,7 +162,8 @@ class FrameAssembler:
 
     def _emit(self, seq: int) -> None:
         first, seen, size, received = self._open.pop(seq)
-        self._deliver(Frame(seq, int(first.header.stamp), int(first.width), int(first.height), str(first.encoding),
+        self._deliver(Frame(int(first.header.seq), int(first.header.stamp), int(first.width), int(first.height),
+                            str(first.encoding),
                             len(seen), int(first.count), size), received, size)
 
 
