@@ -27,10 +27,13 @@ At-least-once delivery, at-most-once execution (lossy links):
 - Retries: ``Client.call(req, timeout, retry=RetryPolicy(...))`` re-sends the request with
   backoff (first after ``interval_s``, each gap ``multiplier`` times the last, at most
   ``max_interval_s``) until a reply arrives or ``timeout`` passes; a reply to any attempt
-  completes the call. A client's default (``create_client(..., retry=...)``) is no retry on a
-  unicast session (queries ride Zenoh's reliable channel) and :data:`RESILIENT_RETRY` on a
-  multicast session, where everything is best effort. A ``busy`` refusal is retried; handler,
-  type and bad-request errors are final.
+  completes the call. :data:`ADAPTIVE_RETRY` instead sizes each call from the client's loss
+  estimate (``client.set_loss``, e.g. fed by a LinkMonitor; 50 % when none) and the deadline
+  (_wire/call_plan.py): a request copy every 10-50 ms, and on a multicast session the number of
+  reply copies it asks for. A client's default (``create_client(..., retry=...)``) is no retry on
+  a unicast session and ADAPTIVE_RETRY on a multicast session, where everything is best effort;
+  :func:`command_retry` is ADAPTIVE_RETRY on both (a unicast link may be UDP). A ``busy``
+  refusal is retried; handler, type and bad-request errors are final.
 - Idempotency: the server keeps a bounded (entries, bytes) LRU, time-limited cache of recent
   requests (keyed by a digest of the request bytes: same client, same counter, same body) ->
   reply. A duplicate of a finished request gets the cached reply and never runs the handler
@@ -42,7 +45,10 @@ At-least-once delivery, at-most-once execution (lossy links):
   reply, docs/lossy-link.md), but plain puts cross it. There a service also listens on the key
   ``<service key>/@rq`` and a client puts its request there; the server puts the reply on
   ``<service key>/@rp/<client_id>/<seq>`` (attachment ``e`` marks an error payload), which only
-  that client subscribes to. ``@rq``/``@rp`` are verbatim chunks, so ``@srv/**`` (service listing)
+  that client subscribes to. Each request copy that arrives is answered with ``rc`` copies (the
+  request's own field, 1..16, or what the server's ``set_loss`` estimate needs, the larger)
+  spread 5 ms apart: Zenoh batches puts written within ~1 ms into one datagram, so copies sent
+  back to back were lost together. ``@rq``/``@rp`` are verbatim chunks, so ``@srv/**`` (service listing)
   never matches them. Without discovery, a call that gets no answer ends in ServiceTimeout
   (never ServiceUnavailable), and ``service_is_ready()`` is True once a server has answered.
 """
@@ -52,6 +58,7 @@ import hashlib
 import heapq
 import itertools
 import logging
+import math
 import secrets
 import threading
 import time
@@ -67,6 +74,7 @@ import zenoh
 
 from . import names
 from ._ratelimit import RateLimitedLog
+from ._wire import call_plan as plans
 from ._wire import envelope
 from .context import EntityContext
 from .message import Message, TypeSupport, require_message_type, type_support, validated
@@ -140,8 +148,8 @@ def decode_error(payload: bytes) -> tuple[str, str] | None:
 REQUEST_CHUNK = "@rq"    # multicast sessions: requests are put on <service key>/@rq
 REPLY_CHUNK = "@rp"      # ... and replies on <service key>/@rp/<client_id>/<seq>
 _ERR_ATTACHMENT = b"e"
-# A reply on a multicast session goes out twice: each request copy that got through is then
-# answered with p = 1 - loss^2 instead of 1 - loss (the client drops the second copy it gets).
+# A reply on a multicast session goes out in spread copies (_wire/call_plan.py: as many as the
+# client asks for, or the server's own loss estimate needs); this many when neither says.
 MULTICAST_REPLY_COPIES = 2
 
 
@@ -175,9 +183,31 @@ _DEFAULT: Any = object()     # "the client's own retry policy" (None means no re
 UNICAST_COMMAND_RETRY = RetryPolicy(interval_s=0.5, multiplier=2.0, max_interval_s=2.0)
 
 
-def command_retry(node: "Node") -> RetryPolicy:
-    """The retry policy for commands (must arrive, must run once) on ``node``'s session."""
-    return RESILIENT_RETRY if is_multicast_session(node.session) else UNICAST_COMMAND_RETRY
+@dataclass(frozen=True)
+class AdaptiveRetry:
+    """Retries sized per call from the client's loss estimate and the call's deadline (_wire/call_plan.py).
+
+    Request copies go out every ``plan.step_s`` (10-50 ms) until a reply or the deadline; on a
+    multicast session the request asks the server for ``plan.reply_copies`` spread reply copies.
+    The estimate comes from ``client.set_loss`` (e.g. ``link_monitor.adapt(client.set_loss)``);
+    without one the plan is sized for 50 % loss each way.
+    """
+
+    def plan(self, loss: float, timeout: float) -> plans.CallPlan:
+        return plans.call_plan(loss, timeout)
+
+
+ADAPTIVE_RETRY = AdaptiveRetry()
+Retry = RetryPolicy | AdaptiveRetry
+
+
+def command_retry(node: "Node") -> Retry:
+    """The retry policy for commands (must arrive, must run once) on any session: adaptive.
+
+    A unicast session's link may be UDP (best effort: a lost query is gone) as well as TCP, so
+    commands get the same at-least-once retries there; the server's cache keeps them run once.
+    """
+    return ADAPTIVE_RETRY
 
 
 class _Scheduler:
@@ -325,6 +355,10 @@ class Service(Generic[Req, Resp]):
         self._lock = threading.Lock()
         self._destroyed = False
         self.bad_requests = 0     # refused before the handler: malformed, oversize, a field off its schema
+        self.reply_copies = 0     # multicast path: reply puts sent (copies included) ...
+        self.reply_bytes = 0      # ... and their payload bytes
+        self._loss = math.nan     # set_loss: this node's loss estimate (sizes reply copies)
+        self._recent_replies: OrderedDict[str, float] = OrderedDict()   # reply key -> when copies went out
         self._rlog = RateLimitedLog(log)
         self._queryable = context.session.declare_queryable(key, self._on_query, complete=True)
         self._request_sub: Any = None
@@ -334,6 +368,10 @@ class Service(Generic[Req, Resp]):
     @property
     def cache_evictions(self) -> int:
         return self.cache.evictions
+
+    def set_loss(self, loss: float) -> None:
+        """This node's measured loss (0..1, e.g. ``link_monitor.adapt(service.set_loss)``): sizes reply copies."""
+        self._loss = float(loss)
 
     # Zenoh's thread: only hand over.
     def _on_query(self, query: zenoh.Query) -> None:
@@ -377,16 +415,43 @@ class Service(Generic[Req, Resp]):
                                self.service_name)
             return
         reply_key = f"{self.key}/{REPLY_CHUNK}/{peek.publisher_id}/{peek.seq}"
-        session = self.context.session
+        asked = plans.requested_reply_copies(peek.extra.get(plans.REPLY_COPIES_KEY))
+        own = plans.reply_copies_for(self._loss) if math.isfinite(self._loss) else MULTICAST_REPLY_COPIES
+        copies = max(asked or 0, own)
 
         def respond(ok: bool, payload: bytes) -> None:
-            try:
-                for _ in range(MULTICAST_REPLY_COPIES):
-                    session.put(reply_key, payload, attachment=None if ok else _ERR_ATTACHMENT,
-                                priority=zenoh.Priority.INTERACTIVE_HIGH)
-            except Exception as exc:
-                log.debug("service %s: reply put failed: %s", self.service_name, exc)
+            self._put_reply(reply_key, ok, payload, copies)
         self._on_request(data, respond)
+
+    _RECENT_REPLIES = 1024        # bounded: reply keys remembered for the burst check below
+
+    def _put_reply(self, reply_key: str, ok: bool, payload: bytes, copies: int) -> None:
+        """The first copy now, the others REPLY_SPACING_S apart (each in its own datagram)."""
+        now = time.monotonic()
+        with self._lock:
+            last = self._recent_replies.get(reply_key)
+            # Joined duplicates are all answered at once when the handler ends: one burst of copies
+            # serves them all. A request copy arriving later still gets its own copies.
+            if last is not None and now - last < plans.REPLY_SPACING_S:
+                return
+            self._recent_replies[reply_key] = now
+            self._recent_replies.move_to_end(reply_key)
+            while len(self._recent_replies) > self._RECENT_REPLIES:
+                self._recent_replies.popitem(last=False)
+            self.reply_copies += copies
+            self.reply_bytes += copies * len(payload)
+        session = self.context.session
+        attachment = None if ok else _ERR_ATTACHMENT
+
+        def put(data: bytes) -> None:
+            session.put(reply_key, data, attachment=attachment, priority=zenoh.Priority.INTERACTIVE_HIGH)
+        try:
+            put(payload)
+        except Exception as exc:
+            log.debug("service %s: reply put failed: %s", self.service_name, exc)
+            return
+        if copies > 1:
+            self.context.repeater.schedule(put, payload, copies - 1, plans.REPLY_SPACING_S)
 
     def _on_request(self, payload: zenoh.ZBytes | None, respond: Responder) -> None:
         size = len(payload) if payload is not None else 0
@@ -494,7 +559,7 @@ class _Call:
     """One call: its attempts (same bytes), the replies they collect, the future completed once."""
 
     def __init__(self, client: Client[Any, Any], future: Future[Any], timeout: float, dict_form: bool,
-                 seq: int, payload: bytes, retry: RetryPolicy | None) -> None:
+                 seq: int, payload: bytes, delays: Iterator[float] | None) -> None:
         self.client = client
         self.future = future
         self.timeout = timeout
@@ -505,7 +570,7 @@ class _Call:
         self.deadline = self.started + timeout
         self.errors: list[tuple[str, str] | None] = []
         self.attempts = 0
-        self._delays = retry.delays() if retry is not None else None
+        self._delays = delays
         self._outstanding = 0       # queries in flight (unicast path)
         self._more = True           # another attempt may still be sent
         self._lock = threading.Lock()
@@ -608,7 +673,7 @@ class Client(Generic[Req, Resp]):
 
     def __init__(self, context: EntityContext, name: str, key: str, request_type: type[Req],
                  response_type: type[Resp] | None, *, request_support: TypeSupport | None = None,
-                 retry: RetryPolicy | None | Any = _DEFAULT) -> None:
+                 retry: Retry | None | Any = _DEFAULT) -> None:
         # request_support: a request type known only by name and hash (call_dict); else request_type's.
         if request_support is None:
             require_message_type(request_type, f"create_client {name!r}: request type")
@@ -626,11 +691,14 @@ class Client(Generic[Req, Resp]):
         self._seq = itertools.count(1)
         self._multicast = is_multicast_session(context.session)
         if retry is _DEFAULT:
-            retry = RESILIENT_RETRY if self._multicast else None
-        if retry is not None and not isinstance(retry, RetryPolicy):
-            raise TypeError(f"create_client {name!r}: retry must be a RetryPolicy or None, got {retry!r}")
-        self.retry: RetryPolicy | None = retry
+            retry = ADAPTIVE_RETRY if self._multicast else None
+        if retry is not None and not isinstance(retry, (RetryPolicy, AdaptiveRetry)):
+            raise TypeError(f"create_client {name!r}: retry must be a RetryPolicy, AdaptiveRetry or None, "
+                            f"got {retry!r}")
+        self.retry: Retry | None = retry
+        self.loss = math.nan        # set_loss: the link's measured loss (sizes AdaptiveRetry's plan)
         self.attempts = 0           # requests sent, retries included
+        self.request_bytes = 0      # their payload bytes
         self._answered = False      # a server replied once (readiness on multicast, where nothing is discovered)
         self._pending: OrderedDict[int, _Call] = OrderedDict()
         self._pending_lock = threading.Lock()
@@ -639,6 +707,10 @@ class Client(Generic[Req, Resp]):
         if self._multicast:
             self._reply_sub = context.session.declare_subscriber(
                 f"{key}/{REPLY_CHUNK}/{self.client_id}/*", self._on_reply_sample)
+
+    def set_loss(self, loss: float) -> None:
+        """The link's measured loss (0..1), e.g. ``link_monitor.adapt(client.set_loss)``."""
+        self.loss = float(loss)
 
     # -- discovery -------------------------------------------------------------------
     def service_is_ready(self) -> bool:
@@ -662,7 +734,7 @@ class Client(Generic[Req, Resp]):
         return True
 
     # -- calls -----------------------------------------------------------------------
-    def call(self, request: Req, timeout: float = 2.0, retry: RetryPolicy | None | Any = _DEFAULT) -> Resp:
+    def call(self, request: Req, timeout: float = 2.0, retry: Retry | None | Any = _DEFAULT) -> Resp:
         """Send ``request`` and wait for the response (retried per ``retry``, default the client's policy).
 
         Blocks only this thread: replies arrive on Zenoh's threads, so calling this from a
@@ -681,7 +753,7 @@ class Client(Generic[Req, Resp]):
             raise ServiceTimeout(f"service {self.service_name}: no reply within {timeout:g} s") from None
 
     def call_async(self, request: Req, timeout: float = 2.0,
-                   retry: RetryPolicy | None | Any = _DEFAULT) -> "Future[Resp]":
+                   retry: Retry | None | Any = _DEFAULT) -> "Future[Resp]":
         """Send ``request``; the Future completes on a Zenoh thread (keep done-callbacks short)."""
         if not isinstance(request, self.request_type):
             raise TypeError(f"service {self.service_name} client takes {self._req.name}, "
@@ -689,7 +761,7 @@ class Client(Generic[Req, Resp]):
         return self._send(self._req.encode(request), timeout, dict_form=False, retry=retry)
 
     def _send(self, body: Any, timeout: float, dict_form: bool,
-              retry: RetryPolicy | None | Any = _DEFAULT) -> Future[Any]:
+              retry: Retry | None | Any = _DEFAULT) -> Future[Any]:
         if not timeout > 0:
             raise ValueError(f"timeout must be > 0 seconds, got {timeout!r}")
         if retry is _DEFAULT:
@@ -701,10 +773,18 @@ class Client(Generic[Req, Resp]):
             extra = {"rt": self._resp.name, "rh": self._resp.hash}
         if dict_form:
             extra["form"] = "dict"
+        delays: Iterator[float] | None = None
+        if isinstance(retry, AdaptiveRetry):
+            plan = retry.plan(self.loss, timeout)
+            delays = itertools.repeat(plan.step_s)
+            if self._multicast:
+                extra[plans.REPLY_COPIES_KEY] = plan.reply_copies
+        elif isinstance(retry, RetryPolicy):
+            delays = retry.delays()
         seq = next(self._seq)
         # Packed once: every retry carries the same bytes, so the server recognises the duplicate.
         payload = envelope.pack(self._req.name, self._req.hash, self.client_id, seq, time.time_ns(), body, extra)
-        call = _Call(self, future, timeout, dict_form, seq, payload, retry)
+        call = _Call(self, future, timeout, dict_form, seq, payload, delays)
         if self._multicast:
             with self._pending_lock:
                 self._pending[seq] = call
@@ -716,6 +796,7 @@ class Client(Generic[Req, Resp]):
 
     def _transmit(self, call: _Call, remaining: float) -> None:
         self.attempts += 1
+        self.request_bytes += len(call.payload)
         if self._multicast:
             self.context.session.put(f"{self.key}/{REQUEST_CHUNK}", call.payload,
                                      priority=zenoh.Priority.INTERACTIVE_HIGH)
@@ -838,8 +919,8 @@ class Services:
         return srv
 
     def create_client(self, name: str, request_type: type[Req], response_type: type[Resp],
-                      retry: RetryPolicy | None | Any = _DEFAULT) -> Client[Req, Resp]:
-        """``retry``: the calls' RetryPolicy (None: one attempt); default: RESILIENT_RETRY on a multicast session."""
+                      retry: Retry | None | Any = _DEFAULT) -> Client[Req, Resp]:
+        """``retry``: RetryPolicy, AdaptiveRetry or None (one attempt); default: ADAPTIVE_RETRY on multicast."""
         self._context.check_open()
         if not (isinstance(response_type, type) and issubclass(response_type, Message)):
             raise TypeError(f"create_client {name!r}: response type {response_type!r} is not a message type")

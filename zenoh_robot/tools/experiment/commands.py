@@ -1,14 +1,21 @@
 """Command delivery over the lossy link: success rate, latency and double executions per loss level.
 
-``python -m zenoh_robot.tools.experiment.commands [--loss 0 50 90] [--calls 100] [--timeout 2]``
-(root: it builds the two-namespace veth link of netns.py). Per loss level, a server process in the
-drone namespace serves a command service on the resilient multicast session
-(``SessionConfig.resilient(iface)``) whose handler counts executions per call id; a client process
-in the GCS namespace calls it (``arm``, ``takeoff``, ``hold``, ``land`` in turn) with the library's
-default for multicast sessions (``services.RESILIENT_RETRY``) and the given deadline. Prints a
-markdown table and, with ``--jsonl FILE``, one JSON object per level.
+``python -m zenoh_robot.tools.experiment.commands [--loss 0 50 90] [--calls 100] [--timeout 2]
+[--transport multicast,unicast] [--monitor]`` (root: it builds the two-namespace veth link of
+netns.py). Per loss level and transport, a server process in the drone namespace serves a command
+service whose handler counts executions per call id; a client process in the GCS namespace calls
+it (``arm``, ``takeoff``, ``hold``, ``land`` in turn) with ``services.command_retry`` (adaptive:
+_wire/call_plan.py) and the given deadline. Transports: ``multicast`` is the resilient multicast
+session (``SessionConfig.resilient(iface)``, calls ride puts); ``unicast`` is the resilient
+peer-to-peer UDP/TCP session the experiment cells build (cell.transport_for, calls ride queries).
+``--monitor`` runs a LinkMonitor on both sides feeding ``client.set_loss`` / ``service.set_loss``
+(otherwise the plan assumes 50 % loss). Prints a markdown table and, with ``--jsonl FILE``, one
+JSON object per level. Bytes per call are payload bytes (requests + reply copies) before Zenoh,
+UDP and IP headers (~60 bytes a datagram more).
 
-The same file is both sides of a run: ``... commands serve IFACE`` / ``... commands call IFACE N TIMEOUT``.
+The same file is both sides of a run: ``... commands serve SESSION [monitor]`` /
+``... commands call SESSION N TIMEOUT [monitor]``, SESSION being ``multicast:IFACE`` or
+``unicast:CONFIG_FILE``.
 """
 from __future__ import annotations
 
@@ -43,15 +50,30 @@ class ExpResult(Message):
 def _wait_transport(node: Any, timeout: float) -> bool:
     end = time.monotonic() + timeout
     while time.monotonic() < end:
-        if any(t.is_multicast for t in node.session.info.transports()):
+        if any(True for _ in node.session.info.transports()):
             return True
         time.sleep(0.05)
     return False
 
 
-def serve(iface: str) -> None:
+def _session(spec: str) -> Any:
+    """``multicast:IFACE`` -> the resilient multicast session; ``unicast:FILE`` -> that config file."""
+    from zenoh_robot import SessionConfig
+    kind, _, arg = spec.partition(":")
+    if kind == "multicast":
+        return SessionConfig.resilient(arg)
+    if kind == "unicast":
+        return arg
+    raise ValueError(f"session spec {spec!r}: want multicast:IFACE or unicast:CONFIG_FILE")
+
+
+MONITOR_SETTLE_S = 2.0    # a LinkMonitor's short window is 1 s: let it measure before the first call
+
+
+def serve(spec: str, monitor: bool = False) -> None:
     """Serve until stdin closes, then print {"executions": {call_id: n}} as JSON."""
-    from zenoh_robot import Node, SessionConfig
+    from zenoh_robot import Node
+    from zenoh_robot._wire.feedback import LinkMonitor
     runs: Counter[int] = Counter()
     lock = threading.Lock()
 
@@ -59,24 +81,40 @@ def serve(iface: str) -> None:
         with lock:
             runs[cmd.call_id] += 1
             return ExpResult(True, runs[cmd.call_id])
-    with Node("cmd_server", config=SessionConfig.resilient(iface)) as node:
+    with Node("cmd_server", config=_session(spec)) as node:
         srv = node.create_service("exp/command", ExpCommand, ExpResult, handle)
+        mon = LinkMonitor(node) if monitor else None
+        if mon is not None:
+            mon.adapt(srv.set_loss)
         spinner = threading.Thread(target=node.spin, daemon=True)
         spinner.start()
         print("READY", flush=True)
         sys.stdin.readline()
         with lock:
-            out = {"executions": dict(runs), "duplicates": srv.duplicates, "cache_evictions": srv.cache_evictions}
+            out = {"executions": dict(runs), "duplicates": srv.duplicates, "cache_evictions": srv.cache_evictions,
+                   # getattr: the same tool measures an older library too (its baseline)
+                   "reply_copies": getattr(srv, "reply_copies", 0), "reply_bytes": getattr(srv, "reply_bytes", 0)}
         print(json.dumps(out), flush=True)
+        if mon is not None:
+            mon.close()
         node.shutdown()
 
 
-def call(iface: str, n: int, timeout: float) -> None:
+def call(spec: str, n: int, timeout: float, monitor: bool = False) -> None:
     """Make ``n`` calls one after the other; print one JSON summary."""
-    from zenoh_robot import Node, ServiceCallError, SessionConfig
-    with Node("cmd_client", config=SessionConfig.resilient(iface)) as node:
+    from zenoh_robot import Node, ServiceCallError
+    from zenoh_robot._wire.feedback import LinkMonitor
+    from zenoh_robot.services import command_retry
+    with Node("cmd_client", config=_session(spec)) as node:
         linked = _wait_transport(node, SESSION_WAIT_S)
-        client = node.create_client("exp/command", ExpCommand, ExpResult)
+        client = node.create_client("exp/command", ExpCommand, ExpResult, retry=command_retry(node))
+        if not spec.startswith("multicast"):    # unicast: discovery works; count calls, not discovery
+            linked = linked and client.wait_for_service(SESSION_WAIT_S)
+        mon = LinkMonitor(node) if monitor else None
+        if mon is not None:
+            mon.adapt(client.set_loss)
+            time.sleep(MONITOR_SETTLE_S)
+        loss_seen = getattr(client, "loss", None)
         results: list[dict[str, Any]] = []
         for i in range(n):
             name = NAMES[i % len(NAMES)]
@@ -87,22 +125,48 @@ def call(iface: str, n: int, timeout: float) -> None:
             except ServiceCallError as exc:
                 ok, err = False, type(exc).__name__
             results.append({"name": name, "ok": ok, "latency_s": time.monotonic() - t0, "error": err})
-        print(json.dumps({"linked": linked, "calls": results, "attempts": client.attempts}), flush=True)
+        print(json.dumps({"linked": linked, "calls": results, "attempts": client.attempts,
+                          "request_bytes": getattr(client, "request_bytes", 0), "loss_estimate": loss_seen}),
+              flush=True)
+        if mon is not None:
+            mon.close()
 
 
-def run_level(loss_pct: float, calls: int, timeout: float) -> dict[str, Any]:
+TRANSPORTS = ("multicast", "unicast")
+
+
+def _spec(link: Any, side: str, transport: str, workdir: str) -> str:
+    if transport == "multicast":
+        return f"multicast:{link.dev(side)}"
+    from zenoh_robot.tools.experiment.cell import transport_for
+    path = f"{workdir}/{side}.json5"
+    with open(path, "w") as f:
+        json.dump(transport_for("resilient", link, side, "unicast"), f)
+    return f"unicast:{path}"
+
+
+def run_level(loss_pct: float, calls: int, timeout: float, transport: str = "multicast",
+              monitor: bool = False) -> dict[str, Any]:
     """One loss level on a fresh lossy link: the summary (success rate, latency, double executions)."""
+    import tempfile
+
     from zenoh_robot.tools.experiment.netns import LossyLink
+    if transport not in TRANSPORTS:
+        raise ValueError(f"transport {transport!r}: one of {', '.join(TRANSPORTS)}")
     me = [sys.executable, "-m", "zenoh_robot.tools.experiment.commands"]
-    with LossyLink(loss_pct=loss_pct) as link:
-        server = subprocess.Popen(link.exec_in("drone") + me + ["serve", link.dev("drone")],
+    flag = ["monitor"] if monitor else []
+    with LossyLink(loss_pct=loss_pct) as link, tempfile.TemporaryDirectory(prefix="zr-cmd-") as workdir:
+        server = subprocess.Popen(link.exec_in("drone") + me + ["serve", _spec(link, "drone", transport, workdir),
+                                                                *flag],
                                   stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
         try:
             assert server.stdout is not None and server.stdin is not None
             if server.stdout.readline().strip() != "READY":
                 raise RuntimeError("command server did not start")
-            client = subprocess.run(link.exec_in("gcs") + me + ["call", link.dev("gcs"), str(calls), str(timeout)],
-                                    capture_output=True, text=True, timeout=SESSION_WAIT_S + calls * (timeout + 3) + 30)
+            client = subprocess.run(link.exec_in("gcs") + me + ["call", _spec(link, "gcs", transport, workdir),
+                                                                str(calls), str(timeout), *flag],
+                                    capture_output=True, text=True,
+                                    timeout=2 * SESSION_WAIT_S + calls * (timeout + 3) + 30)
             server.stdin.write("\n")
             server.stdin.flush()
             served = json.loads(server.stdout.readline())
@@ -116,7 +180,9 @@ def run_level(loss_pct: float, calls: int, timeout: float) -> dict[str, Any]:
     if not lines:
         raise RuntimeError(f"command client failed: {client.stderr[-2000:]}")
     out = json.loads(lines[-1])
-    return summarise(loss_pct, timeout, out, served)
+    row = summarise(loss_pct, timeout, out, served)
+    row["transport"], row["monitor"] = transport, monitor
+    return row
 
 
 def summarise(loss_pct: float, timeout: float, client: dict[str, Any], served: dict[str, Any]) -> dict[str, Any]:
@@ -135,6 +201,9 @@ def summarise(loss_pct: float, timeout: float, client: dict[str, Any], served: d
         "latency_ms_p50": round(statistics.median(lat), 1) if lat else None,
         "latency_ms_p90": pct(0.9), "latency_ms_max": round(lat[-1], 1) if lat else None,
         "attempts_per_call": round(client["attempts"] / max(1, len(calls)), 1),
+        "reply_copies_per_call": round(served.get("reply_copies", 0) / max(1, len(calls)), 1),
+        "bytes_per_call": round((client.get("request_bytes", 0) + served.get("reply_bytes", 0)) / max(1, len(calls))),
+        "loss_estimate": client.get("loss_estimate"),
         "double_executions": sum(1 for v in execs.values() if v > 1),
         "executed_but_unanswered": sum(1 for i, c in enumerate(calls) if not c["ok"] and execs.get(i)),
         "server_duplicates": served["duplicates"], "linked": client["linked"],
@@ -142,30 +211,36 @@ def summarise(loss_pct: float, timeout: float, client: dict[str, Any], served: d
 
 
 def table(rows: list[dict[str, Any]]) -> str:
-    head = ("| loss each way | calls | answered within deadline | arm / takeoff / hold / land | p50 ms | p90 ms "
-            "| max ms | attempts per call | executed twice | executed, no answer |\n" + "|---" * 10 + "|")
+    head = ("| loss each way | transport | calls | answered within deadline | arm / takeoff / hold / land | p50 ms "
+            "| p90 ms | max ms | requests per call | reply copies per call | bytes per call | executed twice "
+            "| executed, no answer |\n" + "|---" * 13 + "|")
     body = []
     for r in rows:
-        pc = " / ".join(f"{r['per_command'][n] * 100:.0f} %" for n in NAMES)
-        body.append(f"| {r['loss_pct']:g} % | {r['calls']} | {r['success_rate'] * 100:.1f} % (<= {r['timeout_s']:g} s) "
-                    f"| {pc} | {r['latency_ms_p50']} | {r['latency_ms_p90']} | {r['latency_ms_max']} "
-                    f"| {r['attempts_per_call']} | {r['double_executions']} | {r['executed_but_unanswered']} |")
+        pc = " / ".join(f"{r['per_command'][n] * 100:.0f}" for n in NAMES)
+        tr = r.get("transport", "multicast") + (" + monitor" if r.get("monitor") else "")
+        body.append(f"| {r['loss_pct']:g} % | {tr} | {r['calls']} | {r['success_rate'] * 100:.1f} % "
+                    f"(<= {r['timeout_s']:g} s) | {pc} % | {r['latency_ms_p50']} | {r['latency_ms_p90']} "
+                    f"| {r['latency_ms_max']} | {r['attempts_per_call']} | {r.get('reply_copies_per_call', '')} "
+                    f"| {r.get('bytes_per_call', '')} | {r['double_executions']} | {r['executed_but_unanswered']} |")
     return "\n".join([head, *body])
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv and argv[0] == "serve":
-        serve(argv[1])
+        serve(argv[1], monitor="monitor" in argv[2:])
         return 0
     if argv and argv[0] == "call":
-        call(argv[1], int(argv[2]), float(argv[3]))
+        call(argv[1], int(argv[2]), float(argv[3]), monitor="monitor" in argv[4:])
         return 0
     p = argparse.ArgumentParser(prog="python -m zenoh_robot.tools.experiment.commands", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--loss", type=float, nargs="+", default=[0.0, 50.0, 90.0], help="loss %% each way, per level")
     p.add_argument("--calls", type=int, default=100)
     p.add_argument("--timeout", type=float, default=2.0, help="each call's deadline (s)")
+    p.add_argument("--transport", default="multicast",
+                   help="comma-separated, of: " + ", ".join(TRANSPORTS) + " (default multicast)")
+    p.add_argument("--monitor", action="store_true", help="size copies from a LinkMonitor's measured loss")
     p.add_argument("--jsonl", help="append one JSON object per level here")
     args = p.parse_args(argv)
     from zenoh_robot.tools.experiment.netns import unavailable_reason
@@ -173,9 +248,13 @@ def main(argv: list[str] | None = None) -> int:
     if reason:
         print(f"error: {reason}", file=sys.stderr)
         return 2
+    transports = [t.strip() for t in args.transport.split(",") if t.strip()]
+    bad = [t for t in transports if t not in TRANSPORTS]
+    if bad or not transports:
+        p.error(f"--transport: unknown {', '.join(bad) or '(none)'}; choose from {', '.join(TRANSPORTS)}")
     rows = []
-    for loss in args.loss:
-        row = run_level(loss, args.calls, args.timeout)
+    for transport, loss in [(t, loss) for t in transports for loss in args.loss]:
+        row = run_level(loss, args.calls, args.timeout, transport, args.monitor)
         rows.append(row)
         print(json.dumps(row), flush=True)
         if args.jsonl:
