@@ -1,0 +1,109 @@
+"""The experiment's report on a small synthetic sweep: one table set per (start, transport), invalid
+and broken cells listed instead of read as rates, the sliced viewer's oldest-strip age, command
+success joined by loss, and the two summary figures."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from zenoh_robot.tools.experiment.report import MAX_SLICES, groups, main, markdown_report, oldest_strip_ages
+
+MS = 1_000_000
+
+
+def _stream(delivered: float, gap: float, p99_gap: float, over: int, age99: float, rate: float = 10.0,
+            sent: int = 80) -> dict[str, Any]:
+    return {"delivered_pct": delivered, "longest_gap_ms": gap, "gap_p99_ms": p99_gap, "gaps_over_500ms": over,
+            "age_p99_ms": age99, "age_avg_ms": age99 / 2, "period_avg_ms": 100.0, "rate_hz": rate, "sent": sent,
+            "unique": int(sent * delivered / 100)}
+
+
+def _cell(profile: str, loss: float, transport: str = "default", mode: str = "fec", **extra: Any) -> dict[str, Any]:
+    return {"profile": profile if transport == "default" else f"{profile}@{transport}", "transport": transport,
+            "loss": loss, "start": "after", "config": {"image_mode": mode},
+            "topics": {"setpoint": _stream(100.0, 137.0, 134.0, 0, 38.0),
+                       "sensor": _stream(97.5, 60.0, 20.0, 0, 12.0, rate=195.0, sent=1600),
+                       "image": _stream(90.0, 300.0, 200.0, 0, 80.0, rate=27.0),
+                       "image_whole": _stream(88.0, 300.0, 200.0, 0, 80.0, rate=26.2),
+                       "image_strip": _stream(94.0, 300.0, 200.0, 0, 80.0)},
+            "bandwidth_kBps": {"gcs": 69.1, "drone": 507.1}, "window_ns": [0, 8000 * MS], **extra}
+
+
+@pytest.fixture
+def sweep() -> list[dict[str, Any]]:
+    return [
+        _cell("resilient", 50),
+        _cell("best_effort", 0, mode="raw"),
+        _cell("resilient", 0, transport="unicast"),
+        _cell("resilient", 10, invalid="setpoint not sent through the whole window (start-up or exit inside it)"),
+        {"profile": "reliable", "loss": 90, "start": "after", "error": "missing records (see x/*.log)", "topics": {}},
+    ]
+
+
+def test_one_table_set_per_start_and_transport_with_every_column(sweep: list[dict[str, Any]]) -> None:
+    assert list(groups(sweep)) == [("after", "default"), ("after", "unicast")]
+    md = markdown_report(sweep)
+    assert md.count("### Setpoints and sensors") == 2 and md.count("### Images and bandwidth") == 2
+    assert "## Loss applied after set-up, transport unicast" in md
+    row = next(line for line in md.splitlines() if line.startswith("| 50% | resilient |"))
+    # setpoint delivered, max gap, p99 gap, gaps > 500 ms, p99 age; sensor delivered, p99 age
+    assert row == "| 50% | resilient | 100.0% | 137 ms | 134 ms | 0 | 38 ms | 97.5% | 12 ms |"
+    img = [line for line in md.splitlines() if line.startswith("| 50% | resilient | fec |")]
+    assert img == ["| 50% | resilient | fec | 26.2 | 88% | 94% | n/a | 69.1 | 507.1 |"]
+    assert "| 0% | best_effort | raw |" in md
+
+
+def test_invalid_and_broken_cells_are_listed_not_tabled(sweep: list[dict[str, Any]]) -> None:
+    md = markdown_report(sweep)
+    assert not any(line.startswith(("| 10% | resilient", "| 90% | reliable")) for line in md.splitlines())
+    assert "- 10% resilient: invalid: setpoint not sent through the whole window" in md
+    assert "- 90% reliable: error: missing records" in md
+
+
+def test_oldest_strip_age_follows_the_picture_a_sliced_viewer_shows() -> None:
+    # Frame 0: strips 0 and 1 at t=0; frame 1: only strip 0 arrives (strip 1 lost), 100 ms later.
+    # The picture then still shows frame 0's strip 1: the oldest strip is 100 ms + transit old.
+    seq = [0 * MAX_SLICES + 0, 0 * MAX_SLICES + 1, 1 * MAX_SLICES + 0, 2 * MAX_SLICES + 0, 2 * MAX_SLICES + 1]
+    stamp = [0, 0, 100 * MS, 200 * MS, 200 * MS]
+    arrival = [10 * MS, 10 * MS, 110 * MS, 210 * MS, 210 * MS]
+    got = oldest_strip_ages({"seq": seq, "stamp_ns": stamp, "arrival_ns": arrival}, 0, 1000 * MS)
+    assert got["samples"] == 5
+    assert got["age_max_ms"] == pytest.approx(210.0)    # strip 0 of frame 2 arrives; strip 1 still frame 0's
+    assert got["age_p50_ms"] == pytest.approx(10.0)     # ages 10, 10, 110, 210, 10 ms
+    # An older frame's strip arriving late does not replace a newer one.
+    late = oldest_strip_ages({"seq": [MAX_SLICES, 0], "stamp_ns": [100 * MS, 0], "arrival_ns": [110 * MS, 120 * MS]},
+                             0, 1000 * MS)
+    assert late["age_max_ms"] == pytest.approx(20.0)    # frame 1's strip 0 (stamp 100) at 120 ms, not 120 ms
+    assert oldest_strip_ages({}, 0, 1)["samples"] == 0
+
+
+def test_report_files_commands_joined_and_sliced_ages_from_the_raw_record(tmp_path: Path,
+                                                                          sweep: list[dict[str, Any]]) -> None:
+    pytest.importorskip("matplotlib")
+    sliced = _cell("resilient", 30, mode="sliced")
+    sweep.append(sliced)
+    cell_dir = tmp_path / "cells" / "after-resilient-30"
+    cell_dir.mkdir(parents=True)
+    strips = {"seq": [0, 1, MAX_SLICES], "stamp_ns": [0, 0, 100 * MS], "arrival_ns": [5 * MS, 5 * MS, 105 * MS]}
+    record = {"drones": {"uav1": {"logs": {"received": {"image_strip": strips}}}}}
+    (cell_dir / "gcs.json").write_text(json.dumps(record))
+    (tmp_path / "results.jsonl").write_text("".join(json.dumps(r) + "\n" for r in sweep) + '{"cut line\n')
+    commands = tmp_path / "commands.jsonl"
+    commands.write_text(json.dumps({"loss_pct": 50, "timeout_s": 2, "calls": 100, "answered": 98, "success_rate": 0.98,
+                                    "per_command": {"arm": 1, "takeoff": 1, "hold": 0.96, "land": 0.96},
+                                    "latency_ms_p50": 52.6, "latency_ms_p90": 388.2, "latency_ms_max": 1230.4,
+                                    "attempts_per_call": 3.4, "double_executions": 0,
+                                    "executed_but_unanswered": 2}) + "\n")
+    assert main([str(tmp_path), "--commands", str(commands)]) == 0
+    md = (tmp_path / "results.md").read_text()
+    assert "| 50% | resilient | 100.0% | 137 ms | 134 ms | 0 | 38 ms | 97.5% | 12 ms | 98% of 100 |" in md
+    assert "| 0% | best_effort |" in md and "- |" in md.split("| 0% | best_effort |")[1].splitlines()[0]
+    assert "## Commands" in md
+    # The sliced cell's oldest strip: at the last arrival strip 1 is still frame 0's (105 ms old).
+    assert "| 30% | resilient | sliced | 26.2 | 88% | 94% | 105 ms |" in md
+    for name in ("summary_after.png", "summary_after_unicast.png", "image_after.png", "results.csv"):
+        assert (tmp_path / name).stat().st_size > 0
+    assert "Command success per loss: not in this report" in markdown_report(sweep)
