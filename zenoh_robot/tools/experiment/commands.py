@@ -161,7 +161,8 @@ def run_level(loss_pct: float, calls: int, timeout: float, transport: str = "mul
                                   stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
         try:
             assert server.stdout is not None and server.stdin is not None
-            if server.stdout.readline().strip() != "READY":
+            # Zenoh 1.10 may log a line of its own to stdout first: read up to the READY line.
+            if not any(server.stdout.readline().strip() == "READY" for _ in range(50)):
                 raise RuntimeError("command server did not start")
             client = subprocess.run(link.exec_in("gcs") + me + ["call", _spec(link, "gcs", transport, workdir),
                                                                 str(calls), str(timeout), *flag],
@@ -169,7 +170,10 @@ def run_level(loss_pct: float, calls: int, timeout: float, transport: str = "mul
                                     timeout=2 * SESSION_WAIT_S + calls * (timeout + 3) + 30)
             server.stdin.write("\n")
             server.stdin.flush()
-            served = json.loads(server.stdout.readline())
+            # Zenoh may log lines of its own to stdout: the summary is the first JSON line.
+            served = next((json.loads(ln) for ln in iter(server.stdout.readline, "") if ln.startswith("{")), None)
+            if served is None:
+                raise RuntimeError("command server ended without its summary")
         finally:
             server.stdin.close() if server.stdin else None
             try:
