@@ -38,6 +38,30 @@ MAX_DOMAIN = 232            # ROS_DOMAIN_ID's range: one number means the same t
 # answers there) and not in 224.0.0.0/24 at all (IANA-assigned link-local protocols): 239.255/16
 # is the IPv4 organisation-local scope (RFC 2365), which routers at a site border never forward.
 RESILIENT_GROUP = "239.255.74.71:7460"
+
+
+def fast_open(open_timeout_ms: int = 250, retry_init_ms: int = 50, retry_max_ms: int = 200,
+              client: bool = False) -> dict[str, Any]:
+    """Zenoh keys for a unicast session that must form across a lossy link (``SessionConfig(extra=...)``).
+
+    A unicast open is 4 messages (InitSyn/InitAck/OpenSyn/OpenAck); over UDP each is one datagram
+    that Zenoh never re-sends within a try, so a try succeeds with p = (1 - loss)^4 and a lost
+    message costs a whole open timeout. Zenoh 1.10's defaults (10 s open timeout, retries backing
+    off 1 -> 4 s) turn 50 % loss into minutes; short tries retried at once make it seconds
+    (docs/results/transports.md). A client also needs ``connect/timeout_ms: -1`` and
+    ``exit_on_failure: false``: Zenoh's client defaults (0, true) make ``open`` fail at the first
+    lost datagram instead of retrying.
+    """
+    keys: dict[str, Any] = {
+        "transport/unicast/open_timeout": open_timeout_ms,
+        "transport/unicast/accept_timeout": max(open_timeout_ms, 1000),
+        "connect/retry": {"period_init_ms": retry_init_ms, "period_max_ms": retry_max_ms,
+                          "period_increase_factor": 1.5},
+    }
+    if client:
+        keys["connect/timeout_ms"] = -1
+        keys["connect/exit_on_failure"] = False
+    return keys
 _ENDPOINT = re.compile(r"^(?P<proto>[a-z-]+)/(?P<addr>[^?#]+)(?:\?(?P<meta>[^#]*))?(?:#(?P<cfg>.*))?$")
 
 
@@ -287,8 +311,15 @@ class SessionConfig:
         def endpoints(key: str) -> list[str]:
             value = get(key, [])
             # Zenoh allows per-mode endpoint lists: {peer: [...], router: [...]}.
-            return list(value.get(mode, []) if isinstance(value, dict) else value)
+            flat: list[str] = []
+            for e in (value.get(mode, []) if isinstance(value, dict) else value):
+                # A group ({"strategy": "allOf", "locators": [...]}: a client's several links to one
+                # router) is checked locator by locator here and handed to Zenoh as written (extra).
+                flat.extend(e["locators"] if isinstance(e, dict) and isinstance(e.get("locators"), list) else [e])
+            return flat
 
+        raw_connect = get("connect/endpoints", [])
+        groups = [e for e in (raw_connect if isinstance(raw_connect, list) else []) if isinstance(e, dict)]
         text = path.read_text()
         return cls(
             mode=mode,
@@ -299,6 +330,7 @@ class SessionConfig:
             shared_memory=get("transport/shared_memory/enabled", None) if "shared_memory" in text else None,
             max_links=int(get("transport/unicast/max_links", 2)) if "max_links" in text else 2,
             source=str(path),
+            extra={"connect/endpoints": raw_connect} if groups else {},
         )
 
 

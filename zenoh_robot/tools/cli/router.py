@@ -35,11 +35,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-scouting", action="store_true", help="do not answer multicast scouting")
     p.add_argument("--status", type=float, default=10.0, metavar="S", help="status line every S seconds (0: on change)")
     p.add_argument("--duration", type=float, metavar="S", help="exit after S seconds")
+    p.add_argument("--lossy", action="store_true",
+                   help="tune for lossy links (batches under the MTU, keep-alive every 100 ms, 10 s lease, "
+                        "250 ms handshake tries): the ground router of a swarm on a radio link")
     p.set_defaults(func=run)
 
 
 def router_config(args: argparse.Namespace) -> SessionConfig:
-    from zenoh_robot.session_config import SessionConfig, SessionConfigError, resolve_domain  # noqa: I001 - late
+    from zenoh_robot.session_config import SessionConfig, SessionConfigError, fast_open, resolve_domain  # noqa: I001
 
     listen = args.listen or [DEFAULT_SECURE_LISTEN if args.secure else DEFAULT_LISTEN]
     try:
@@ -48,8 +51,13 @@ def router_config(args: argparse.Namespace) -> SessionConfig:
             # The router uses no keys of its own; its domain only scopes the ACL it enforces.
             return SessionConfig(mode="router", listen=listen, connect=args.connect, secure=args.secure,
                                  name=args.cert_name, domain=domain, multicast_scouting=not args.no_scouting)
+        lossy: dict[str, Any] = {}
+        if getattr(args, "lossy", False):
+            # A handshake must survive loss (session_config.fast_open); keep-alives every 100 ms hold the
+            # 10 s lease through bursts; batches under the MTU keep one lost fragment from losing a batch.
+            lossy = dict(batch_size=1300, lease_s=10.0, keep_alive=100, accept_timeout_s=1.0, extra=fast_open())
         return SessionConfig(mode="router", listen=listen, connect=args.connect, domain=domain,
-                             multicast_scouting=not args.no_scouting, shared_memory=False)
+                             multicast_scouting=not args.no_scouting, shared_memory=False, **lossy)
     except SessionConfigError as exc:
         raise CliError(str(exc)) from None
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from zenoh_robot.session_config import RESILIENT_GROUP, SessionConfig
+from zenoh_robot.session_config import RESILIENT_GROUP, SessionConfig, fast_open
 
 from ..stream_metrics import StreamRecorder, analyse
 from ..stream_profiles import stream_profile
@@ -37,26 +37,53 @@ class CellSpec:
     start: str = "after"        # "after": loss once sessions are up (the thesis); "startup": from the start
     duration: float = 20.0
     warmup: float = 5.0
-    transport: str = "default"  # the profile's own; "unicast": resilient over a UDP/TCP peer-to-peer session
+    transport: str = "default"  # the profile's own; "unicast": resilient over a UDP/TCP peer-to-peer session;
+    # "router": a Zenoh router in the GCS namespace, the GCS its client over loopback, the drone across the veth
 
     @property
     def label(self) -> str:
         return self.profile if self.transport == "default" else f"{self.profile}@{self.transport}"
 
 
-TRANSPORTS = ("default", "unicast")
+TRANSPORTS = ("default", "unicast", "router")
 # A unicast session must cross a handshake: under loss, retry it fast and give each try little time
-# (zenoh 1.10 defaults: 10 s open/accept timeouts, retries backing off to 4 s).
-FAST_OPEN = {"transport/unicast/open_timeout": 1000, "transport/unicast/accept_timeout": 1000,
-             "connect/retry": {"period_init_ms": 100, "period_max_ms": 500, "period_increase_factor": 1.5}}
+# (zenoh 1.10 defaults: 10 s open/accept timeouts, retries backing off to 4 s). UDP is listed first:
+# a client holds one link, the first endpoint that opens, and a TCP connect under loss waits on the
+# kernel's SYN back-off (1, 2, 4 s) while a UDP try is one datagram each way (docs/results/transports.md).
+FAST_OPEN = fast_open()
+LOSSY_TX = dict(batch_size=1300, lease_s=10.0, keep_alive=100)
+ROUTER_LOCAL = f"tcp/127.0.0.1:{PORT}"     # the GCS reaches its ground router over loopback
+
+
+def router_cmd(link: LossyLink) -> list[str]:
+    """The ground router (``zenoh-robot router --lossy``) in the GCS namespace."""
+    gcs = link.addr("gcs")
+    return [sys.executable, "-m", "zenoh_robot.tools.cli.main", "router", "--lossy", "--no-scouting",
+            "--status", "0", "--listen", f"udp/{gcs}:{PORT}", "--listen", f"tcp/{gcs}:{PORT}",
+            "--listen", ROUTER_LOCAL]
 
 
 def transport_for(profile: str, link: LossyLink, side: str, transport: str = "default") -> dict[str, Any]:
     """The Zenoh config of one side, as JSON (valid JSON5) for ``--zenoh``."""
+    if profile == "resilient" and transport == "router":
+        # Both clients of the ground router; a client's open blocks until its session is up and retries
+        # forever (fast_open(client=True)): the companion holds (no setpoints, PX4 never armed) meanwhile.
+        extra = fast_open(client=True)
+        if side == "gcs":
+            connect = [ROUTER_LOCAL]
+        else:
+            # A client holds one link unless told to open all of a group (Zenoh >= 1.10): the TCP link
+            # carries the reliable control plane (declarations, queries), the UDP link the best-effort
+            # streams, which outlive the TCP link at 90 % loss (docs/lossy-link-notes.md).
+            connect = [f"udp/{link.addr('gcs')}:{PORT}", f"tcp/{link.addr('gcs')}:{PORT}"]
+            extra["connect/endpoints"] = [{"strategy": "allOf", "locators": connect}]
+        return SessionConfig(mode="client", listen=[], connect=connect, multicast_scouting=False,
+                             shared_memory=False, accept_timeout_s=1.0, extra=extra,
+                             **LOSSY_TX).to_json5()   # type: ignore[arg-type]
     if profile == "resilient" and transport == "unicast":
         endpoints = [f"udp/{link.addr('gcs')}:{PORT}", f"tcp/{link.addr('gcs')}:{PORT}"]
-        tuned = dict(multicast_scouting=False, shared_memory=False, batch_size=1300, lease_s=10.0, keep_alive=100,
-                     accept_timeout_s=1.0, extra=dict(FAST_OPEN))
+        tuned = dict(multicast_scouting=False, shared_memory=False, accept_timeout_s=1.0, extra=dict(FAST_OPEN),
+                     **LOSSY_TX)
         if side == "gcs":
             return SessionConfig(listen=endpoints, **tuned).to_json5()   # type: ignore[arg-type]
         return SessionConfig(listen=[], connect=endpoints, **tuned).to_json5()   # type: ignore[arg-type]
@@ -122,18 +149,21 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
             (workdir / f"{side}.json5").write_text(
                 json.dumps(transport_for(spec.profile, link, side, spec.transport), indent=1))
         # A backstop only (the parent stops the apps): they must outlive any start-up and the window.
+        if spec.transport == "router":
+            procs["router"] = _start_router(link, workdir)
         common = ["--profile", spec.profile, "--duration", str(STARTUP_TIMEOUT_S + spec.warmup + spec.duration + 30)]
         drone_cmd = [sys.executable, "-m", "companion", "--id", DRONE_ID, "--px4", "sim",
                      "--zenoh", str(workdir / "drone.json5"), "--record", str(workdir / "drone.json"), *common]
         gcs_cmd = [sys.executable, "-m", "gcs", "--drones", DRONE_ID, "--no-dashboard", "--pattern", "thesis",
                    "--zenoh", str(workdir / "gcs.json5"), "--record", str(workdir / "gcs.json"), *common]
+        launch_ns = time.time_ns()
         for side, cmd in (("drone", drone_cmd), ("gcs", gcs_cmd)):
             log = open(workdir / f"{side}.log", "w")
             # Ctrl-C must reach the app even when this runs in the background (nohup, `&`: SIGINT ignored).
             procs[side] = subprocess.Popen(link.exec_in(side) + cmd, stdout=log, stderr=subprocess.STDOUT,
                                            preexec_fn=_default_sigint)
         try:
-            startup_s = _wait_started(workdir, procs, STARTUP_TIMEOUT_S)
+            startup_s = _wait_started(workdir, {k: procs[k] for k in ("gcs", "drone")}, STARTUP_TIMEOUT_S)
             time.sleep(spec.warmup)
             if spec.start == "after":
                 link.set_loss(spec.loss)
@@ -144,7 +174,9 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
             tx1 = {side: link.tx_bytes(side) for side in link.sides}
             link.set_loss(0)
             time.sleep(1.0)       # the last samples of the window land
-            _stop(procs, timeout=30.0)
+            _stop({k: procs[k] for k in ("gcs", "drone")}, timeout=30.0)
+            if "router" in procs:      # after the apps: they say goodbye through it
+                _stop({"router": procs["router"]}, timeout=10.0)
         finally:
             for p in procs.values():
                 if p.poll() is None:
@@ -154,8 +186,47 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
     # Everything each side put on the wire in the window (all streams, copies and joins included).
     result["bandwidth_kBps"] = {side: (tx1[side] - tx0[side]) / 1000 / spec.duration for side in tx0}
     result["startup_s"] = startup_s        # launch -> both apps started (None: not within the timeout)
+    result.update(formation(workdir, launch_ns))
+    if startup_s is None and "error" not in result:
+        # Not a window to skip: the link did not let the session form (a client's open blocks until it does).
+        result["error"] = f"no session within {STARTUP_TIMEOUT_S:g} s of launch (see {workdir}/*.log)"
+    if startup_s is None:
+        result.pop("invalid", None)
     result["window_ns"] = [t0, t1]
     return result
+
+
+def _start_router(link: LossyLink, workdir: Path) -> subprocess.Popen[bytes]:
+    """Start the ground router and wait for its first line (it listens from then on)."""
+    log_path = workdir / "router.log"
+    log = open(log_path, "w")
+    proc = subprocess.Popen(link.exec_in("gcs") + router_cmd(link), stdout=log, stderr=subprocess.STDOUT,
+                            preexec_fn=_default_sigint)
+    end = time.monotonic() + STARTUP_TIMEOUT_S
+    while time.monotonic() < end and proc.poll() is None:
+        if "listening on" in log_path.read_text(errors="replace"):
+            return proc
+        time.sleep(0.05)
+    proc.kill()
+    proc.wait()
+    raise RuntimeError(f"router did not start (see {log_path})")
+
+
+def formation(workdir: Path, launch_ns: int) -> dict[str, Any]:
+    """When the session carried its first sample each way, in s after the apps' launch (None: never).
+
+    Includes the apps' own start-up (~1-3 s here, the 0 % cells show it); a client's ``open`` blocks
+    until its session is up, so for the router transport this is the handshake across the loss."""
+    gcs, drone = _load(workdir / "gcs.json"), _load(workdir / "drone.json")
+
+    def first(rec: dict[str, Any] | None) -> float | None:
+        arrivals = (rec or {}).get("arrival_ns") or []
+        return round((min(arrivals) - launch_ns) / 1e9, 3) if arrivals else None
+    to_drone = first(((drone or {}).get("logs") or {}).get("received", {}).get("setpoint"))
+    to_gcs = first((((gcs or {}).get("drones") or {}).get(DRONE_ID, {}).get("logs") or {})
+                   .get("received", {}).get("sensor"))
+    both = None if to_drone is None or to_gcs is None else max(to_drone, to_gcs)
+    return {"session_formed_s": both, "first_setpoint_s": to_drone, "first_sensor_s": to_gcs}
 
 
 def _load(path: Path) -> dict[str, Any] | None:
