@@ -183,3 +183,56 @@ def test_cache_limits_bytes_ttl_and_waiters():
         assert cache.begin(bytes([9]), lambda ok, d: None) == ("joined", None)
     assert cache.dropped_waiters == 3 and len(cache.finish(bytes([9]), (True, b""))) == 2
     assert wait_for(lambda: True)
+
+
+def test_call_plan_meets_the_target_and_bounds_the_cost():
+    """The adaptive plan (_wire/call_plan.py): >= 99.9 % answered within 2 s at 50 % loss each way
+    with no measurement, >= 99 % at a measured 90 %, and never more copies than its caps."""
+    import math
+
+    from zenoh_robot._wire import call_plan as cp
+
+    unknown = cp.call_plan(math.nan, 2.0)
+    assert unknown.answered(0.5, 2.0) >= 0.999 and unknown.reply_copies > 1
+    assert cp.call_plan(0.9, 2.0).answered(0.9, 2.0) >= 0.99
+    # The old plan's reply copies shared a datagram: one reply per arriving request, 17 attempts.
+    old = cp.CallPlan(step_s=2.0 / 17, reply_copies=1, loss=0.5)
+    assert old.answered(0.5, 2.0) < 0.995
+    for loss in (0.0, 0.2, 0.5, 0.9, 1.0, math.nan, math.inf):
+        plan = cp.call_plan(loss, 2.0)
+        assert cp.MIN_STEP_S <= plan.step_s <= cp.MAX_STEP_S
+        assert 1 <= plan.reply_copies <= cp.MAX_REPLY_COPIES
+    assert cp.call_plan(0.0, 2.0).reply_copies == 1          # a clean measured link: no extra copies
+    for bad in (0, 17, -1, 2.5, "4", True, None):
+        assert cp.requested_reply_copies(bad) is None       # a peer cannot ask for unbounded copies
+    assert cp.requested_reply_copies(16) == 16
+
+
+def test_put_carried_call_sends_the_asked_reply_copies_once_per_burst(ns, monkeypatch):
+    """The multicast path (puts on @rq / @rp), here over a loopback unicast link: the request asks
+    for 4 reply copies (client loss 50 %), the slow handler runs once while the retries join it,
+    and the joined duplicates are answered by one burst of 4 spread copies, not 4 per duplicate."""
+    from zenoh_robot._wire import call_plan as cp
+
+    monkeypatch.setattr(services_mod, "is_multicast_session", lambda session: True)
+    handler = Counting()
+    with linked_nodes(ns) as (cli, srv):
+        service = srv.create_service("bump", Bump, Count, handler)
+        _spin(srv)
+        client = cli.create_client("bump", Bump, Count)
+        assert client.retry is services_mod.ADAPTIVE_RETRY
+        client.set_loss(0.5)
+        copies = cp.call_plan(0.5, 3.0).reply_copies
+        assert copies == 4
+        seen: list[float] = []
+        sub = cli.session.declare_subscriber(f"{client.key}/{services_mod.REPLY_CHUNK}/**",
+                                             lambda s: seen.append(time.monotonic()))
+        time.sleep(0.5)       # the subscribers' declarations cross the link
+        res = client.call(Bump("slow", delay_s=0.3), timeout=3.0)
+        assert res.executions == 1 and handler.runs["slow"] == 1
+        assert client.attempts >= 3 and service.duplicates >= 2       # retries went out and joined
+        assert wait_for(lambda: len(seen) >= copies, 2.0)
+        time.sleep(0.2)
+        assert len(seen) == copies == service.reply_copies, (seen, service.reply_copies)
+        assert seen[-1] - seen[0] >= cp.REPLY_SPACING_S   # spread: not one datagram (4 copies span 15 ms)
+        sub.undeclare()
