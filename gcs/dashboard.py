@@ -4,6 +4,12 @@ Rates are counted over a sliding window (``RateMeter``, 3 s) instead of the last
 at a 4 Hz refresh a 5 Hz stream delivers one or two samples per refresh, which showed as
 3.9 <-> 7.8 Hz. Without a terminal (a pipe, a log file) the GCS prints ``plain_lines``:
 short lines, one per drone, only what is known (no padding, no ``nan``).
+
+Images are shown as honestly as the picture is: frames shown per second, whole fresh
+frames per second (every strip of the frame arrived), the percentage of strips that arrived
+(frames skipped entirely included; FEC and whole-image modes count frames) and the age of
+the oldest strip in the latest picture (a patched strip is as old as the frame it came from).
+All from ``gcs/frames.FrameKeeper``'s counters: nothing is decoded to show them.
 """
 from __future__ import annotations
 
@@ -51,15 +57,31 @@ def drone_figures(d: DroneLink, rates: RateMeter) -> dict[str, float]:
     out = {name: rates.rate(f"{d.id}/{name}", len(rec)) for name, rec in d.streams.items()}
     out["setpoint"] = rates.rate(f"{d.id}/setpoint", d.setpoints_sent)
     out["frames"] = rates.rate(f"{d.id}/frames", d.image.frames)
+    out.update(image_figures(d, rates))
     return out
+
+
+def image_figures(d: DroneLink, rates: RateMeter) -> dict[str, float]:
+    """whole_fps, fresh_pct (strips that arrived, windowed), oldest_ms (oldest strip of the latest picture)."""
+    k = d.frames
+    fresh = rates.rate(f"{d.id}/strips_fresh", k.strips_fresh)
+    expected = rates.rate(f"{d.id}/strips_expected", k.strips_expected)
+    pct = 100.0 * fresh / expected if expected > 0 else float("nan")   # NaN stays NaN: nothing to say yet
+    return {"whole_fps": rates.rate(f"{d.id}/whole", k.complete), "fresh_pct": min(pct, 100.0),
+            "oldest_ms": k.oldest_strip_age_ms}
+
+
+def _pct(v: float) -> str:
+    return "-" if math.isnan(v) else f"{v:5.1f}"
 
 
 def render(gcs: Gcs, rates: RateMeter, title: str = "zenoh-robot GCS", details: str | None = None) -> Group:
     """One table, one title: a row per drone; ``details`` adds that drone's stream table."""
     drones = Table(title=f"{title}: {len(gcs.drones)} drone(s)", expand=False, pad_edge=False)
     for col in ("drone", "mode", "arm", "position (NED m)", "batt", "link", "offboard", "control",
-                "sp Hz", "state Hz", "sensor Hz (PX4)", "img fps", "img age ms", "failsafe"):
-        drones.add_column(col, no_wrap=True, justify="right" if "Hz" in col or "fps" in col else "left")
+                "sp Hz", "state Hz", "sensor Hz (PX4)", "img fps", "whole fps", "fresh %", "oldest ms", "failsafe"):
+        drones.add_column(col, no_wrap=True, justify="right" if any(u in col for u in ("Hz", "fps", "%", "ms"))
+                          else "left")
     shown = None
     for d in sorted(gcs.drones.values(), key=lambda d: d.id):
         f = drone_figures(d, rates)
@@ -86,15 +108,20 @@ def stream_table(d: DroneLink, rates: RateMeter) -> Table:
     t.add_row("setpoint (sent)", _hz(rates.rate(f"{d.id}/setpoint", d.setpoints_sent)), "", "", "",
               str(d.setpoints_sent), "")
     k = d.frames
+    f = image_figures(d, rates)
     t.add_row("frames", _hz(rates.rate(f"{d.id}/frames", d.image.frames)), _ms(d.image.last_age_ms), "", "",
               f"{k.complete}/{k.frames} whole", f"decoded {k.decoded} ({k.decode_s * 1e3:.0f} ms CPU)")
+    t.add_row("whole fresh frames", _hz(f["whole_fps"]), "", "", "", f"{k.patched} patched", "")
+    total = f"{100.0 * k.strips_fresh / k.strips_expected:.1f} % overall" if k.strips_expected else ""
+    t.add_row("fresh strips %", _pct(f["fresh_pct"]), "", "", "", f"{k.strips_fresh}/{k.strips_expected}", total)
+    t.add_row("oldest strip shown", "", _ms(f["oldest_ms"]), "", "", "", "")
     return t
 
 
 def _drone_row(table: Table, d: DroneLink, f: dict[str, float]) -> None:
     s = d.state
     if s is None:
-        table.add_row(d.id, "?", "", "", "", "waiting", "", "", _hz(f["setpoint"]), "", "", "", "", "")
+        table.add_row(d.id, "?", "", "", "", "waiting", "", "", _hz(f["setpoint"]), "", "", "", "", "", "", "")
         return
     pos = ",".join(f"{v:5.1f}" for v in s.position)
     batt = "-" if math.isnan(s.battery_remaining) else f"{s.battery_remaining * 100:3.0f}%"
@@ -102,7 +129,8 @@ def _drone_row(table: Table, d: DroneLink, f: dict[str, float]) -> None:
     control = "this GCS" if d.in_control else (s.controller or "none")
     table.add_row(d.id, s.mode, "yes" if s.armed else "no", pos, batt, link, s.offboard_state, control[:16],
                   _hz(f["setpoint"]), _hz(f["state"]), sensor_rate(s, f["sensor"]), _hz(f["frames"]),
-                  _ms(d.image.last_age_ms), (s.failsafe or (d.failures[-1] if d.failures else ""))[:30])
+                  _hz(f["whole_fps"]), _pct(f["fresh_pct"]), _ms(f["oldest_ms"]),
+                  (s.failsafe or (d.failures[-1] if d.failures else ""))[:30])
 
 
 def sensor_rate(s: VehicleState, here: float = math.nan) -> str:
@@ -127,7 +155,13 @@ def plain_lines(gcs: Gcs, rates: RateMeter) -> list[str]:
         if not math.isnan(f["sensor"]):
             parts.append(f"sensor {f['sensor']:.0f} Hz")
         if not math.isnan(f["frames"]) and d.image.frames:
-            parts.append(f"images {f['frames']:.1f} fps age {d.image.last_age_ms:.0f} ms")
+            img = f"images {f['frames']:.1f} fps"
+            if not math.isnan(f["whole_fps"]):
+                img += f" (whole {f['whole_fps']:.1f}"
+                img += f", fresh strips {f['fresh_pct']:.0f} %)" if not math.isnan(f["fresh_pct"]) else ")"
+            if not math.isnan(f["oldest_ms"]):
+                img += f" oldest strip {f['oldest_ms']:.0f} ms"
+            parts.append(img)
         if s is not None and s.failsafe:
             parts.append(f"FAILSAFE {s.failsafe}")
         lines.append(", ".join(parts))

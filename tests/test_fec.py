@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import random
-import time
 
 import numpy as np
 import pytest
@@ -21,7 +20,9 @@ from zenoh_robot.image_fec import (  # noqa: E402
     shares_for,
     split,
 )
+from zenoh_robot.msgs import Header  # noqa: E402
 from zenoh_robot.qos import IMAGE  # noqa: E402
+from zenoh_robot.subscription import MessageInfo  # noqa: E402
 
 
 def _frame(i: int) -> np.ndarray:
@@ -70,7 +71,7 @@ def test_assembler_rebuilds_from_any_k_counts_loss_and_drops_forgeries() -> None
     assert got[:-1] == [None] * (k - 1) and got[-1] is not None
     assert got[-1].info.complete and got[-1].info.fresh_fraction == 1.0
     # Forged / inconsistent shares are counted, never stored.
-    bad = ImageShare(shares[0].header, 0, 5, 300, 10, 240, 320, "rgb8", b"x")
+    bad = ImageShare(shares[0].header, 0, 0, 5, 300, 10, 240, 320, "rgb8", b"x")   # frame 0, n > 256
     assert asm.add(bad) is None and asm.bad_shares == 1
     # Frame 1 loses too many shares: never delivered, and the loss is measured.
     second = _shares(0.3, 1)
@@ -85,20 +86,30 @@ def test_fec_frames_over_zenoh_arrive_whole_with_shares_dropped(ns: str) -> None
     frames = []
     listen, connect = linked_configs()
     with Node("viewer", namespace=ns, config=listen) as b, Node("cam", namespace=ns, config=connect) as a:
-        sub = FecImageSubscription(b, "image", lambda img, info: frames.append((img.to_array().copy(), info)))
+        heads: list = []
+        sub = FecImageSubscription(b, "image", lambda img, info: (frames.append((img.to_array().copy(), info)),
+                                                                  heads.append(img)))
         pub = FecImagePublisher(a, "image", quality=70, loss=0.3)
         raw = a.create_publisher(ImageShare, "image", IMAGE)
-        time.sleep(0.3)
+        assert a.spin_until(lambda: pub.get_subscription_count() == 1, 5.0)
+        assert pub.get_subscription_count() == pub.publisher.get_subscription_count()
         rng = random.Random(5)
+        sent = [Header(2_000 + i, "camera_optical", 70 + 2 * i) for i in range(4)]
         for i in range(4):
-            shares = pub.encode(_frame(i))
+            shares = pub.encode(_frame(i), sent[i])
             pub.frames += 1
             k, n = shares[0].k, shares[0].n
             for s in rng.sample(shares, n)[:k]:          # n - k shares lost, the parity covers them
                 raw.publish(s)
         assert b.spin_until(lambda: len(frames) == 4, 5.0)
     assert [info.frame for _, info in frames] == [0, 1, 2, 3]
+    assert [info.seq for _, info in frames] == [70, 72, 74, 76]      # the user's header.seq, not the frame
+    assert [h.header for h in heads] == sent                          # the user's header, unchanged
     img, info = frames[-1]
     assert info.complete and info.k < info.n
+    assert isinstance(info, MessageInfo) and info.type_name == "sensor_msgs/Image" and info.publisher_id == raw.gid
+    assert (info.shares_received, info.shares_needed, info.shares_sent) == (info.k, info.k, info.n)
+    assert not info.patched and info.fresh_fraction == 1.0 and info.slices_received == info.slice_count == 1
+    assert 10**18 < info.source_stamp_ns <= info.received_stamp_ns and info.oldest_strip_age_ms == info.age_ms >= 0
     assert np.abs(img.astype(int) - _frame(3).astype(int)).mean() < 8
     assert sub.assembler.decode_errors == 0

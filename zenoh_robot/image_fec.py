@@ -314,7 +314,8 @@ class FecImageSubscription:
                  qos: QoSProfile = IMAGE) -> None:
         self.callback = callback
         self.assembler = FecAssembler()
-        self.sub = node.create_subscription(ImageShare, topic, self._on_share,
+        # Two required arguments: the subscription passes each share's MessageInfo (publisher, stamps).
+        self.sub = node.create_subscription(ImageShare, topic, lambda s, info: self._on_share(s, info),
                                             qos.replace(depth=max(qos.depth, 512)))
 
     def _on_share(self, s: ImageShare, info: Any = None) -> None:

@@ -213,7 +213,9 @@ class ImageSubscription:
                  qos: QoSProfile = IMAGE) -> None:
         self.callback = callback
         # Slices of one frame arrive in a burst: the queue must hold a frame's worth.
-        self.sub = node.create_subscription(ImageSlice, topic, self._on_slice, qos.replace(depth=max(qos.depth, 256)))
+        # Two required arguments: the subscription passes each slice's MessageInfo (publisher, stamps).
+        self.sub = node.create_subscription(ImageSlice, topic, lambda s, info: self._on_slice(s, info),
+                                            qos.replace(depth=max(qos.depth, 256)))
         self._canvas: np.ndarray | None = None
         self._frame = -1
         self._header = Header()
