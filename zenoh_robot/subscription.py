@@ -53,6 +53,9 @@ from .qos_events import SubscriptionEvents
 from .qos_mapping import declare_subscriber
 
 M = TypeVar("M")
+_unpack_fields = envelope.unpack_fields
+_time_ns = time.time_ns
+_monotonic = time.monotonic
 DRAIN_BATCH = 64  # samples per executor turn, so one busy topic cannot starve the others
 # Received data is bounded (see "Hostile input" in the module doc): per sample, the default
 # lets a raw 4K RGB image through; per queue, KEEP_ALL's 10,000 samples cannot hold gigabytes.
@@ -147,7 +150,8 @@ class Subscription(Generic[M]):
         self._hash = self.type_hash
         self._any_type = ts is None
         self._from_wire: Callable[[Any], Any] = self._raw_sample if raw else ts.decode  # type: ignore[union-attr]
-        self._raw_env: tuple[envelope.Envelope, bytes] | None = None   # the envelope being handled (raw mode)
+        # The envelope being handled in raw mode: (type_name, type_hash, extra, data).
+        self._raw_env: tuple[str, str, dict[str, Any], bytes] | None = None
         self._executor = context.executor
         self._lifespan_ns = int(qos.lifespan * 1e9) if qos.lifespan else None
         self.sample_hooks: list[Callable[[M, MessageInfo], None]] = []
@@ -182,22 +186,28 @@ class Subscription(Generic[M]):
         except Exception as exc:
             self._internal_error("receive", exc)
             return
-        now = time.time_ns()
+        now = _time_ns()
         with self._lock:
             self.counters.received += 1
             queue = self._queue
             # Bounded by count (depth, or the KEEP_ALL limit) and by bytes: the oldest goes first.
-            while queue and (len(queue) >= self._limit or self._queued_bytes + size > self.max_queued_bytes):
-                old, _ = queue.popleft()
-                self._queued_bytes -= len(old)
-                self.counters.dropped += 1
-                self._dropped_unseen += 1   # will show as a sequence gap: not a network loss
+            if queue and (len(queue) >= self._limit or self._queued_bytes + size > self.max_queued_bytes):
+                self._make_room(size)
             queue.append((data, now))
             self._queued_bytes += size
             if self._scheduled:
-                return
+                return      # the drain already queued picks this one up: one executor wake-up per drain
             self._scheduled = True
         self._executor.submit(self._drain)
+
+    def _make_room(self, size: int) -> None:
+        # Under self._lock (the rare path of _on_sample: the queue is full).
+        queue = self._queue
+        while queue and (len(queue) >= self._limit or self._queued_bytes + size > self.max_queued_bytes):
+            old, _ = queue.popleft()
+            self._queued_bytes -= len(old)
+            self.counters.dropped += 1
+            self._dropped_unseen += 1   # will show as a sequence gap: not a network loss
 
     # -- executor ------------------------------------------------------------------
     def _drain(self) -> None:
@@ -212,84 +222,116 @@ class Subscription(Generic[M]):
 
     def _drain_some(self) -> bool:
         """Handle up to DRAIN_BATCH samples; False once the queue is empty (then unscheduled)."""
-        # KEEP_ALL never drops, so samples may leave the queue in batches: one lock per batch
-        # instead of one per sample, which the Zenoh thread would otherwise contend for.
-        take = DRAIN_BATCH if self._take_batch else 1
-        handled = 0
-        while handled < DRAIN_BATCH:
-            with self._lock:
-                queue = self._queue
+        lock, queue, handle = self._lock, self._queue, self._handle
+        if self._take_batch:
+            # KEEP_ALL never drops, so samples may leave the queue in batches: one lock per batch
+            # instead of one per sample, which the Zenoh thread would otherwise contend for.
+            handled = 0
+            while handled < DRAIN_BATCH:
+                with lock:
+                    if not queue:
+                        self._scheduled = False
+                        return False
+                    batch = [queue.popleft() for _ in range(min(len(queue), DRAIN_BATCH))]
+                    size = 0
+                    for data, _ in batch:
+                        size += len(data)
+                    self._queued_bytes -= size
+                for data, received in batch:
+                    try:
+                        handle(data, received)
+                    except Exception as exc:   # a bug or a hostile sample: count it, keep the others coming
+                        self._internal_error("handle", exc)
+                handled += len(batch)
+            return True
+        # KEEP_LAST(n): a sample stays in the queue (where a newer one can still replace it) until
+        # it is handled, so at most n are ever waiting.
+        for _ in range(DRAIN_BATCH):
+            with lock:
                 if not queue:
                     self._scheduled = False
                     return False
-                batch = [queue.popleft() for _ in range(min(len(queue), take))]
-                self._queued_bytes -= sum(len(d) for d, _ in batch)
-            for data, received in batch:
-                try:
-                    self._handle(data, received)
-                except Exception as exc:   # a bug or a hostile sample: count it, keep the others coming
-                    self._internal_error("handle", exc)
-            handled += len(batch)
+                data, received = queue.popleft()
+                self._queued_bytes -= len(data)
+            try:
+                handle(data, received)
+            except Exception as exc:
+                self._internal_error("handle", exc)
         return True
 
     def _handle(self, data: bytes, received_ns: int) -> None:
+        # The hot path: the envelope stays in locals (no object per sample), the common case (no
+        # redundancy, the next sequence number, no lifespan) takes no extra call.
         try:
-            env = envelope.unpack(data)
+            type_name, type_hash, pub_id, seq, stamp_ns, body, extra = _unpack_fields(data)
         except envelope.MalformedSample as exc:
             self._malformed(f"{exc} ({len(data)} bytes)")
             return
-        if env.extra:   # almost always empty: only redundant/repeating publishers fill it
-            bad_extra = check_extra(env.extra)
+        if extra:   # almost always empty: only redundant/repeating publishers fill it
+            bad_extra = check_extra(extra)
             if bad_extra is not None:
                 self._malformed(bad_extra)
                 return
-        if self.events.blocked and env.publisher_id in self.events.blocked:
+        blocked = self.events.blocked
+        if blocked and pub_id in blocked:
             self.counters.incompatible += 1    # reported once as an incompatible-QoS event
             return
-        if self.raw:
-            self._raw_env = (env, data)
-        if env.type_hash != self._hash and not self._any_type:
-            self.counters.type_mismatch += 1
-            if env.publisher_id not in self._mismatch_reported:
-                self._mismatch_reported[env.publisher_id] = None
-                if len(self._mismatch_reported) > MAX_TRACKED_PUBLISHERS:
-                    self._mismatch_reported.popitem(last=False)
-                self._rlog.error("type_mismatch", "type mismatch on %r: publisher %x sends %s (hash %s), this "
-                                 "subscription expects %s (hash %s); its samples are dropped", self.topic,
-                                 env.publisher_id, env.type_name[:100], env.type_hash[:64], self.type_name, self._hash)
+        if type_hash != self._hash and not self._any_type:
+            self._type_mismatch(type_name, type_hash, pub_id)
             return
-        if self.dedup is None and env.extra:
+        if self.raw:
+            self._raw_env = (type_name, type_hash, extra, data)
+        dedup = self.dedup
+        if dedup is None:
+            if not extra:
+                self._deliver_sample(type_name, pub_id, seq, stamp_ns, body, received_ns)
+                return
             # A redundant or repeating publisher, whatever this subscription's own QoS: from now
             # on, deliver each of its samples once.
-            self.dedup = Deduplicator()
-        if self.dedup is None:
-            self._decode_and_deliver(env, env.seq, env.stamp_ns, env.body, received_ns)
-        else:
-            for seq, stamp, body in self.dedup.fresh(env.publisher_id, env.seq, env.stamp_ns, env.body, env.extra):
-                self._decode_and_deliver(env, seq, stamp, body, received_ns)
+            dedup = self.dedup = Deduplicator()
+        for fresh_seq, stamp, fresh_body in dedup.fresh(pub_id, seq, stamp_ns, body, extra):
+            self._deliver_sample(type_name, pub_id, fresh_seq, stamp, fresh_body, received_ns)
 
-    def _decode_and_deliver(self, env: envelope.Envelope, seq: int, stamp_ns: int, body: Any,
-                            received_ns: int) -> None:
+    def _type_mismatch(self, type_name: str, type_hash: str, pub_id: int) -> None:
+        self.counters.type_mismatch += 1
+        if pub_id not in self._mismatch_reported:
+            self._mismatch_reported[pub_id] = None
+            if len(self._mismatch_reported) > MAX_TRACKED_PUBLISHERS:
+                self._mismatch_reported.popitem(last=False)
+            self._rlog.error("type_mismatch", "type mismatch on %r: publisher %x sends %s (hash %s), this "
+                             "subscription expects %s (hash %s); its samples are dropped", self.topic,
+                             pub_id, type_name[:100], type_hash[:64], self.type_name, self._hash)
+
+    def _deliver_sample(self, type_name: str, pub_id: int, seq: int, stamp_ns: int, body: Any,
+                        received_ns: int) -> None:
         try:
             msg = self._from_wire(body)
         except Exception as exc:    # ValidationError names the field; anything else is malformed too
             self._malformed(f"body does not decode as {self.type_name}: {exc}")
             return
         events = self.events
-        gap = self._track_sequence(env.publisher_id, seq)
-        if gap:
-            events.on_lost(gap)
+        table = self.counters.per_publisher_seq
+        if pub_id == self._seq_newest and not self._seq_jumps and table.get(pub_id) == seq - 1:
+            table[pub_id] = seq     # _track_sequence's common case, without the call
+        else:
+            gap = self._track_sequence(pub_id, seq)
+            if gap:
+                events.on_lost(gap)
         if self._lifespan_ns is not None or events.lifespans_ns:
             # Lifespan is the publisher's promise (ROS 2): its offered one, else this profile's.
-            lifespan_ns = events.lifespans_ns.get(env.publisher_id, self._lifespan_ns)
-            if lifespan_ns is not None and time.time_ns() - stamp_ns > lifespan_ns:   # age when delivered
+            lifespan_ns = events.lifespans_ns.get(pub_id, self._lifespan_ns)
+            if lifespan_ns is not None and _time_ns() - stamp_ns > lifespan_ns:   # age when delivered
                 self.counters.expired += 1
                 return
-        self.last_sample_mono = now = time.monotonic()
+        self.last_sample_mono = now = _monotonic()
         if events.leased_writers:
-            events.on_sample(env.publisher_id, now)
-        info = MessageInfo(env.publisher_id, seq, stamp_ns, received_ns, env.type_name)
-        for hook in self.sample_hooks:
+            events.on_sample(pub_id, now)
+        hooks = self.sample_hooks
+        if not (hooks or self._with_info):
+            self.deliver(msg, None)     # type: ignore[arg-type]   # a 1-argument callback: no info to build
+            return
+        info = MessageInfo(pub_id, seq, stamp_ns, received_ns, type_name)
+        for hook in hooks:
             try:
                 hook(msg, info)
             except Exception:
@@ -300,10 +342,10 @@ class Subscription(Generic[M]):
 
     def _raw_sample(self, body: Any) -> RawMessage:
         # Raw mode's decoder: the envelope being handled names the type (set in _handle, same turn).
-        env, data = self._raw_env if self._raw_env is not None else (None, b"")
-        if env is None:
+        if self._raw_env is None:
             raise ValueError("raw sample without its envelope")
-        return RawMessage(env.type_name, env.type_hash, body, data, env.extra)
+        type_name, type_hash, extra, data = self._raw_env
+        return RawMessage(type_name, type_hash, body, data, extra)
 
     def deliver(self, msg: M, info: MessageInfo) -> None:
         try:

@@ -57,10 +57,15 @@ MAX_NAME_LEN = 256      # type names and hashes: bounded, they end up in logs
 _U64 = 1 << 64
 
 
-def unpack(data: bytes | memoryview) -> Envelope:
-    """The envelope of ``data``; MalformedSample for anything else (never another exception)."""
+Header = tuple[str, str, int, int, int, Any, dict[str, Any]]   # type_name, type_hash, pub_id, seq, stamp, body, extra
+_unpackb = msgpack.unpackb
+
+
+def unpack_fields(data: bytes | memoryview) -> Header:
+    """The envelope of ``data`` as a tuple (no object per sample: the subscription's hot path);
+    MalformedSample for anything else (never another exception). Same checks as :func:`unpack`."""
     try:
-        obj = msgpack.unpackb(data, raw=False, strict_map_key=False)
+        obj = _unpackb(data, raw=False, strict_map_key=False)
     except Exception as exc:  # msgpack raises several unrelated types on garbage
         raise MalformedSample(f"not msgpack: {type(exc).__name__}") from None
     if type(obj) is not list or len(obj) != 8 or obj[0] != MAGIC:
@@ -74,4 +79,9 @@ def unpack(data: bytes | memoryview) -> Envelope:
         raise MalformedSample("envelope type name or hash too long")
     if not (0 <= pub_id < _U64 and 0 <= seq < _U64):
         raise MalformedSample("envelope publisher id or sequence number out of range")
-    return Envelope(type_name, type_hash, pub_id, seq, stamp, body, extra)
+    return type_name, type_hash, pub_id, seq, stamp, body, extra
+
+
+def unpack(data: bytes | memoryview) -> Envelope:
+    """The envelope of ``data``; MalformedSample for anything else (never another exception)."""
+    return Envelope(*unpack_fields(data))
