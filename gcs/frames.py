@@ -59,8 +59,8 @@ class FrameKeeper:
         self.frames = 0          # frames begun (first slice seen)
         self.complete = 0        # frames whose every slice arrived
         self.patched = 0         # frames shown with strips of older frames
-        self.strips_fresh = 0    # strips received (FEC, raw: whole frames)
-        self.strips_expected = 0  # strips of the frames begun and of those skipped entirely
+        self.strips_fresh = 0    # strips received, of frames closed (FEC, raw: whole frames)
+        self.strips_expected = 0  # strips of the frames closed and of those skipped entirely
         self.bad_slices = 0
         self.late_slices = 0
         self.decoded = 0
@@ -88,7 +88,6 @@ class FrameKeeper:
                 skipped = frame - self._frame - 1 if self._frame >= 0 else 0
                 if 0 < skipped < MAX_GAP_FRAMES:
                     self.strips_expected += skipped * s.count
-                self.strips_expected += s.count
                 self._frame, self._got, self._closed, self._head = frame, set(), False, s
                 self._source_ns = int(getattr(info, "source_stamp_ns", 0)) or s.header.stamp
                 self._publisher_id = int(getattr(info, "publisher_id", 0))
@@ -101,7 +100,6 @@ class FrameKeeper:
             self._got.add(s.index)
             self._strips[s.index] = (s, self._source_ns)
             self._received_ns = received
-            self.strips_fresh += 1
             if len(self._got) == s.count and not self._closed:
                 self.complete += 1
                 self._close()
@@ -113,6 +111,9 @@ class FrameKeeper:
         assert head is not None and self._geometry is not None
         self._closed = True
         count = self._geometry[0]
+        # Counted when a frame closes, so the figures never see a frame half-filled.
+        self.strips_fresh += len(self._got)
+        self.strips_expected += count
         self._shown = dict(self._strips)
         self._shown_serial += 1
         stamps = [t for _, t in self._shown.values() if t]

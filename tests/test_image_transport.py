@@ -1,9 +1,11 @@
 """Sliced JPEG images: every slice one datagram, loss costs a strip, newest frame wins."""
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
+import pytest
 from conftest import linked_configs
 
 from zenoh_robot import Node
@@ -175,3 +177,34 @@ def test_gcs_frame_keeper_shows_newest_strips_and_honest_figures() -> None:
     # A slice of another geometry in the middle of a frame, and garbage: counted, never stored.
     keeper2.add(ImageSlice(Header(), 3, 1, count, 0, 10**6, 10**6, "rgb8", b""), _Info(3))
     assert keeper2.bad_slices == 1
+
+
+def test_dashboard_shows_whole_fresh_frames_fresh_strips_and_the_oldest_strip() -> None:
+    pytest.importorskip("rich")
+    from types import SimpleNamespace
+
+    from rich.console import Console
+
+    from gcs.app import ImageStats
+    from gcs.dashboard import RateMeter, image_figures, stream_table
+    from gcs.frames import FrameKeeper
+    keeper = FrameKeeper()
+    drone = SimpleNamespace(id="uav1", frames=keeper, image=ImageStats(), streams={}, setpoints_sent=0)
+    rates = RateMeter()
+    assert all(math.isnan(v) for v in image_figures(drone, rates).values())   # nothing known: nothing said
+    s0, s1, s3 = _slices(0), _slices(1), _slices(3)
+    for s in s0:
+        keeper.add(s, _Info(0))
+    for s in s1[1:]:                       # frame 1 loses strip 0; frame 2 never comes
+        keeper.add(s, _Info(1))
+    for s in s3:
+        keeper.add(s, _Info(3))
+    time.sleep(0.55)                       # RateMeter's shortest window
+    f = image_figures(drone, rates)
+    count = len(s0)
+    assert f["fresh_pct"] == pytest.approx(100 * (3 * count - 1) / (4 * count), rel=1e-3)
+    assert f["whole_fps"] > 0 and f["oldest_ms"] == 5.0
+    out = Console(width=160, record=True)
+    out.print(stream_table(drone, rates))
+    text = out.export_text()
+    assert "whole fresh frames" in text and f"{3 * count - 1}/{4 * count}" in text and "1 patched" in text
