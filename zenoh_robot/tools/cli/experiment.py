@@ -28,9 +28,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--warmup", type=float, default=5.0, help="seconds before measuring (default 5)")
     p.add_argument("--transport", default="default",
                    help="comma-separated: default (each profile's own: multicast for resilient), unicast "
-                        "(resilient over a UDP/TCP peer-to-peer session with fast open retries)")
+                        "(resilient over a UDP/TCP peer-to-peer session with fast open retries), router "
+                        "(resilient through a Zenoh router in the GCS namespace, both apps its clients)")
     p.add_argument("--out", type=Path, default=Path("results/experiment"))
-    p.add_argument("--resume", action="store_true", help="keep finished cells of an earlier run in --out")
+    p.add_argument("--resume", action="store_true",
+                   help="keep finished cells of an earlier run in --out (cells flagged invalid run again)")
     p.add_argument("--report-only", action="store_true", help="redraw figures and tables from --out")
     p.set_defaults(func=run)
 

@@ -164,6 +164,8 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
                                            preexec_fn=_default_sigint)
         try:
             startup_s = _wait_started(workdir, {k: procs[k] for k in ("gcs", "drone")}, STARTUP_TIMEOUT_S)
+            # Still running yet not started: the companion's open is waiting for its session (client).
+            waiting = startup_s is None and all(p.poll() is None for p in procs.values())
             time.sleep(spec.warmup)
             if spec.start == "after":
                 link.set_loss(spec.loss)
@@ -172,6 +174,7 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
             time.sleep(spec.duration)
             t1 = time.time_ns()
             tx1 = {side: link.tx_bytes(side) for side in link.sides}
+            command = _command_through_router(link, workdir) if spec.transport == "router" else None
             link.set_loss(0)
             time.sleep(1.0)       # the last samples of the window land
             _stop({k: procs[k] for k in ("gcs", "drone")}, timeout=30.0)
@@ -187,10 +190,13 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
     result["bandwidth_kBps"] = {side: (tx1[side] - tx0[side]) / 1000 / spec.duration for side in tx0}
     result["startup_s"] = startup_s        # launch -> both apps started (None: not within the timeout)
     result.update(formation(workdir, launch_ns))
-    if startup_s is None and "error" not in result:
-        # Not a window to skip: the link did not let the session form (a client's open blocks until it does).
+    if command is not None:
+        result["command"] = command
+    if waiting:
+        # Not a window to skip: the link did not let the session form (a client's open blocks until it
+        # does; the companion meanwhile sends nothing and PX4 is never armed).
         result["error"] = f"no session within {STARTUP_TIMEOUT_S:g} s of launch (see {workdir}/*.log)"
-    if startup_s is None:
+        result["no_session"] = True
         result.pop("invalid", None)
     result["window_ns"] = [t0, t1]
     return result
@@ -210,6 +216,24 @@ def _start_router(link: LossyLink, workdir: Path) -> subprocess.Popen[bytes]:
     proc.kill()
     proc.wait()
     raise RuntimeError(f"router did not start (see {log_path})")
+
+
+def _command_through_router(link: LossyLink, workdir: Path, timeout: float = 6.0) -> dict[str, Any]:
+    """One service call GCS -> companion across the router and the loss (still on): ``gcs cmd uav1 hold``
+    from a second GCS client. Any answer counts, a refusal too (this GCS holds no control): the query
+    crossed the router both ways."""
+    cmd = [sys.executable, "-m", "zenoh_robot.tools.cli.main", "gcs", "cmd", DRONE_ID, "hold", "--timeout",
+           str(timeout), "--zenoh", str(workdir / "gcs.json5"), "--gcs-id", "cell-probe"]
+    t = time.monotonic()
+    try:
+        res = subprocess.run(link.exec_in("gcs") + cmd, capture_output=True, text=True, timeout=timeout + 30)
+    except subprocess.TimeoutExpired:
+        return {"rc": None, "reply": "timed out", "s": round(time.monotonic() - t, 2), "answered": False}
+    lines = [x for x in (res.stdout + res.stderr).splitlines() if x.strip()]
+    reply = next((x for x in reversed(lines) if x.startswith(f"{DRONE_ID} hold")), lines[-1] if lines else "")
+    answered = "(mode " in reply      # `gcs cmd` prints the drone's mode only with its CommandResult
+    return {"rc": res.returncode, "reply": reply[-300:], "tail": [x[-300:] for x in lines[-6:]],
+            "s": round(time.monotonic() - t, 2), "answered": answered}
 
 
 def formation(workdir: Path, launch_ns: int) -> dict[str, Any]:

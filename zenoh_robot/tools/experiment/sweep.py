@@ -26,17 +26,30 @@ def _key(r: dict[str, Any]) -> tuple[str, str, float]:
     return r["start"], r["profile"], float(r["loss"])   # profile: the cell's label (profile@transport)
 
 
-def load_results(path: Path) -> list[dict[str, Any]]:
+def needs_rerun(r: dict[str, Any]) -> bool:
+    """A cell that measured nothing about the link: its window missed the streams (``invalid``: the
+    apps' start-up or exit inside it) or the harness broke. A session that never formed is a result."""
+    return bool(r.get("invalid")) or (bool(r.get("error")) and not r.get("no_session"))
+
+
+def load_results(path: Path, include_invalid: bool = False) -> list[dict[str, Any]]:
+    """The cells in ``results.jsonl``, the latest line per cell (a rerun replaces an earlier line).
+
+    Cells flagged ``invalid`` are left out unless ``include_invalid``: reports never show them, and
+    ``--resume`` runs them again. Harness errors stay in (the report shows them as errors)."""
     if not path.exists():
         return []
-    out = []
+    latest: dict[tuple[str, str, float], dict[str, Any]] = {}
     for line in path.read_text().splitlines():
         if line.strip():
             try:
-                out.append(json.loads(line))
-            except ValueError:
+                r = json.loads(line)
+                key = _key(r)
+            except (ValueError, KeyError, TypeError):
                 continue   # a line cut by an interrupted write
-    return out
+            if include_invalid or not r.get("invalid") or key not in latest:
+                latest[key] = r   # a valid line is never replaced by a later invalid one
+    return [r for r in latest.values() if include_invalid or not r.get("invalid")]
 
 
 def run_sweep(out_dir: Path, cells: Iterable[CellSpec], resume: bool = False,
@@ -44,7 +57,7 @@ def run_sweep(out_dir: Path, cells: Iterable[CellSpec], resume: bool = False,
     console = console or Console()
     out_dir.mkdir(parents=True, exist_ok=True)
     results_path = out_dir / "results.jsonl"
-    done = {_key(r) for r in load_results(results_path)} if resume else set()
+    done = {_key(r) for r in load_results(results_path) if not needs_rerun(r)} if resume else set()
     if not resume and results_path.exists():
         results_path.rename(results_path.with_suffix(f".{int(time.time())}.jsonl"))
     todo = [c for c in cells if (c.start, c.label, float(c.loss)) not in done]
@@ -68,11 +81,14 @@ def run_sweep(out_dir: Path, cells: Iterable[CellSpec], resume: bool = False,
 
 def one_line(r: dict[str, Any]) -> str:
     if r.get("error"):
-        return f"{r['profile']:11s} {r['loss']:4.0f}%: ERROR {r['error']}"
+        return f"{r['profile']:11s} {r['loss']:4.0f}% ({r['start']}): ERROR {r['error']}"
+    if r.get("invalid"):
+        return f"{r['profile']:11s} {r['loss']:4.0f}% ({r['start']}): INVALID (rerun with --resume) {r['invalid']}"
     t = r["topics"]
 
     def f(topic: str) -> str:
         s = t.get(topic, {})
         return f"{topic} {s.get('delivered_pct', float('nan')):5.1f}% {s.get('age_avg_ms', float('nan')):7.1f}ms"
     return (f"{r['profile']:11s} {r['loss']:4.0f}% ({r['start']}): {f('setpoint')} | {f('sensor')} | "
-            f"{f('image')} | offboard {'kept' if r.get('offboard_kept') else 'LOST'}")
+            f"{f('image')} | offboard {'kept' if r.get('offboard_kept') else 'LOST'}"
+            + (f" | session {r['session_formed_s']:.1f} s" if r.get("session_formed_s") is not None else ""))
