@@ -148,7 +148,9 @@ class Companion:
         self.setpoint_sub = node.create_subscription(
             DroneSetpoint, "setpoint", self._on_setpoint, q["setpoint"].replace(deadline=config.setpoint_deadline),
             event_callbacks=SubscriptionEventCallbacks(deadline=self._on_deadline_missed))
-        node.create_service("command", Command, CommandResult, self._on_command)
+        command_srv = node.create_service("command", Command, CommandResult, self._on_command)
+        if self.link_monitor is not None:   # reply copies sized from the measured loss (services.py)
+            self.link_monitor.adapt(command_srv.set_loss)
         node.create_timer(1.0 / config.state_rate_hz, self._publish_state)
         # The QoS deadline event is the trigger; this watchdog is its backstop, checked at 20 Hz,
         # so the failsafe never depends on one mechanism alone. It also checks the invariants.

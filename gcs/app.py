@@ -328,6 +328,7 @@ class Gcs:
 
     def _adapt_copies(self, loss: float) -> None:
         for d in list(self.drones.values()):
+            d.commands.set_loss(loss)    # command retries and reply copies sized from it (services.py)
             if d.setpoint_pub.qos.repeat and d.setpoint_pub.qos.deadline:
                 apply_repeat_plan(d.setpoint_pub, loss)
 
