@@ -160,6 +160,7 @@ class Companion:
         link.telemetry.add_listener(self._on_imu, Imu)
         link.add_event_listener(self._on_link_event)
         self._stop = threading.Event()
+        self._camera_seq = 0   # the frame's header.seq, as a camera driver numbers its frames
         self._camera_thread: threading.Thread | None = None
         if config.camera:
             self._camera_thread = threading.Thread(target=self._camera_loop, name="camera", daemon=True)
@@ -521,7 +522,8 @@ class Companion:
             source.close()
 
     def _publish_frame(self, frame: Any) -> None:
-        head = Header.now(frame_id="camera")
+        head = Header.now(frame_id="camera", seq=self._camera_seq)
+        self._camera_seq += 1
         if isinstance(self.image_pub, ImagePublisher):
             self.image_pub.publish(frame, head)
             n = self.image_pub.frames - 1
