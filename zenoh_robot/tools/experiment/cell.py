@@ -39,6 +39,7 @@ class CellSpec:
     warmup: float = 5.0
     transport: str = "default"  # the profile's own; "unicast": resilient over a UDP/TCP peer-to-peer session;
     # "router": a Zenoh router in the GCS namespace, the GCS its client over loopback, the drone across the veth
+    startup_timeout: float = STARTUP_TIMEOUT_S   # launch -> both apps up (a client's up = its session formed)
 
     @property
     def label(self) -> str:
@@ -151,7 +152,7 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
         # A backstop only (the parent stops the apps): they must outlive any start-up and the window.
         if spec.transport == "router":
             procs["router"] = _start_router(link, workdir)
-        common = ["--profile", spec.profile, "--duration", str(STARTUP_TIMEOUT_S + spec.warmup + spec.duration + 30)]
+        common = ["--profile", spec.profile, "--duration", str(spec.startup_timeout + spec.warmup + spec.duration + 30)]
         drone_cmd = [sys.executable, "-m", "companion", "--id", DRONE_ID, "--px4", "sim",
                      "--zenoh", str(workdir / "drone.json5"), "--record", str(workdir / "drone.json"), *common]
         gcs_cmd = [sys.executable, "-m", "gcs", "--drones", DRONE_ID, "--no-dashboard", "--pattern", "thesis",
@@ -163,21 +164,22 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
             procs[side] = subprocess.Popen(link.exec_in(side) + cmd, stdout=log, stderr=subprocess.STDOUT,
                                            preexec_fn=_default_sigint)
         try:
-            startup_s = _wait_started(workdir, {k: procs[k] for k in ("gcs", "drone")}, STARTUP_TIMEOUT_S)
+            startup_s = _wait_started(workdir, {k: procs[k] for k in ("gcs", "drone")}, spec.startup_timeout)
             # Still running yet not started: the companion's open is waiting for its session (client).
             waiting = startup_s is None and all(p.poll() is None for p in procs.values())
-            time.sleep(spec.warmup)
+            time.sleep(0 if waiting else spec.warmup)    # no session: nothing to measure, say so at once
             if spec.start == "after":
                 link.set_loss(spec.loss)
             tx0 = {side: link.tx_bytes(side) for side in link.sides}
             t0 = time.time_ns()
-            time.sleep(spec.duration)
+            time.sleep(0 if waiting else spec.duration)
             t1 = time.time_ns()
             tx1 = {side: link.tx_bytes(side) for side in link.sides}
-            command = _command_through_router(link, workdir) if spec.transport == "router" else None
+            command = _command_through_router(link, workdir) if spec.transport == "router" and not waiting else None
             link.set_loss(0)
             time.sleep(1.0)       # the last samples of the window land
-            _stop({k: procs[k] for k in ("gcs", "drone")}, timeout=30.0)
+            # A companion still in its session's open (Rust) cannot take Ctrl-C: kill it after a moment.
+            _stop({k: procs[k] for k in ("gcs", "drone")}, timeout=5.0 if waiting else 30.0)
             if "router" in procs:      # after the apps: they say goodbye through it
                 _stop({"router": procs["router"]}, timeout=10.0)
         finally:
@@ -187,7 +189,7 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
                     p.wait()
     result = analyse_cell(spec, workdir, t0, t1, {k: p.returncode for k, p in procs.items()})
     # Everything each side put on the wire in the window (all streams, copies and joins included).
-    result["bandwidth_kBps"] = {side: (tx1[side] - tx0[side]) / 1000 / spec.duration for side in tx0}
+    result["bandwidth_kBps"] = {side: (tx1[side] - tx0[side]) / 1000 / max(1e-9, (t1 - t0) / 1e9) for side in tx0}
     result["startup_s"] = startup_s        # launch -> both apps started (None: not within the timeout)
     result.update(formation(workdir, launch_ns))
     if command is not None:
@@ -195,7 +197,7 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
     if waiting:
         # Not a window to skip: the link did not let the session form (a client's open blocks until it
         # does; the companion meanwhile sends nothing and PX4 is never armed).
-        result["error"] = f"no session within {STARTUP_TIMEOUT_S:g} s of launch (see {workdir}/*.log)"
+        result["error"] = f"no session within {spec.startup_timeout:g} s of launch (see {workdir}/*.log)"
         result["no_session"] = True
         result.pop("invalid", None)
     result["window_ns"] = [t0, t1]
