@@ -87,6 +87,9 @@ def transport_for(profile: str, link: LossyLink, side: str, transport: str = "de
                      **LOSSY_TX)
         if side == "gcs":
             return SessionConfig(listen=endpoints, **tuned).to_json5()   # type: ignore[arg-type]
+        # The companion's open waits for both links (each retried until it opens), as a client's does: it
+        # starts streaming on a formed session, and until then sends nothing (PX4 is never armed).
+        tuned["extra"] = {**FAST_OPEN, "connect/timeout_ms": -1, "connect/exit_on_failure": True}
         return SessionConfig(listen=[], connect=endpoints, **tuned).to_json5()   # type: ignore[arg-type]
     if profile == "resilient":
         return SessionConfig.resilient(link.dev(side), MCAST).to_json5()
