@@ -44,12 +44,19 @@ At-least-once delivery, at-most-once execution (lossy links):
   liveliness tokens or declarations, over its UDP multicast transport (measured: a ``get`` gets no
   reply, docs/lossy-link.md), but plain puts cross it. There a service also listens on the key
   ``<service key>/@rq`` and a client puts its request there; the server puts the reply on
-  ``<service key>/@rp/<client_id>/<seq>`` (attachment ``e`` marks an error payload), which only
-  that client subscribes to. Each request copy that arrives is answered with ``rc`` copies (the
-  request's own field, 1..16, or what the server's ``set_loss`` estimate needs, the larger)
-  spread 5 ms apart: Zenoh batches puts written within ~1 ms into one datagram, so copies sent
-  back to back were lost together. ``@rq``/``@rp`` are verbatim chunks, so ``@srv/**`` (service listing)
-  never matches them. Without discovery, a call that gets no answer ends in ServiceTimeout
+  ``<service key>/@rp/<client_id>`` (attachment: the call's seq, 8 bytes big-endian, and a byte
+  0 = response, 1 = error payload), which only that client subscribes to; both through
+  best-effort publishers (the server keeps one per recent client, at most 64). Each request
+  copy that arrives is answered with ``rc`` copies (the request's own field, 1..16, or what the
+  server's ``set_loss`` estimate needs, the larger) spread 5 ms apart: Zenoh batches puts written
+  within ~1 ms into one datagram, so copies sent back to back were lost together. ``@rq``/``@rp``
+  are verbatim chunks, so ``@srv/**`` (service listing) never matches them.
+  On a unicast session a client with AdaptiveRetry does both: its first attempt is a query
+  (the reliable link, e.g. TCP, and what an ACL allowing only queries lets through) and every
+  attempt also a best-effort put copy, which rides the session's UDP link when it has one: at
+  50 % loss a TCP query alone waits on backed-off retransmissions (75 % answered within 2 s,
+  docs/results/commands.md). The server's cache makes the two paths one call.
+  On a multicast session, without discovery, a call that gets no answer ends in ServiceTimeout
   (never ServiceUnavailable), and ``service_is_ready()`` is True once a server has answered.
 """
 from __future__ import annotations
@@ -146,8 +153,28 @@ def decode_error(payload: bytes) -> tuple[str, str] | None:
 
 
 REQUEST_CHUNK = "@rq"    # multicast sessions: requests are put on <service key>/@rq
-REPLY_CHUNK = "@rp"      # ... and replies on <service key>/@rp/<client_id>/<seq>
-_ERR_ATTACHMENT = b"e"
+REPLY_CHUNK = "@rp"      # ... and replies on <service key>/@rp/<client_id>, attachment: seq (8 bytes) + flag
+_REPLY_OK, _REPLY_ERR = 0, 1
+MAX_REPLY_PUBLISHERS = 64    # server: best-effort reply publishers kept, one per recent client (LRU)
+
+
+def _reply_attachment(seq: int, ok: bool) -> bytes:
+    return (seq & 0xFFFFFFFFFFFFFFFF).to_bytes(8, "big") + bytes([_REPLY_OK if ok else _REPLY_ERR])
+
+
+def _parse_reply_attachment(data: bytes | None) -> tuple[int, bool] | None:
+    """(seq, ok) of a put-carried reply, or None if the attachment is not ours."""
+    if data is None or len(data) != 9 or data[8] not in (_REPLY_OK, _REPLY_ERR):
+        return None
+    return int.from_bytes(data[:8], "big"), data[8] == _REPLY_OK
+
+
+def _best_effort_publisher(session: zenoh.Session, key: str) -> Any:
+    # Best effort: on a unicast session with a UDP and a TCP link this rides UDP (a lost copy is
+    # replaced by the next, never queued behind a TCP retransmission); DROP: never block a caller.
+    return session.declare_publisher(key, reliability=zenoh.Reliability.BEST_EFFORT,
+                                     congestion_control=zenoh.CongestionControl.DROP,
+                                     priority=zenoh.Priority.INTERACTIVE_HIGH)
 # A reply on a multicast session goes out in spread copies (_wire/call_plan.py: as many as the
 # client asks for, or the server's own loss estimate needs); this many when neither says.
 MULTICAST_REPLY_COPIES = 2
@@ -361,9 +388,10 @@ class Service(Generic[Req, Resp]):
         self._recent_replies: OrderedDict[str, float] = OrderedDict()   # reply key -> when copies went out
         self._rlog = RateLimitedLog(log)
         self._queryable = context.session.declare_queryable(key, self._on_query, complete=True)
-        self._request_sub: Any = None
-        if is_multicast_session(context.session):
-            self._request_sub = context.session.declare_subscriber(f"{key}/{REQUEST_CHUNK}", self._on_put_request)
+        # Every session: a multicast session carries calls only this way; on a unicast session
+        # clients with AdaptiveRetry send best-effort copies here besides their query (services doc).
+        self._request_sub: Any = context.session.declare_subscriber(f"{key}/{REQUEST_CHUNK}", self._on_put_request)
+        self._reply_pubs: OrderedDict[int, Any] = OrderedDict()
 
     @property
     def cache_evictions(self) -> int:
@@ -414,20 +442,41 @@ class Service(Generic[Req, Resp]):
             self._rlog.warning("bad_request", "service %s: dropped a malformed or oversize multicast request",
                                self.service_name)
             return
-        reply_key = f"{self.key}/{REPLY_CHUNK}/{peek.publisher_id}/{peek.seq}"
+        client_id, seq = peek.publisher_id, peek.seq
         asked = plans.requested_reply_copies(peek.extra.get(plans.REPLY_COPIES_KEY))
         own = plans.reply_copies_for(self._loss) if math.isfinite(self._loss) else MULTICAST_REPLY_COPIES
         copies = max(asked or 0, own)
 
         def respond(ok: bool, payload: bytes) -> None:
-            self._put_reply(reply_key, ok, payload, copies)
+            self._put_reply(client_id, seq, ok, payload, copies)
         self._on_request(data, respond)
 
     _RECENT_REPLIES = 1024        # bounded: reply keys remembered for the burst check below
 
-    def _put_reply(self, reply_key: str, ok: bool, payload: bytes, copies: int) -> None:
+    def _reply_publisher(self, client_id: int) -> Any:
+        with self._lock:
+            pub = self._reply_pubs.get(client_id)
+            if pub is not None:
+                self._reply_pubs.move_to_end(client_id)
+                return pub
+        pub = _best_effort_publisher(self.context.session, f"{self.key}/{REPLY_CHUNK}/{client_id}")
+        with self._lock:
+            if self._destroyed:
+                pub.undeclare()
+                raise RuntimeError("service destroyed")
+            self._reply_pubs[client_id] = pub
+            old = [self._reply_pubs.popitem(last=False)[1] for _ in range(len(self._reply_pubs) - MAX_REPLY_PUBLISHERS)]
+        for o in old:     # bounded: a flood of client ids must not grow us
+            try:
+                o.undeclare()
+            except Exception:
+                pass
+        return pub
+
+    def _put_reply(self, client_id: int, seq: int, ok: bool, payload: bytes, copies: int) -> None:
         """The first copy now, the others REPLY_SPACING_S apart (each in its own datagram)."""
         now = time.monotonic()
+        reply_key = f"{client_id}/{seq}"
         with self._lock:
             last = self._recent_replies.get(reply_key)
             # Joined duplicates are all answered at once when the handler ends: one burst of copies
@@ -440,12 +489,12 @@ class Service(Generic[Req, Resp]):
                 self._recent_replies.popitem(last=False)
             self.reply_copies += copies
             self.reply_bytes += copies * len(payload)
-        session = self.context.session
-        attachment = None if ok else _ERR_ATTACHMENT
-
-        def put(data: bytes) -> None:
-            session.put(reply_key, data, attachment=attachment, priority=zenoh.Priority.INTERACTIVE_HIGH)
+        attachment = _reply_attachment(seq, ok)
         try:
+            pub = self._reply_publisher(client_id)
+
+            def put(data: bytes) -> None:
+                pub.put(data, attachment=attachment)
             put(payload)
         except Exception as exc:
             log.debug("service %s: reply put failed: %s", self.service_name, exc)
@@ -547,7 +596,9 @@ class Service(Generic[Req, Resp]):
 
     def destroy(self) -> None:
         self._destroyed = True
-        for handle in (self._queryable, self._request_sub):
+        with self._lock:
+            reply_pubs, self._reply_pubs = list(self._reply_pubs.values()), OrderedDict()
+        for handle in (self._queryable, self._request_sub, *reply_pubs):
             try:
                 if handle is not None:
                     handle.undeclare()
@@ -559,8 +610,9 @@ class _Call:
     """One call: its attempts (same bytes), the replies they collect, the future completed once."""
 
     def __init__(self, client: Client[Any, Any], future: Future[Any], timeout: float, dict_form: bool,
-                 seq: int, payload: bytes, delays: Iterator[float] | None) -> None:
+                 seq: int, payload: bytes, delays: Iterator[float] | None, puts: bool = False) -> None:
         self.client = client
+        self.puts = puts            # best-effort put copies (multicast: the only way; unicast: besides the query)
         self.future = future
         self.timeout = timeout
         self.dict_form = dict_form
@@ -576,7 +628,7 @@ class _Call:
         self._lock = threading.Lock()
 
     def start(self) -> None:
-        if self.client._multicast:
+        if self.puts:
             _scheduler.at(self.deadline, self.on_deadline)
         self.attempt()
 
@@ -593,14 +645,17 @@ class _Call:
         with self._lock:
             self.attempts += 1
             self._more = gap is not None and now + gap < self.deadline
-            self._outstanding += 0 if self.client._multicast else 1
+            # Unicast: a query per attempt; with put copies only the first (it rides the reliable
+            # link, which retransmits by itself: a second query would only queue behind the first).
+            query = not self.client._multicast and (not self.puts or self.attempts == 1)
+            self._outstanding += 1 if query else 0
         if self._more and gap is not None:
             _scheduler.at(now + gap, self.attempt)
         try:
-            self.client._transmit(self, remaining)
+            self.client._transmit(self, remaining, query)
         except Exception as exc:    # a closed session: the call fails, it does not hang
             with self._lock:
-                self._outstanding -= 0 if self.client._multicast else 1
+                self._outstanding -= 1 if query else 0
             self._finish(exc=ServiceCallError(f"service {self.client.service_name}: cannot send: {exc}"))
 
     def on_ok(self, data: bytes) -> None:
@@ -696,6 +751,8 @@ class Client(Generic[Req, Resp]):
             raise TypeError(f"create_client {name!r}: retry must be a RetryPolicy, AdaptiveRetry or None, "
                             f"got {retry!r}")
         self.retry: Retry | None = retry
+        # Put-carried calls (see the module doc): always on multicast; on unicast for AdaptiveRetry.
+        self._puts = self._multicast or isinstance(retry, AdaptiveRetry)
         self.loss = math.nan        # set_loss: the link's measured loss (sizes AdaptiveRetry's plan)
         self.attempts = 0           # requests sent, retries included
         self.request_bytes = 0      # their payload bytes
@@ -704,9 +761,12 @@ class Client(Generic[Req, Resp]):
         self._pending_lock = threading.Lock()
         self._querier = context.session.declare_querier(key)
         self._reply_sub: Any = None
-        if self._multicast:
+        self._request_pub: Any = None
+        if self._puts:
             self._reply_sub = context.session.declare_subscriber(
-                f"{key}/{REPLY_CHUNK}/{self.client_id}/*", self._on_reply_sample)
+                f"{key}/{REPLY_CHUNK}/{self.client_id}", self._on_reply_sample)
+            self._request_pub = _best_effort_publisher(context.session, f"{key}/{REQUEST_CHUNK}")
+        self.bad_replies = 0        # put-carried replies with an attachment that is not ours
 
     def set_loss(self, loss: float) -> None:
         """The link's measured loss (0..1), e.g. ``link_monitor.adapt(client.set_loss)``."""
@@ -774,18 +834,19 @@ class Client(Generic[Req, Resp]):
         if dict_form:
             extra["form"] = "dict"
         delays: Iterator[float] | None = None
+        puts = self._multicast or (self._puts and isinstance(retry, AdaptiveRetry))
         if isinstance(retry, AdaptiveRetry):
             plan = retry.plan(self.loss, timeout)
             delays = itertools.repeat(plan.step_s)
-            if self._multicast:
+            if puts:
                 extra[plans.REPLY_COPIES_KEY] = plan.reply_copies
         elif isinstance(retry, RetryPolicy):
             delays = retry.delays()
         seq = next(self._seq)
         # Packed once: every retry carries the same bytes, so the server recognises the duplicate.
         payload = envelope.pack(self._req.name, self._req.hash, self.client_id, seq, time.time_ns(), body, extra)
-        call = _Call(self, future, timeout, dict_form, seq, payload, delays)
-        if self._multicast:
+        call = _Call(self, future, timeout, dict_form, seq, payload, delays, puts)
+        if puts:
             with self._pending_lock:
                 self._pending[seq] = call
                 overflow = [self._pending.popitem(last=False)[1] for _ in range(len(self._pending) - self.MAX_PENDING)]
@@ -794,36 +855,36 @@ class Client(Generic[Req, Resp]):
         call.start()
         return future
 
-    def _transmit(self, call: _Call, remaining: float) -> None:
+    def _transmit(self, call: _Call, remaining: float, query: bool) -> None:
         self.attempts += 1
-        self.request_bytes += len(call.payload)
-        if self._multicast:
-            self.context.session.put(f"{self.key}/{REQUEST_CHUNK}", call.payload,
-                                     priority=zenoh.Priority.INTERACTIVE_HIGH)
-        else:
+        self.request_bytes += len(call.payload) * (int(call.puts) + int(query))
+        if call.puts:
+            self._request_pub.put(call.payload)
+        if query:
             self.context.session.get(self.key, zenoh.handlers.Callback(call.on_reply, call.on_done),
                                      payload=call.payload, timeout=remaining,
                                      priority=zenoh.Priority.INTERACTIVE_HIGH)
 
     def _on_reply_sample(self, sample: zenoh.Sample) -> None:
-        """Multicast path: a reply on ``<key>/@rp/<client_id>/<seq>``."""
-        try:
-            seq = int(str(sample.key_expr).rsplit("/", 1)[1])
-        except (ValueError, IndexError):
+        """Put-carried path: a reply on ``<key>/@rp/<client_id>``, its seq and kind in the attachment."""
+        attachment = sample.attachment
+        parsed = _parse_reply_attachment(attachment.to_bytes() if attachment is not None else None)
+        if parsed is None:
+            self.bad_replies += 1
             return
+        seq, ok = parsed
         with self._pending_lock:
             call = self._pending.get(seq)
         if call is None:
             return        # a late duplicate of an answered call
         data = sample.payload.to_bytes()
-        attachment = sample.attachment
-        if attachment is not None and attachment.to_bytes() == _ERR_ATTACHMENT:
-            call.on_err(decode_error(data))
-        else:
+        if ok:
             call.on_ok(data)
+        else:
+            call.on_err(decode_error(data))
 
     def _forget(self, call: _Call) -> None:
-        if self._multicast:
+        if call.puts:
             with self._pending_lock:
                 self._pending.pop(call.seq, None)
 
@@ -845,7 +906,7 @@ class Client(Generic[Req, Resp]):
                                "bad_response") from None
 
     def destroy(self) -> None:
-        for handle in (self._querier, self._reply_sub):
+        for handle in (self._querier, self._reply_sub, self._request_pub):
             try:
                 if handle is not None:
                     handle.undeclare()

@@ -14,8 +14,8 @@ JSON object per level. Bytes per call are payload bytes (requests + reply copies
 UDP and IP headers (~60 bytes a datagram more).
 
 The same file is both sides of a run: ``... commands serve SESSION [monitor]`` /
-``... commands call SESSION N TIMEOUT [monitor]``, SESSION being ``multicast:IFACE`` or
-``unicast:CONFIG_FILE``.
+``... commands call SESSION N TIMEOUT [monitor]`` (starts calling after a line on stdin), SESSION
+being ``multicast:IFACE`` or ``unicast:CONFIG_FILE``.
 """
 from __future__ import annotations
 
@@ -107,6 +107,7 @@ def call(spec: str, n: int, timeout: float, monitor: bool = False) -> None:
     from zenoh_robot.services import command_retry
     with Node("cmd_client", config=_session(spec)) as node:
         linked = _wait_transport(node, SESSION_WAIT_S)
+        sys.stdin.readline()         # GO: the server is serving (run_level sends it)
         client = node.create_client("exp/command", ExpCommand, ExpResult, retry=command_retry(node))
         if not spec.startswith("multicast"):    # unicast: discovery works; count calls, not discovery
             linked = linked and client.wait_for_service(SESSION_WAIT_S)
@@ -159,15 +160,17 @@ def run_level(loss_pct: float, calls: int, timeout: float, transport: str = "mul
         server = subprocess.Popen(link.exec_in("drone") + me + ["serve", _spec(link, "drone", transport, workdir),
                                                                 *flag],
                                   stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        # Both at once: a unicast companion-side open waits until the GCS side listens (cell.transport_for).
+        # The caller waits for GO on stdin (the server is serving) before its first call.
+        caller = subprocess.Popen(link.exec_in("gcs") + me + ["call", _spec(link, "gcs", transport, workdir),
+                                                              str(calls), str(timeout), *flag],
+                                  stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
             assert server.stdout is not None and server.stdin is not None
             # Zenoh 1.10 may log a line of its own to stdout first: read up to the READY line.
             if not any(server.stdout.readline().strip() == "READY" for _ in range(50)):
                 raise RuntimeError("command server did not start")
-            client = subprocess.run(link.exec_in("gcs") + me + ["call", _spec(link, "gcs", transport, workdir),
-                                                                str(calls), str(timeout), *flag],
-                                    capture_output=True, text=True,
-                                    timeout=2 * SESSION_WAIT_S + calls * (timeout + 3) + 30)
+            client_out, client_err = caller.communicate("GO\n", timeout=2 * SESSION_WAIT_S + calls * (timeout + 3) + 30)
             server.stdin.write("\n")
             server.stdin.flush()
             # Zenoh may log lines of its own to stdout: the summary is the first JSON line.
@@ -176,13 +179,15 @@ def run_level(loss_pct: float, calls: int, timeout: float, transport: str = "mul
                 raise RuntimeError("command server ended without its summary")
         finally:
             server.stdin.close() if server.stdin else None
-            try:
-                server.wait(10)
-            except subprocess.TimeoutExpired:
-                server.kill()
-    lines = [ln for ln in client.stdout.splitlines() if ln.startswith("{")]
+            for proc in (caller, server):
+                try:
+                    proc.wait(10)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait(10)
+    lines = [ln for ln in client_out.splitlines() if ln.startswith("{")]
     if not lines:
-        raise RuntimeError(f"command client failed: {client.stderr[-2000:]}")
+        raise RuntimeError(f"command client failed: {client_err[-2000:]}")
     out = json.loads(lines[-1])
     row = summarise(loss_pct, timeout, out, served)
     row["transport"], row["monitor"] = transport, monitor
@@ -211,6 +216,7 @@ def summarise(loss_pct: float, timeout: float, client: dict[str, Any], served: d
         "double_executions": sum(1 for v in execs.values() if v > 1),
         "executed_but_unanswered": sum(1 for i, c in enumerate(calls) if not c["ok"] and execs.get(i)),
         "server_duplicates": served["duplicates"], "linked": client["linked"],
+        "errors": dict(Counter(c["error"] for c in calls if c["error"])),
     }
 
 
