@@ -77,3 +77,22 @@ def test_router_refuses_a_plain_endpoint_when_secure(tmp_path: Path) -> None:
     assert cli("keys", "issue", "router", "--role", "router", "--dir", str(d)).returncode == 0
     res = cli("router", "--secure", str(d), "--listen", "tcp/127.0.0.1:0", "--duration", "1")
     assert res.returncode == 1 and "plain links are refused" in res.stdout
+
+
+def test_lossy_router_config_forms_sessions_across_loss() -> None:
+    """``router --lossy``: the ground router of a swarm on a radio link tries handshakes fast (250 ms
+    tries, retries from 50 ms) and holds its lease with keep-alives every 100 ms; plain stays Zenoh's."""
+    import argparse
+
+    from zenoh_robot.tools.cli.router import register, router_config
+
+    parser = argparse.ArgumentParser()
+    register(parser.add_subparsers())
+    lossy = router_config(parser.parse_args(["router", "--lossy", "--listen", "udp/127.0.0.1:7447"]))
+    values = lossy._values()
+    assert values["transport/unicast/open_timeout"] == 250
+    assert values["connect/retry"]["period_init_ms"] == 50
+    assert values["transport/link/tx/keep_alive"] == 100 and values["transport/link/tx/batch_size"] == 1300
+    lossy.to_zenoh()                       # Zenoh accepts every key
+    plain = router_config(parser.parse_args(["router"]))._values()
+    assert "transport/unicast/open_timeout" not in plain and "transport/link/tx/keep_alive" not in plain
