@@ -55,6 +55,9 @@ class Executor:
     def __init__(self) -> None:
         self._ready: queue.SimpleQueue[Work | None] = queue.SimpleQueue()
         self._timers: list[tuple[float, int, Timer]] = []
+        # The heap's earliest entry (a canceled timer's too: then _due_timer only cleans up). Read
+        # without the lock by spin_once, so a turn with no timer due takes no lock and no heap look.
+        self._next_due = float("inf")
         self._timer_lock = threading.Lock()
         self._counter = itertools.count()
         self._shutdown = threading.Event()
@@ -86,6 +89,7 @@ class Executor:
     def add_timer(self, timer: Timer) -> None:
         with self._timer_lock:
             heapq.heappush(self._timers, (timer.next_call, next(self._counter), timer))
+            self._next_due = self._timers[0][0]
         self._ready.put(None)  # wake a waiting spin so it recomputes its timeout
 
     def shutdown(self) -> None:
@@ -100,20 +104,24 @@ class Executor:
     def _due_timer(self) -> tuple[Timer | None, float]:
         """Pop a due timer, or return (None, seconds until the next one)."""
         with self._timer_lock:
-            while self._timers:
-                when, _, timer = self._timers[0]
-                if timer.is_canceled or when != timer.next_call:
-                    heapq.heappop(self._timers)
-                    continue
-                now = time.monotonic()
-                if when > now:
-                    return None, when - now
-                heapq.heappop(self._timers)
-                # Keep the phase; if we fell far behind, skip missed ticks rather than burst.
-                timer.next_call = max(when + timer.period, now)
-                heapq.heappush(self._timers, (timer.next_call, next(self._counter), timer))
-                return timer, 0.0
-        return None, float("inf")
+            timers = self._timers
+            try:
+                while timers:
+                    when, _, timer = timers[0]
+                    if timer.is_canceled or when != timer.next_call:
+                        heapq.heappop(timers)
+                        continue
+                    now = time.monotonic()
+                    if when > now:
+                        return None, when - now
+                    heapq.heappop(timers)
+                    # Keep the phase; if we fell far behind, skip missed ticks rather than burst.
+                    timer.next_call = max(when + timer.period, now)
+                    heapq.heappush(timers, (timer.next_call, next(self._counter), timer))
+                    return timer, 0.0
+                return None, float("inf")
+            finally:
+                self._next_due = timers[0][0] if timers else float("inf")
 
     def _run(self, fn: Callable[[], None], what: str) -> None:
         try:
@@ -124,10 +132,12 @@ class Executor:
 
     def spin_once(self, timeout: float | None = None) -> bool:
         """Run one piece of ready work (a timer or an entity's queue); False if none came."""
-        timer, wait = self._due_timer()
-        if timer is not None:
-            self._run(timer.callback, f"timer callback {timer.callback!r}")
-            return True
+        wait = self._next_due - time.monotonic()
+        if wait <= 0:
+            timer, wait = self._due_timer()
+            if timer is not None:
+                self._run(timer.callback, f"timer callback {timer.callback!r}")
+                return True
         if timeout is not None:
             wait = min(wait, timeout)
         try:
