@@ -305,3 +305,41 @@ def test_the_image_viewer_survives_hostile_slices_and_a_forged_frame_number(ns: 
         assert {2, 3, 4} <= {info.frame for _, _, info in frames}     # at most one real frame lost to the forgery
         assert view.bad_slices == len(hostile)
         assert all((h, w) == (32, 64) for h, w, _ in frames)            # never a frame of the claimed 10**6
+
+
+# -- the hot path's tuple unpack checks exactly what the Envelope unpack checks ---------------------
+
+_HEADER_VALUES = [True, 0, 1, -1, 2**64 - 1, -(2**63), 1.5, math.nan, "", "zr1", "x" * 257, b"b", None, [], {},
+                  {"r": []}]
+
+
+def _spec_accepts(fields: list) -> bool:
+    """The envelope rules written out independently of envelope.py (its docstring and MAX_NAME_LEN)."""
+    magic, name, hash_, pub, seq, stamp, _body, extra = fields
+    return (magic == "zr1" and type(name) is str and type(hash_) is str and len(name) <= 256 and len(hash_) <= 256
+            and all(type(v) is int for v in (pub, seq, stamp)) and type(extra) is dict
+            and 0 <= pub < 2**64 and 0 <= seq < 2**64)
+
+
+def test_the_tuple_unpack_accepts_exactly_the_envelopes_the_format_allows() -> None:
+    from zenoh_robot._wire import envelope
+    rng = np.random.default_rng(7)
+    for data in (b"", b"\xc1", msgpack.packb({"a": 1}), b"\x93\x01\x02", msgpack.packb(["zr1"] * 7)):
+        with pytest.raises(envelope.MalformedSample):
+            envelope.unpack_fields(data)
+    accepted = 0
+    for _ in range(3000):   # header fields drawn from valid and hostile values, one or two wrong at once
+        fields = [envelope.MAGIC, "T", "h", 1, 2, 3, [0.5], {}]
+        for i in rng.choice(8, size=int(rng.integers(1, 3)), replace=False):
+            fields[i] = _HEADER_VALUES[int(rng.integers(len(_HEADER_VALUES)))]
+        data = msgpack.packb(fields, use_bin_type=True)
+        if not _spec_accepts(fields):
+            with pytest.raises(envelope.MalformedSample):
+                envelope.unpack_fields(data)
+            continue
+        t = envelope.unpack_fields(data)
+        assert list(t) == fields[1:] or (fields[6] != fields[6])   # body may be NaN: not equal to itself
+        env = envelope.unpack(data)
+        assert (env.type_name, env.publisher_id, env.seq, env.extra) == (t[0], t[2], t[3], t[6])
+        accepted += 1
+    assert 100 < accepted < 3000   # both outcomes exercised

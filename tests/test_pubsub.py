@@ -287,3 +287,46 @@ def test_a_typed_subscription_needs_a_type(pair) -> None:
     _, b = pair
     with pytest.raises(TypeError):
         b.create_subscription(None, "notype", lambda m: None)
+
+
+def test_one_argument_callbacks_hooks_and_two_argument_callbacks_see_the_same_samples(pair) -> None:
+    # The receive path builds no MessageInfo for a 1-argument callback without hooks: the sample
+    # must still arrive whole, and a hook added later must get the info the publisher returned.
+    a, b = pair
+    plain: list[float] = []
+    with_info: list[tuple[float, int]] = []
+    hooked: list[int] = []
+    s1 = b.create_subscription(Setpoint, "fast", lambda m: plain.append(m.x), QoSProfile(depth=50))
+    b.create_subscription(Setpoint, "fast", lambda m, i: with_info.append((m.x, i.seq)), QoSProfile(depth=50))
+    pub = a.create_publisher(Setpoint, "fast", QoSProfile(depth=50))
+    time.sleep(0.3)
+    sent = [pub.publish(Setpoint(x=float(i))).seq for i in range(5)]
+    assert b.spin_until(lambda: len(plain) == 5 and len(with_info) == 5, 5.0)
+    assert plain == [0.0, 1.0, 2.0, 3.0, 4.0] and with_info == list(zip(plain, sent, strict=True))
+    s1.sample_hooks.append(lambda m, info: hooked.append(info.seq))
+    more = [pub.publish(Setpoint(x=float(i))).seq for i in range(5, 8)]
+    assert b.spin_until(lambda: len(plain) == 8, 5.0)
+    assert hooked == more and s1.counters.lost == 0 and s1.counters.delivered == 8
+
+
+def test_timers_added_cancelled_and_reset_while_the_executor_waits(ns: str) -> None:
+    # spin_once reads the next due time without the timer lock: a timer added, cancelled or reset
+    # from another thread while the executor is blocked must still be seen.
+    with Node("timers", namespace=ns) as node:
+        ticks: list[str] = []
+        t = _spin_in_background(node)
+        time.sleep(0.2)     # the executor is now blocked waiting for work
+        timer = node.create_timer(0.02, lambda: ticks.append("a"))
+        assert wait_for(lambda: ticks.count("a") >= 3, 5.0)
+        timer.cancel()
+        time.sleep(0.1)
+        n = len(ticks)
+        time.sleep(0.2)
+        assert len(ticks) == n            # cancelled: no more ticks
+        timer.reset()
+        assert wait_for(lambda: len(ticks) >= n + 3, 5.0)
+        other = node.create_timer(3600.0, lambda: ticks.append("never"))   # far in the future: no busy loop
+        assert wait_for(lambda: len(ticks) >= n + 6, 5.0) and "never" not in ticks
+        other.cancel()
+        node.shutdown()
+        t.join(2.0)
