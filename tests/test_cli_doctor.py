@@ -11,8 +11,8 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from conftest import ROOT, free_port, python_proc
-from test_cli_topic import Lines, _stop
+from conftest import ROOT, Lines, free_port, python_proc
+from conftest import kill_process as _stop
 
 from zenoh_robot import SessionConfig
 

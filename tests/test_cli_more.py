@@ -1,8 +1,7 @@
-# ruff: noqa: F811  (the talker fixture, imported from test_cli_topic, is every test's argument)
 """The first CLI half's verbs still untested: echo --field/--csv/--msg, bw, delay, type, find,
 --qos FILE.yaml:PROFILE, hz on a sliced image stream, and the statistics key convention.
 
-The talker of test_cli_topic serves this module too (its own process: module scope).
+The talker of test_cli_topic (its TALKER script) serves this module too (its own process: module scope).
 """
 from __future__ import annotations
 
@@ -11,8 +10,9 @@ import secrets
 import subprocess
 import time
 
-from conftest import ROOT, python_proc, wait_for
-from test_cli_topic import CLI, Lines, _stop, cli, talker  # noqa: F401
+from conftest import ROOT, Lines, python_proc, wait_for
+from conftest import kill_process as _stop
+from test_cli_topic import CLI, TALKER, cli  # noqa: F401  (TALKER: the script of conftest's talker fixture)
 
 from zenoh_robot import Node, ReliabilityPolicy, msgs, qos
 from zenoh_robot.topic_statistics import default_statistics_key

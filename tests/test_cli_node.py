@@ -1,19 +1,16 @@
 """`zenoh-robot node|service|param` verbs of the second CLI half, against a live node in another process.
 
-One talker process serves the module: a publisher, a subscription, a service, and parameters,
+One talker process (conftest's ``talker`` fixture running TALKER) serves the module:
+a publisher, a subscription, a service, and parameters,
 one read-only, with an on-set callback that agrees to delete only ``scratch``.
 """
 from __future__ import annotations
 
-import secrets
 import subprocess
 import sys
 import threading
-from collections.abc import Iterator
 
-import pytest
-from conftest import ROOT, python_proc
-from test_cli_topic import Lines, _stop
+from conftest import ROOT
 
 from zenoh_robot import Node
 from zenoh_robot.parameters import ParameterClient, ParameterType, SetParametersResult
@@ -47,18 +44,6 @@ with Node("talker", namespace=ns) as n:
         chatter.publish(msgs.String("x"))
         n.spin(0.1)
 """
-
-
-@pytest.fixture(scope="module")
-def talker() -> Iterator[str]:
-    ns = f"t{secrets.token_hex(4)}"
-    proc = python_proc("-c", TALKER, ns)
-    try:
-        out = Lines(proc)
-        assert out.wait_for("^ready$"), out.text()
-        yield ns
-    finally:
-        _stop(proc)
 
 
 def cli(*args: str, timeout: float = 30.0) -> subprocess.CompletedProcess:

@@ -1,6 +1,7 @@
 """`zenoh-robot topic ...` and `zenoh-robot stats` against a real publisher in another process.
 
-One talker process serves the whole module: a BEST_EFFORT String stream with a RELIABLE
+One talker process (conftest's ``talker`` fixture running TALKER) serves the whole module:
+a BEST_EFFORT String stream with a RELIABLE
 (so incompatible) subscription beside it, a Setpoint stream, a type the CLI does not
 know, a TRANSIENT_LOCAL topic published once at start, and TopicStatistics published by
 hand so `stats` is tested apart from the statistics module.
@@ -8,16 +9,13 @@ hand so `stats` is tested apart from the statistics module.
 from __future__ import annotations
 
 import re
-import secrets
 import signal
 import subprocess
 import sys
-import threading
 import time
-from collections.abc import Iterator
 
 import pytest
-from conftest import ROOT, python_proc, wait_for
+from conftest import ROOT, Lines, kill_process
 
 from zenoh_robot import (
     DurabilityPolicy,
@@ -70,44 +68,6 @@ with Node("talker", namespace=ns) as n:
         i += 1
         n.spin(0.05)   # ~20 Hz
 """
-
-
-class Lines:
-    """A child's output lines, collected by a thread so reads never block the test."""
-
-    def __init__(self, proc: subprocess.Popen) -> None:
-        self.lines: list[str] = []
-        self._thread = threading.Thread(target=self._read, args=(proc,), daemon=True)
-        self._thread.start()
-
-    def _read(self, proc: subprocess.Popen) -> None:
-        for line in proc.stdout:
-            self.lines.append(line.rstrip("\n"))
-
-    def wait_for(self, pattern: str, timeout: float = 15.0) -> bool:
-        return wait_for(lambda: any(re.search(pattern, line) for line in self.lines), timeout)
-
-    def text(self) -> str:
-        return "\n".join(self.lines)
-
-
-def _stop(proc: subprocess.Popen) -> None:
-    if proc.poll() is None:
-        proc.kill()
-    proc.wait(timeout=10)
-
-
-@pytest.fixture(scope="module")
-def talker() -> Iterator[str]:
-    """The namespace of a running talker process."""
-    ns = f"t{secrets.token_hex(4)}"
-    proc = python_proc("-c", TALKER, ns)
-    try:
-        out = Lines(proc)
-        assert out.wait_for("^ready$"), out.text()
-        yield ns
-    finally:
-        _stop(proc)
 
 
 def cli(*args: str, timeout: float = 30.0) -> subprocess.CompletedProcess:
@@ -249,4 +209,4 @@ def test_ctrl_c_exits_quietly(talker, args, first_output):
         time.sleep(0.1)   # the reader thread takes the last lines
         assert "Traceback" not in out.text() and "KeyboardInterrupt" not in out.text()
     finally:
-        _stop(proc)
+        kill_process(proc)
