@@ -195,6 +195,9 @@ def test_call_plan_meets_the_target_and_bounds_the_cost():
     unknown = cp.call_plan(math.nan, 2.0)
     assert unknown.answered(0.5, 2.0) >= 0.999 and unknown.reply_copies > 1
     assert cp.call_plan(0.9, 2.0).answered(0.9, 2.0) >= 0.99
+    assert unknown.answered(0.9, 2.0) >= 0.99                 # escalating gaps: 90 % without a measurement
+    assert not cp.call_plan(0.0, 2.0).escalate               # measured clean: no escalation
+    assert unknown.copies_within(2.0) <= 1 + 1.8 / cp.MIN_STEP_S
     # The old plan's reply copies shared a datagram: one reply per arriving request, 17 attempts.
     old = cp.CallPlan(step_s=2.0 / 17, reply_copies=1, loss=0.5)
     assert old.answered(0.5, 2.0) < 0.995

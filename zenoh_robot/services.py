@@ -837,7 +837,7 @@ class Client(Generic[Req, Resp]):
         puts = self._multicast or (self._puts and isinstance(retry, AdaptiveRetry))
         if isinstance(retry, AdaptiveRetry):
             plan = retry.plan(self.loss, timeout)
-            delays = itertools.repeat(plan.step_s)
+            delays = plan.delays()
             if puts:
                 extra[plans.REPLY_COPIES_KEY] = plan.reply_copies
         elif isinstance(retry, RetryPolicy):

@@ -13,10 +13,18 @@ that ``(1 - q) ** n <= MISS`` over the deadline's window, clamped to [MIN_STEP_S
 at most ``window / MIN_STEP_S`` (~180 in 2 s) request copies per call, at most
 :data:`MAX_REPLY_COPIES` reply copies per request copy that arrives. A call stops re-sending as
 soon as a reply arrives, so on a clean link a call costs one request and ``k`` reply copies.
+
+Without a measurement the plan also *escalates*: each unanswered request copy is evidence of a
+worse link, so the gaps shrink (``step / (1 + i / 4)`` after ``i`` copies, never under
+MIN_STEP_S): at 50 % loss a call is answered before this matters, at 90 % the ~150 copies of
+2 s answer it >= 99 % of the time (a fixed 50 ms step: ~72 %). With a measured loss the step is
+already sized for it and does not escalate (no reply on a clean link means a slow or absent
+server, which more copies would not help).
 """
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 ASSUMED_LOSS = 0.5       # no measurement (no LinkMonitor adapting the node): size for 50 % each way
@@ -36,12 +44,27 @@ class CallPlan:
     step_s: float          # gap between request copies while no reply came
     reply_copies: int      # copies of the reply per request copy that arrives
     loss: float            # the loss the plan was sized for (measured + margin)
+    escalate: bool = False  # no measurement: shrink the gaps while no reply comes
+
+    def delays(self) -> Iterator[float]:
+        i = 0
+        while True:
+            i += 1
+            yield max(MIN_STEP_S, self.step_s / (1 + i / 4)) if self.escalate else self.step_s
+
+    def copies_within(self, deadline_s: float) -> int:
+        """Request copies sent within the deadline's window if no reply comes."""
+        t, n, gaps = 0.0, 1, self.delays()
+        while True:
+            t += next(gaps)
+            if t > window(deadline_s):
+                return n
+            n += 1
 
     def answered(self, loss: float, deadline_s: float) -> float:
         """Predicted P(answered within ``deadline_s``) at independent loss ``loss`` each way."""
         q = (1 - loss) * (1 - loss ** self.reply_copies)
-        n = 1 + int(window(deadline_s) / self.step_s)
-        return float(1 - (1 - q) ** n)
+        return float(1 - (1 - q) ** self.copies_within(deadline_s))
 
 
 def window(deadline_s: float) -> float:
@@ -68,7 +91,7 @@ def call_plan(loss: float, deadline_s: float) -> CallPlan:
     q = (1 - p) * (1 - p ** k)
     n = math.ceil(math.log(MISS) / math.log(1 - q)) if 0 < q < 1 else 1
     step = min(MAX_STEP_S, max(MIN_STEP_S, window(deadline_s) / max(1, n)))
-    return CallPlan(step, k, p)
+    return CallPlan(step, k, p, escalate=not math.isfinite(loss))
 
 
 def requested_reply_copies(value: object) -> int | None:
