@@ -46,7 +46,7 @@ class CellSpec:
         return self.profile if self.transport == "default" else f"{self.profile}@{self.transport}"
 
 
-TRANSPORTS = ("default", "unicast", "router")
+TRANSPORTS = ("default", "unicast", "router", "router-udp")
 # A unicast session must cross a handshake: under loss, retry it fast and give each try little time
 # (zenoh 1.10 defaults: 10 s open/accept timeouts, retries backing off to 4 s). UDP is listed first:
 # a client holds one link, the first endpoint that opens, and a TCP connect under loss waits on the
@@ -66,7 +66,7 @@ def router_cmd(link: LossyLink) -> list[str]:
 
 def transport_for(profile: str, link: LossyLink, side: str, transport: str = "default") -> dict[str, Any]:
     """The Zenoh config of one side, as JSON (valid JSON5) for ``--zenoh``."""
-    if profile == "resilient" and transport == "router":
+    if profile == "resilient" and transport in ("router", "router-udp"):
         # Both clients of the ground router; a client's open blocks until its session is up and retries
         # forever (fast_open(client=True)): the companion holds (no setpoints, PX4 never armed) meanwhile.
         extra = fast_open(client=True)
@@ -77,7 +77,10 @@ def transport_for(profile: str, link: LossyLink, side: str, transport: str = "de
             # carries the reliable control plane (declarations, queries), the UDP link the best-effort
             # streams, which outlive the TCP link at 90 % loss (docs/lossy-link-notes.md).
             connect = [f"udp/{link.addr('gcs')}:{PORT}", f"tcp/{link.addr('gcs')}:{PORT}"]
-            extra["connect/endpoints"] = [{"strategy": "allOf", "locators": connect}]
+            if transport == "router":
+                extra["connect/endpoints"] = [{"strategy": "allOf", "locators": connect}]
+            else:   # "router-udp": one UDP link (forms fastest; the control plane then rides it unacknowledged)
+                connect = connect[:1]
         return SessionConfig(mode="client", listen=[], connect=connect, multicast_scouting=False,
                              shared_memory=False, accept_timeout_s=1.0, extra=extra,
                              **LOSSY_TX).to_json5()   # type: ignore[arg-type]
@@ -153,7 +156,7 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
             (workdir / f"{side}.json5").write_text(
                 json.dumps(transport_for(spec.profile, link, side, spec.transport), indent=1))
         # A backstop only (the parent stops the apps): they must outlive any start-up and the window.
-        if spec.transport == "router":
+        if spec.transport.startswith("router"):
             procs["router"] = _start_router(link, workdir)
         common = ["--profile", spec.profile, "--duration", str(spec.startup_timeout + spec.warmup + spec.duration + 30)]
         drone_cmd = [sys.executable, "-m", "companion", "--id", DRONE_ID, "--px4", "sim",
@@ -178,7 +181,8 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
             time.sleep(0 if waiting else spec.duration)
             t1 = time.time_ns()
             tx1 = {side: link.tx_bytes(side) for side in link.sides}
-            command = _command_through_router(link, workdir) if spec.transport == "router" and not waiting else None
+            routed = spec.transport.startswith("router") and not waiting
+            command = _command_through_router(link, workdir) if routed else None
             link.set_loss(0)
             time.sleep(1.0)       # the last samples of the window land
             # A companion still in its session's open (Rust) cannot take Ctrl-C: kill it after a moment.
@@ -202,6 +206,7 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
         # does; the companion meanwhile sends nothing and PX4 is never armed).
         result["error"] = f"no session within {spec.startup_timeout:g} s of launch (see {workdir}/*.log)"
         result["no_session"] = True
+        result["session_formed_s"] = None   # what arrived came with the stop (Ctrl-C ends the open's retries)
         result.pop("invalid", None)
     result["window_ns"] = [t0, t1]
     return result
