@@ -114,6 +114,8 @@ def call(spec: str, n: int, timeout: float, monitor: bool = False) -> None:
         mon = LinkMonitor(node) if monitor else None
         if mon is not None:
             mon.adapt(client.set_loss)
+            # The probes' callbacks run on the node's executor (the calls do not need it).
+            threading.Thread(target=node.spin, daemon=True).start()
             time.sleep(MONITOR_SETTLE_S)
         loss_seen = getattr(client, "loss", None)
         results: list[dict[str, Any]] = []
