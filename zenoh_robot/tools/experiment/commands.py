@@ -8,7 +8,9 @@ it (``arm``, ``takeoff``, ``hold``, ``land`` in turn) with ``services.command_re
 _wire/call_plan.py) and the given deadline. Transports: ``multicast`` is the resilient multicast
 session (``SessionConfig.resilient(iface)``, calls ride puts); ``unicast`` is the resilient
 peer-to-peer UDP/TCP session the experiment cells build (cell.transport_for, calls ride queries).
-``--monitor`` runs a LinkMonitor on both sides feeding ``client.set_loss`` / ``service.set_loss``
+``--start after`` switches the loss on only once the caller is linked (a unicast session does
+not form from scratch at 90 % loss). ``--monitor`` runs a LinkMonitor on both sides feeding
+``client.set_loss`` / ``service.set_loss``
 (otherwise the plan assumes 50 % loss). Prints a markdown table and, with ``--jsonl FILE``, one
 JSON object per level. Bytes per call are payload bytes (requests + reply copies) before Zenoh,
 UDP and IP headers (~60 bytes a datagram more).
@@ -111,6 +113,8 @@ def call(spec: str, n: int, timeout: float, monitor: bool = False) -> None:
         client = node.create_client("exp/command", ExpCommand, ExpResult, retry=command_retry(node))
         if not spec.startswith("multicast"):    # unicast: discovery works; count calls, not discovery
             linked = linked and client.wait_for_service(SESSION_WAIT_S)
+        print("LINKED", flush=True)
+        sys.stdin.readline()         # START: the loss is on (run_level may set it only now)
         mon = LinkMonitor(node) if monitor else None
         if mon is not None:
             mon.adapt(client.set_loss)
@@ -149,8 +153,12 @@ def _spec(link: Any, side: str, transport: str, workdir: str) -> str:
 
 
 def run_level(loss_pct: float, calls: int, timeout: float, transport: str = "multicast",
-              monitor: bool = False) -> dict[str, Any]:
-    """One loss level on a fresh lossy link: the summary (success rate, latency, double executions)."""
+              monitor: bool = False, start: str = "startup") -> dict[str, Any]:
+    """One loss level on a fresh lossy link: the summary (success rate, latency, double executions).
+
+    ``start``: "startup", the loss is on from the start (the sessions form under it); "after", it is
+    switched on once the caller has its session and (unicast) has discovered the service.
+    """
     import tempfile
 
     from zenoh_robot.tools.experiment.netns import LossyLink
@@ -158,7 +166,10 @@ def run_level(loss_pct: float, calls: int, timeout: float, transport: str = "mul
         raise ValueError(f"transport {transport!r}: one of {', '.join(TRANSPORTS)}")
     me = [sys.executable, "-m", "zenoh_robot.tools.experiment.commands"]
     flag = ["monitor"] if monitor else []
-    with LossyLink(loss_pct=loss_pct) as link, tempfile.TemporaryDirectory(prefix="zr-cmd-") as workdir:
+    if start not in ("startup", "after"):
+        raise ValueError(f"start {start!r}: startup or after")
+    initial = loss_pct if start == "startup" else 0.0
+    with LossyLink(loss_pct=initial) as link, tempfile.TemporaryDirectory(prefix="zr-cmd-") as workdir:
         server = subprocess.Popen(link.exec_in("drone") + me + ["serve", _spec(link, "drone", transport, workdir),
                                                                 *flag],
                                   stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
@@ -172,7 +183,15 @@ def run_level(loss_pct: float, calls: int, timeout: float, transport: str = "mul
             # Zenoh 1.10 may log a line of its own to stdout first: read up to the READY line.
             if not any(server.stdout.readline().strip() == "READY" for _ in range(50)):
                 raise RuntimeError("command server did not start")
-            client_out, client_err = caller.communicate("GO\n", timeout=2 * SESSION_WAIT_S + calls * (timeout + 3) + 30)
+            assert caller.stdin is not None and caller.stdout is not None
+            caller.stdin.write("GO\n")
+            caller.stdin.flush()
+            if not any(caller.stdout.readline().strip() == "LINKED" for _ in range(50)):
+                raise RuntimeError("command caller did not link")
+            if start == "after":
+                link.set_loss(loss_pct)
+            client_out, client_err = caller.communicate("START\n",
+                                                        timeout=2 * SESSION_WAIT_S + calls * (timeout + 3) + 30)
             server.stdin.write("\n")
             server.stdin.flush()
             # Zenoh may log lines of its own to stdout: the summary is the first JSON line.
@@ -192,7 +211,7 @@ def run_level(loss_pct: float, calls: int, timeout: float, transport: str = "mul
         raise RuntimeError(f"command client failed: {client_err[-2000:]}")
     out = json.loads(lines[-1])
     row = summarise(loss_pct, timeout, out, served)
-    row["transport"], row["monitor"] = transport, monitor
+    row["transport"], row["monitor"], row["start"] = transport, monitor, start
     return row
 
 
@@ -229,7 +248,8 @@ def table(rows: list[dict[str, Any]]) -> str:
     body = []
     for r in rows:
         pc = " / ".join(f"{r['per_command'][n] * 100:.0f}" for n in NAMES)
-        tr = r.get("transport", "multicast") + (" + monitor" if r.get("monitor") else "")
+        tr = (r.get("transport", "multicast") + (" + monitor" if r.get("monitor") else "")
+              + (", loss after link" if r.get("start") == "after" else ""))
         body.append(f"| {r['loss_pct']:g} % | {tr} | {r['calls']} | {r['success_rate'] * 100:.1f} % "
                     f"(<= {r['timeout_s']:g} s) | {pc} % | {r['latency_ms_p50']} | {r['latency_ms_p90']} "
                     f"| {r['latency_ms_max']} | {r['attempts_per_call']} | {r.get('reply_copies_per_call', '')} "
@@ -253,6 +273,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--transport", default="multicast",
                    help="comma-separated, of: " + ", ".join(TRANSPORTS) + " (default multicast)")
     p.add_argument("--monitor", action="store_true", help="size copies from a LinkMonitor's measured loss")
+    p.add_argument("--start", choices=("startup", "after"), default="startup",
+                   help="loss from the start (sessions form under it) or only once the caller is linked")
     p.add_argument("--jsonl", help="append one JSON object per level here")
     args = p.parse_args(argv)
     from zenoh_robot.tools.experiment.netns import unavailable_reason
@@ -266,7 +288,7 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"--transport: unknown {', '.join(bad) or '(none)'}; choose from {', '.join(TRANSPORTS)}")
     rows = []
     for transport, loss in [(t, loss) for t in transports for loss in args.loss]:
-        row = run_level(loss, args.calls, args.timeout, transport, args.monitor)
+        row = run_level(loss, args.calls, args.timeout, transport, args.monitor, args.start)
         rows.append(row)
         print(json.dumps(row), flush=True)
         if args.jsonl:
