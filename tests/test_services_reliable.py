@@ -239,3 +239,26 @@ def test_put_carried_call_sends_the_asked_reply_copies_once_per_burst(ns, monkey
         assert len(seen) == copies == service.reply_copies, (seen, service.reply_copies)
         assert seen[-1] - seen[0] >= cp.REPLY_SPACING_S   # spread: not one datagram (4 copies span 15 ms)
         sub.undeclare()
+
+
+def test_adaptive_call_to_a_server_that_answered_before_is_sent_without_discovery(ns):
+    """A unicast session at 90 % loss re-forms its transport and loses the declarations for a while:
+    an adaptive call to a server that has answered before still goes out (ServiceTimeout at the
+    deadline if nothing comes back), while a plain call, or one to a never-seen server, fails fast."""
+    with linked_nodes(ns) as (cli, srv):
+        service = srv.create_service("bump", Bump, Count, Counting())
+        _spin(srv)
+        adaptive = cli.create_client("bump", Bump, Count, retry=services_mod.ADAPTIVE_RETRY)
+        plain = cli.create_client("bump", Bump, Count, retry=None)
+        never = cli.create_client("bump", Bump, Count, retry=services_mod.ADAPTIVE_RETRY)
+        assert adaptive.wait_for_service(5.0)
+        assert adaptive.call(Bump("a"), timeout=3.0).executions == 1
+        srv.destroy_service(service)
+        assert wait_for(lambda: not adaptive.service_is_ready(), 5.0)
+        with pytest.raises(ServiceTimeout):
+            adaptive.call(Bump("b"), timeout=0.5)
+        assert adaptive.attempts > 2                     # it kept re-sending until the deadline
+        with pytest.raises(ServiceUnavailable):
+            plain.call(Bump("c"), timeout=0.5)
+        with pytest.raises(ServiceUnavailable):
+            never.call(Bump("d"), timeout=0.5)

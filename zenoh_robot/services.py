@@ -804,13 +804,20 @@ class Client(Generic[Req, Resp]):
         if not self._multicast and not self.service_is_ready():
             started = self.context.started
             grace = max(MATCH_WAIT_S, DISCOVERY_GRACE_S - (time.monotonic() - started))
-            if not self.wait_for_service(min(timeout, grace)):
+            if not self.wait_for_service(min(timeout, grace)) and not self._resend_blind(retry):
                 raise ServiceUnavailable(f"service {self.service_name}: no server")
         future = self.call_async(request, timeout, retry=retry)
         try:
             return future.result(timeout + 2.0)  # Zenoh finalises at `timeout`; the margin is a backstop
         except FutureTimeout:
             raise ServiceTimeout(f"service {self.service_name}: no reply within {timeout:g} s") from None
+
+    def _resend_blind(self, retry: Retry | None | Any) -> bool:
+        """Whether a call goes out although discovery shows no server: a unicast session at 90 % loss
+        drops and re-forms its transport, losing the declarations for a while, yet a server that has
+        answered before is likely still there and best-effort put copies may reach it meanwhile."""
+        policy = self.retry if retry is _DEFAULT else retry
+        return self._answered and self._puts and isinstance(policy, AdaptiveRetry)
 
     def call_async(self, request: Req, timeout: float = 2.0,
                    retry: Retry | None | Any = _DEFAULT) -> "Future[Resp]":
