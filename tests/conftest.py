@@ -28,6 +28,11 @@ SERIAL_FILES = frozenset({
     "test_lossy_link.py", "test_secure_lossy.py", "test_commands_lossy.py",   # netns + nftables loss
     "test_stall_multicast.py",                                                # CPU hogs by design
     "test_bench_smoke.py", "test_swarm.py",                                   # throughput and delivery figures
+    "test_qos_events.py",                          # 0.3 s liveliness leases: a starved spin misses one
+})
+# Single tests with real-time rate bounds, which failed beside a neighbour in the parallel pass.
+SERIAL_TESTS = frozenset({
+    "test_px4_realism.py::test_sensor_rate_when_200hz_is_asked_matches_trace",   # 114..126 Hz in real time
 })
 
 
@@ -37,7 +42,8 @@ def pytest_configure(config: pytest.Config) -> None:
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
-        if item.path.name in SERIAL_FILES or item.get_closest_marker("netns"):
+        if (item.path.name in SERIAL_FILES or f"{item.path.name}::{item.name}" in SERIAL_TESTS
+                or item.get_closest_marker("netns")):
             item.add_marker(pytest.mark.serial)
 
 
@@ -169,7 +175,8 @@ def kill_process(proc: subprocess.Popen) -> None:
 @pytest.fixture(scope="module")
 def talker(request: pytest.FixtureRequest) -> Iterator[str]:
     """The namespace of a process running the test module's ``TALKER`` script (argv[1]: the namespace),
-    up to its ``ready`` line. It and every process the module starts meanwhile (the CLI under test)
+    up to its ``ready`` line (matched at a line's start only: the child's log goes to the same pipe and
+    can land between ``ready`` and its newline). It and every process the module starts meanwhile (the CLI under test)
     share a random domain (ZR_DOMAIN), so the graph they see holds no other test's nodes: the CLI
     tests assert on whole listings and on "did you mean" suggestions, which a neighbour would change."""
     ns = f"t{secrets.token_hex(4)}"
@@ -178,7 +185,7 @@ def talker(request: pytest.FixtureRequest) -> Iterator[str]:
     proc = python_proc("-c", request.module.TALKER, ns)
     try:
         out = Lines(proc)
-        assert out.wait_for("^ready$"), out.text()
+        assert out.wait_for("^ready"), out.text()
         yield ns
     finally:
         kill_process(proc)
