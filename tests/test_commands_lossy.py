@@ -5,7 +5,7 @@ process (zenoh_robot/tools/experiment/commands.py), 60 calls with a 2 s deadline
 At 50 %: >= 97 % answered within 2 s (the plan, _wire/call_plan.py, predicts > 99.9 %). At 70 %
 the old behaviour (reply copies sent back to back, so one datagram: p = 0.3 * 0.3 per attempt,
 ~17 attempts in 2 s) answered ~80 %: the >= 95 % bound fails with it, and passes with spread
-reply copies and 20 ms-50 ms request copies (predicted 99.99 %). Without the server's idempotency
+reply copies and request copies 10-50 ms apart (predicted 99.99 %). Without the server's idempotency
 cache the retries would execute twice: no double execution is allowed in either cell.
 """
 from __future__ import annotations
