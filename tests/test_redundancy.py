@@ -177,3 +177,66 @@ def test_link_monitor_measures_silence_and_adapts_a_publisher(ns: str) -> None:
         finally:
             ma.close()
             mb.close()
+
+
+def _reference_loss(arrivals: list[float], first_seen: float, period: float, now: float,
+                    windows: tuple[float, float]) -> float:
+    """The monitor's estimate as it was computed before the running counts: a rescan of every arrival."""
+    worst = 0.0
+    for window in windows:
+        span = min(window, now - first_seen)
+        if span < 4 * period:
+            continue
+        got = sum(1 for t in arrivals[-2048:] if t > now - span)
+        worst = max(worst, 1.0 - min(1.0, got / (span / period)))
+    return worst
+
+
+def test_link_monitor_running_counts_measure_the_same_loss_as_a_rescan(monkeypatch) -> None:
+    """A synthetic probe pattern (clean, 30 % random loss, a 95 % burst, silence, a peer joining late):
+    at every 20 Hz tick the monitor's per-window counts give the loss a full rescan gives."""
+    import threading
+    from collections import OrderedDict
+
+    from zenoh_robot._wire import feedback
+    from zenoh_robot._wire.feedback import LinkMonitor, LinkProbe
+
+    clock = [1000.0]
+
+    class FakeTime:
+        @staticmethod
+        def monotonic() -> float:
+            return clock[0]
+    monkeypatch.setattr(feedback, "time", FakeTime)
+    # The estimator alone: no session, no probe thread (the clock is driven by the test).
+    m = LinkMonitor.__new__(LinkMonitor)
+    m.id, m.window_s, m.long_window_s, m.forget_s, m.max_peers = 1, 1.0, 5.0, 10.0, 32
+    m._peers, m._lock = OrderedDict(), threading.Lock()
+    m.probes_received = m.bad_probes = 0
+
+    rnd = random.Random(17)
+    sent: dict[int, list[float]] = {2: [], 3: []}
+    first: dict[int, float] = {}
+    checked = 0
+    for step in range(600):                      # 30 s of 50 ms probes from peer 2; peer 3 from 12 s
+        t = 1000.0 + step * 0.05
+        for pid in (2, 3):
+            if pid == 3 and t < 1012.0:
+                continue
+            drop = 0.3 if t < 1008 else 0.95 if t < 1011 else 1.0 if 1020 <= t < 1022 else 0.0
+            if rnd.random() < drop:
+                continue
+            clock[0] = t + rnd.uniform(0.0, 0.004)   # jitter on arrival
+            m._on_probe(LinkProbe(pid, step, 50, [], []))
+            sent[pid].append(clock[0])
+            first.setdefault(pid, clock[0])
+        clock[0] = t + 0.025                       # the monitor's tick, between probes
+        got = m.incoming_loss()
+        for pid, arrivals in sent.items():
+            if pid not in got:
+                continue
+            want = _reference_loss(arrivals, first[pid], 0.05, clock[0], (1.0, 5.0))
+            assert abs(got[pid] - want) < 1e-12, (step, pid, got[pid], want)
+            checked += 1
+    assert checked > 900
+    assert m.incoming_loss()[2] < 0.5            # the estimate moved: the pattern exercised it

@@ -16,6 +16,11 @@ the peer's period says were sent; the larger of the two, so a rise is seen withi
 window and a fall only once the long window agrees. Bounded: at most ``max_peers`` peers
 (least recently heard forgotten), ``max_peers`` reports per probe, a peer silent for
 ``forget_s`` is dropped (a drone that left must not hold the link at "90 %" forever).
+
+Cost: O(1) amortised per peer per tick. Each window keeps its own deque of the arrival times
+still inside it, trimmed from the left as the window slides (arrivals are stamped under the
+lock, so each deque is sorted); its length is the count. A rescan of every arrival twice per
+20 Hz tick was ~10 % of a GCS's Python time at three drones (docs/results/gcs_cpu.md).
 """
 from __future__ import annotations
 
@@ -53,13 +58,38 @@ class LinkProbe(Message):
     loss: list[float] = array("float32", default=None)      # ... and the loss it measures on each (0..1)
 
 
+MAX_ARRIVALS = 2048   # per window: a peer probing faster than it claims saturates the count, not memory
+
+
 @dataclass
 class _Peer:
     first_seen: float
     period: float
-    arrivals: deque[float] = field(default_factory=lambda: deque(maxlen=2048))
+    last: float = 0.0                         # newest arrival (forgetting a silent peer)
+    # Arrival times inside the short and the long window (oldest first), trimmed as they slide.
+    short: deque[float] = field(default_factory=lambda: deque(maxlen=MAX_ARRIVALS))
+    long: deque[float] = field(default_factory=lambda: deque(maxlen=MAX_ARRIVALS))
     reported: float = math.nan                # the loss this peer sees on our probes
     reported_at: float = 0.0
+
+    def arrive(self, t: float) -> None:
+        self.last = t
+        self.short.append(t)
+        self.long.append(t)
+
+
+def _count_after(arrivals: deque[float], window: float, cutoff: float, now: float) -> int:
+    """Arrivals later than ``cutoff`` (>= now - window); drops those the window has left for good."""
+    edge = now - window
+    while arrivals and arrivals[0] <= edge:
+        arrivals.popleft()
+    # A young peer's cutoff is its first arrival (the span since first seen): skip it (and ties).
+    skip = 0
+    for t in arrivals:
+        if t > cutoff:
+            break
+        skip += 1
+    return len(arrivals) - skip
 
 
 def repeat_plan(loss: float, deadline_s: float, miss: float = 1e-6, margin: float = 0.05,
@@ -123,8 +153,8 @@ class LinkMonitor:
         if not (1 <= msg.period_ms <= 10_000 and len(msg.peers) == len(msg.loss) <= MAX_PEERS):
             self.bad_probes += 1
             return
-        now = time.monotonic()
         with self._lock:
+            now = time.monotonic()   # under the lock: arrivals stay sorted, windows trim from the left
             peer = self._peers.get(msg.id)
             if peer is None:
                 peer = self._peers[msg.id] = _Peer(now, msg.period_ms / 1000)
@@ -132,33 +162,34 @@ class LinkMonitor:
                     self._peers.popitem(last=False)
             self._peers.move_to_end(msg.id)
             peer.period = msg.period_ms / 1000
-            peer.arrivals.append(now)
+            peer.arrive(now)
             self.probes_received += 1
             for pid, loss in zip(msg.peers, msg.loss, strict=True):
                 if pid == self.id and math.isfinite(loss):
                     peer.reported, peer.reported_at = min(1.0, max(0.0, float(loss))), now
 
     def _incoming(self, peer: _Peer, now: float) -> float:
+        # Called with the lock held and a ``now`` read under it: never earlier than any trim before.
         worst = 0.0
-        for window in (self.window_s, self.long_window_s):
+        for window, arrivals in ((self.window_s, peer.short), (self.long_window_s, peer.long)):
             span = min(window, now - peer.first_seen)
             if span < 4 * peer.period:
                 continue          # too new to say
-            got = sum(1 for t in peer.arrivals if t > now - span)
+            got = _count_after(arrivals, window, now - span, now)
             worst = max(worst, 1.0 - min(1.0, got / (span / peer.period)))
         return worst
 
     def incoming_loss(self) -> dict[int, float]:
         """Per peer heard: the loss measured on its probes (0..1)."""
-        now = time.monotonic()
         with self._lock:
+            now = time.monotonic()
             return {pid: self._incoming(p, now) for pid, p in self._peers.items()}
 
     def outgoing_loss(self) -> float:
         """The worst loss towards any peer heard recently (NaN if none): what to size copies for."""
-        now = time.monotonic()
         worst = math.nan
         with self._lock:
+            now = time.monotonic()
             for p in self._peers.values():
                 loss = self._incoming(p, now)
                 if now - p.reported_at < 3.0 and math.isfinite(p.reported):
@@ -181,9 +212,9 @@ class LinkMonitor:
             self._stop.wait(max(0.0, next_t - time.monotonic()))
 
     def _tick(self) -> None:
-        now = time.monotonic()
         with self._lock:
-            gone = [pid for pid, p in self._peers.items() if not p.arrivals or now - p.arrivals[-1] > self.forget_s]
+            now = time.monotonic()
+            gone = [pid for pid, p in self._peers.items() if now - p.last > self.forget_s]
             for pid in gone:
                 del self._peers[pid]
             measured = [(pid, self._incoming(p, now)) for pid, p in self._peers.items()]
