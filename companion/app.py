@@ -517,6 +517,9 @@ class Companion:
                     log.warning("camera: end of stream")
                     return
                 self._publish_frame(frame)
+                if self.config.camera_rate_hz != cfg.camera_rate_hz:   # a live `param set` (a GCS's downlink)
+                    cfg = self.config
+                    rate = RateKeeper(cfg.camera_rate_hz)
                 rate.wait()
         finally:
             source.close()

@@ -78,7 +78,7 @@ SPECS: tuple[Spec, ...] = (
          _range(0.0, 1.0, ""), live=True),
     Spec("state_rate_hz", "VehicleState publication rate, Hz", _range(0.1, 100.0, "Hz")),
     Spec("camera", "camera source: test, none, a device or a video file", _camera),
-    Spec("camera_rate_hz", "camera frame rate, Hz", _range(0.1, 120.0, "Hz")),
+    Spec("camera_rate_hz", "camera frame rate, Hz", _range(0.1, 120.0, "Hz"), live=True),
     Spec("image_width", "image width, px", _range(16, 4096, "px")),
     Spec("image_height", "image height, px", _range(16, 4096, "px")),
     Spec("max_offset_m", "farthest a position setpoint may lie from the vehicle, m (plus 1 s of its speed)",

@@ -54,6 +54,7 @@ from zenoh_robot.services import ServiceCallError, command_retry
 from zenoh_robot.tools.stream_metrics import StreamRecorder
 from zenoh_robot.tools.stream_profiles import StreamProfile, stream_profile
 
+from .downlink import DownlinkRates
 from .formation import lead, slot
 from .frames import FrameKeeper
 from .patterns import Target, make_pattern, path_distance
@@ -88,6 +89,9 @@ class GcsConfig:
     formation: str = "none"          # none (each drone from its own anchor), line, grid: see gcs/formation.py
     spacing: float = 5.0             # m between formation slots
     patterns: dict[str, str] = field(default_factory=dict)   # drone id -> its own pattern
+    # Downlink rates asked of each drone when it joins (gcs/downlink.py); None: the companion's own.
+    sensor_rate_hz: float | None = None
+    camera_rate_hz: float | None = None
 
 
 @dataclass
@@ -158,7 +162,10 @@ class DroneLink:
 
     def _on_state(self, msg: VehicleState, info: Any) -> None:
         self.streams["state"].record(info.seq, info.source_stamp_ns, info.received_stamp_ns)
+        previous_at = self.state_at
         self.state, self.state_at = msg, time.monotonic()
+        if self.gcs.downlink is not None:   # a join (or rejoin): ask for this GCS's downlink rates
+            self.gcs.downlink.on_state(self.id, previous_at, self.state_at, float(msg.sensor_rate_requested_hz))
         if msg.mode == "OFFBOARD" and self._anchor is not None:
             x, y = msg.position[0] - self._anchor.x, msg.position[1] - self._anchor.y
             self.max_path_error = max(self.max_path_error,
@@ -308,6 +315,11 @@ class Gcs:
         self._formation_t0: float | None = None
         self.streaming = True
         self._declare_parameters()
+        rates = {k: v for k, v in (("sensor_rate_hz", config.sensor_rate_hz),
+                                   ("camera_rate_hz", config.camera_rate_hz)) if v is not None}
+        self.downlink = DownlinkRates(node, rates, self._downlink_refused) if rates else None
+        if self.downlink is not None:
+            node.add_on_close(self.downlink.close)
         # The companion knows its controller is alive by this token (dropped when the session ends).
         self._token = node.session.liveliness().declare_token(f"{CONTROL_TOKEN_PREFIX}/{config.client_id}")
         for d in config.drones:
@@ -326,6 +338,12 @@ class Gcs:
         if config.save_image:
             node.create_timer(config.save_every, self._save_images)
 
+    def _downlink_refused(self, drone_id: str, why: str) -> None:
+        d = self.drones.get(drone_id)
+        if d is not None:   # shown on the dashboard's row like a refused setpoint
+            d.failures.append(why)
+            del d.failures[:-d.MAX_EVENTS]
+
     def _adapt_copies(self, loss: float) -> None:
         for d in list(self.drones.values()):
             d.commands.set_loss(loss)    # command retries and reply copies sized from it (services.py)
@@ -342,7 +360,9 @@ class Gcs:
                 ("formation", c.formation, "none, line or grid"), ("spacing", c.spacing, "m between slots"),
                 ("drones", ",".join(c.drones), "drones given (empty: discovered)"),
                 ("client_id", c.client_id, "id carried by setpoints and commands"),
-                ("image_mode", c.profile.image_mode, "how images arrive")):
+                ("image_mode", c.profile.image_mode, "how images arrive"),
+                ("sensor_rate", c.sensor_rate_hz or 0.0, "sensor rate asked of each drone, Hz (0: not asked)"),
+                ("camera_rate", c.camera_rate_hz or 0.0, "camera rate asked of each drone, fps (0: not asked)")):
             if not self.node.has_parameter(name):
                 self.node.declare_parameter(name, value, what, read_only=True)
 

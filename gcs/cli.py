@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import threading
 import time
@@ -74,6 +75,13 @@ def add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--spacing", type=float, default=5.0, help="m between formation slots (default 5)")
     p.add_argument("--patterns", default="", metavar="ID=PATTERN,...",
                    help="per-drone patterns overriding --pattern, e.g. uav2=circle,uav3=hover")
+    p.add_argument("--sensor-rate", type=float, metavar="HZ",
+                   help="ask each drone, when it joins, for SensorCombined at this rate (its sensor_rate_hz; "
+                        "default: the drone's own, 200 Hz). A refusal or no answer is reported and asked "
+                        "again at its next join")
+    p.add_argument("--camera-rate", type=float, metavar="HZ",
+                   help="ask each drone, when it joins, for camera frames at this rate (its camera_rate_hz; "
+                        "default: the drone's own, 30 fps)")
     p.add_argument("--details", metavar="ID", help="dashboard: show this drone's streams as well")
     p.add_argument("--gcs-id", default=None,
                    help="this GCS's id, carried by its setpoints and commands (default user@host)")
@@ -129,11 +137,16 @@ def run(args: argparse.Namespace) -> int:
     if args.spacing <= 0:
         print("gcs: --spacing must be > 0 m", file=sys.stderr)
         return 2
+    for flag, v in (("--sensor-rate", args.sensor_rate), ("--camera-rate", args.camera_rate)):
+        if v is not None and not (math.isfinite(v) and v > 0):
+            print(f"gcs: {flag} must be > 0 Hz, got {v!r}", file=sys.stderr)
+            return 2
     config = GcsConfig(drones=drones, pattern=args.pattern, rate_hz=args.rate, altitude=args.altitude,
                        size=args.size, speed=args.speed, profile=profile, save_image=args.save_image,
                        save_every=args.save_every, client_id=client_id, take_control=args.take_control,
                        auto_fly=not args.mission, formation=resolve(args.formation, len(drones) or 2),
-                       spacing=args.spacing, patterns=patterns)
+                       spacing=args.spacing, patterns=patterns, sensor_rate_hz=args.sensor_rate,
+                       camera_rate_hz=args.camera_rate)
     console = Console(stderr=False)
     if args.save_image and len(drones) != 1:
         console.print(f"gcs: --save-image: one file per drone, "
@@ -240,6 +253,8 @@ def _say(line: str) -> None:
 def summarize(gcs: Gcs, profile: str) -> dict[str, Any]:
     out: dict[str, Any] = {"profile": profile, "pattern": gcs.config.pattern, "formation": gcs.config.formation,
                            "drones": {}}
+    # The rates asked of each drone (None: its own): received rates are judged against these.
+    out["downlink_asked"] = {"sensor_rate_hz": gcs.config.sensor_rate_hz, "camera_rate_hz": gcs.config.camera_rate_hz}
     for d in gcs.drones.values():
         streams = {name: rec.summary().as_dict() for name, rec in d.streams.items()}
         for name, rec in d.streams.items():
@@ -252,6 +267,8 @@ def summarize(gcs: Gcs, profile: str) -> dict[str, Any]:
             "max_path_error_m": d.max_path_error,
             "final_state": d.state.to_dict() if d.state else None,
             "events": [e.to_dict() for e in d.events],
+            "downlink": gcs.downlink.status[d.id].as_dict()
+            if gcs.downlink is not None and d.id in gcs.downlink.status else None,
             # Raw (seq, stamp, arrival) records for offline analysis (the experiment joins them
             # with the companion's to get exact delivered % over a time window).
             "logs": {"sent": {k: v.to_dict() for k, v in d.sent.items()},
@@ -291,6 +308,9 @@ def _print_summary(console: Console, summary: dict[str, Any]) -> None:
         console.print(f"{drone}: setpoints sent {d['setpoints_sent']}, frames {d['frames']} "
                       f"({d['frames_complete']} whole), largest distance from the path "
                       f"{d['max_path_error_m']:.2f} m")
+        if d.get("downlink"):
+            asked = {k: v for k, v in summary.get("downlink_asked", {}).items() if v is not None}
+            console.print(f"{drone}: downlink asked {asked}: {d['downlink']['status']} {d['downlink']['detail']}")
     console.print(t)
 
 

@@ -22,6 +22,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--camera", choices=("on", "off", "both"), default="on")
     p.add_argument("--duration", type=float, default=15.0, help="measured seconds per cell (default 15)")
     p.add_argument("--warmup", type=float, default=8.0, help="seconds before measuring (default 8)")
+    p.add_argument("--sensor-rate", type=float, default=None, metavar="HZ",
+                   help="SensorCombined rate the GCS asks of each drone (default 50, the swarm launch files'; "
+                        "0: not asked, the drone's own 200 Hz)")
+    p.add_argument("--camera-rate", type=float, default=None, metavar="FPS",
+                   help="camera rate the GCS asks of each drone (default 15; 0: not asked, the drone's own 30)")
+    p.add_argument("--downlink", choices=("swarm", "default", "both"), default="swarm",
+                   help="swarm: the rates above; default: none asked (the drones' own); both: a cell of each")
     p.add_argument("--out", type=Path, default=Path("results/swarm"))
     p.add_argument("--report-only", action="store_true", help="redraw the table and figure from --out")
     p.add_argument("--launch", type=int, metavar="N",
@@ -30,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..experiment.swarm import SwarmCell, load_results, run_sweep, swarm_launch
+    from ..experiment.swarm import SWARM_CAMERA_FPS, SWARM_SENSOR_HZ, SwarmCell, load_results, run_sweep, swarm_launch
     from ..experiment.swarm_report import write_report
     from .main import CliError
 
@@ -51,7 +58,16 @@ def run(args: argparse.Namespace) -> int:
         if bad or not modes:
             raise CliError(f"--modes: peer and/or router, got {args.modes!r}")
         cams = {"on": [True], "off": [False], "both": [True, False]}[args.camera]
-        cells = [SwarmCell(n, m, c, args.duration, args.warmup) for n in args.drones for m in modes for c in cams]
+        sensor = SWARM_SENSOR_HZ if args.sensor_rate is None else args.sensor_rate
+        camera = SWARM_CAMERA_FPS if args.camera_rate is None else args.camera_rate
+        if sensor < 0 or camera < 0:
+            raise CliError("--sensor-rate/--camera-rate: >= 0 (0: not asked)")
+        swarm_rates: tuple[float | None, float | None] = (sensor or None, camera or None)
+        choices: dict[str, list[tuple[float | None, float | None]]] = {
+            "swarm": [swarm_rates], "default": [(None, None)], "both": [(None, None), swarm_rates]}
+        downlinks = choices[args.downlink]
+        cells = [SwarmCell(n, m, c, args.duration, args.warmup, sensor_rate=s, camera_rate=f)
+                 for n in args.drones for s, f in downlinks for m in modes for c in cams]
         print(f"swarm: {len(cells)} cells, about {len(cells) * (args.duration + args.warmup + 8) / 60:.0f} min; "
               f"results in {out}", flush=True)
         run_sweep(out, cells, say=lambda s: print(s, flush=True))

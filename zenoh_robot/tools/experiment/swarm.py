@@ -30,6 +30,13 @@ from typing import Any
 from ..stream_metrics import StreamRecorder, analyse
 
 ZENOH_ROBOT = [sys.executable, "-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())"]
+DRONE_SENSOR_HZ = 200.0    # what a companion asks of PX4 unless its GCS asks otherwise (companion --sensor-rate)
+DRONE_CAMERA_FPS = 30.0    # likewise its camera (companion --camera-rate)
+# The swarm sweep's and launch files' downlink: 50 Hz of IMU is five samples per 10 Hz setpoint, more than
+# a 4 Hz dashboard or a flight log of a hover needs; 15 fps is fluid for an operator and halves the image
+# shares, the GCS's largest receive cost per drone (docs/swarm.md).
+SWARM_SENSOR_HZ = 50.0
+SWARM_CAMERA_FPS = 15.0
 CLK_TCK = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
 
 
@@ -41,10 +48,15 @@ class SwarmCell:
     duration: float = 15.0
     warmup: float = 8.0
     profile: str = "resilient"
+    # Downlink the GCS asks of each drone (gcs --sensor-rate/--camera-rate); None: the drone's own (200 Hz, 30 fps).
+    sensor_rate: float | None = None
+    camera_rate: float | None = None
 
     @property
     def name(self) -> str:
-        return f"n{self.drones}_{self.mode}_{'cam' if self.camera else 'nocam'}"
+        rates = "" if self.sensor_rate is None and self.camera_rate is None else \
+            f"_s{self.sensor_rate or 0:g}c{self.camera_rate or 0:g}"
+        return f"n{self.drones}_{self.mode}_{'cam' if self.camera else 'nocam'}{rates}"
 
 
 def _free_port() -> int:
@@ -109,6 +121,10 @@ def run_cell(cell: SwarmCell, workdir: Path) -> dict[str, Any]:
     cmds["gcs"] = [sys.executable, "-m", "gcs", "--drones", ",".join(ids), "--no-dashboard", "--pattern", "hover",
                    "--zenoh", str(workdir / "gcs.json5"), "--profile", cell.profile, "--duration", str(total),
                    "--record", str(workdir / "gcs.json"), "--gcs-id", f"{prefix}_gcs"]
+    if cell.sensor_rate is not None:
+        cmds["gcs"] += ["--sensor-rate", f"{cell.sensor_rate:g}"]
+    if cell.camera_rate is not None:
+        cmds["gcs"] += ["--camera-rate", f"{cell.camera_rate:g}"]
     order = (["router"] if cell.mode == "router" else ["gcs"]) + ids + (["gcs"] if cell.mode == "router" else [])
     procs: dict[str, subprocess.Popen[bytes]] = {}
     env = dict(os.environ, PYTHONUNBUFFERED="1")
@@ -151,7 +167,7 @@ def analyse_cell(cell: SwarmCell, workdir: Path, ids: list[str], t0: int, t1: in
                  rss: dict[str, float], exit_codes: dict[str, int | None]) -> dict[str, Any]:
     gcs = _load(workdir / "gcs.json") or {}
     out: dict[str, Any] = {"cell": asdict(cell), "name": cell.name, "exit_codes": exit_codes, "drones": {},
-                           "cpu_pct": cpu, "rss_mb": rss, "errors": []}
+                           "cpu_pct": cpu, "rss_mb": rss, "errors": [], "load_avg": _loadavg()}
     window = (t1 - t0) / 1e9
     for d in ids:
         comp, g = _load(workdir / f"{d}.json"), gcs.get("drones", {}).get(d)
@@ -170,9 +186,23 @@ def analyse_cell(cell: SwarmCell, workdir: Path, ids: list[str], t0: int, t1: in
         sent_frames = analyse(rec(dl["sent"]["image"]), None, t0, t1)
         figures["image"] = {**image.as_dict(), "fps": image.unique / window if window else float("nan"),
                             "sent_fps": sent_frames.unique / window if window else float("nan")}
+        # The GCS's figures are judged against what it asked (its downlink), delivered % against the sender.
+        downlink = g.get("downlink") or {}
+        figures["downlink"] = downlink.get("status", "not asked")
+        if cell.sensor_rate is not None or cell.camera_rate is not None:
+            if downlink.get("status") != "applied":
+                out["errors"].append(f"{d}: downlink {downlink.get('status', 'no answer')}: "
+                                     f"{downlink.get('detail', '')}")
         out["drones"][d] = figures
     out["summary"] = summarize(out, cell)
     return out
+
+
+def _loadavg() -> list[float]:
+    try:
+        return [float(v) for v in Path("/proc/loadavg").read_text().split()[:3]]
+    except (OSError, ValueError):
+        return []
 
 
 def _mean(xs: list[float]) -> float:
@@ -192,6 +222,10 @@ def summarize(result: dict[str, Any], cell: SwarmCell) -> dict[str, Any]:
     rss = result["rss_mb"]
     return {
         "drones": cell.drones, "mode": cell.mode, "camera": cell.camera, "drones_measured": len(ds),
+        "sensor_asked_hz": cell.sensor_rate if cell.sensor_rate is not None else DRONE_SENSOR_HZ,
+        "camera_asked_fps": cell.camera_rate if cell.camera_rate is not None else DRONE_CAMERA_FPS,
+        "downlink_applied": sum(1 for d in ds if d.get("downlink") == "applied"),
+        "load_avg_1m": (result.get("load_avg") or [float("nan")])[0],
         "setpoint_hz_min": _min([d["setpoint"]["rate_hz"] for d in ds]),
         "setpoint_delivered_min": _min([d["setpoint"]["delivered_pct"] for d in ds]),
         "sensor_delivered_min": _min([d["sensor"]["delivered_pct"] for d in ds]),
@@ -199,6 +233,7 @@ def summarize(result: dict[str, Any], cell: SwarmCell) -> dict[str, Any]:
         "sensor_hz_avg": _mean([d["sensor"]["rate_hz"] for d in ds]),
         "state_delivered_min": _min([d["state"]["delivered_pct"] for d in ds]),
         "image_fps_avg": _mean([d["image"]["fps"] for d in ds]),
+        "image_fps_min": _min([d["image"]["fps"] for d in ds]),
         "image_sent_fps_avg": _mean([d["image"]["sent_fps"] for d in ds]),
         "sensor_age_p50_ms": _mean([d["sensor"]["age_p50_ms"] for d in ds]),
         "sensor_age_p99_ms": _mean([d["sensor"]["age_p99_ms"] for d in ds]),
@@ -255,6 +290,10 @@ def swarm_launch(drones: int, camera: str = "test", prefix: str = "uav") -> str:
         "  formation: {default: line}",
         f"  camera: {{default: {camera}, description: \"test, a device, or none\"}}",
         "  profile: {default: resilient}",
+        f"  sensor_rate: {{default: \"{SWARM_SENSOR_HZ:g}\", description: \"Hz of SensorCombined the GCS asks of "
+        f"each drone ({DRONE_SENSOR_HZ:g}: the drone's own)\"}}",
+        f"  camera_rate: {{default: \"{SWARM_CAMERA_FPS:g}\", description: \"camera fps the GCS asks of each drone "
+        f"({DRONE_CAMERA_FPS:g}: the drone's own)\"}}",
         "processes:",
         "  - name: router",
         "    exec: zenoh-robot router --no-scouting --status 10",
@@ -276,7 +315,8 @@ def swarm_launch(drones: int, camera: str = "test", prefix: str = "uav") -> str:
         "    module: gcs",
         f"    args: [\"--drones\", \"{','.join(ids)}\", \"--no-dashboard\", \"--pattern\", \"$(arg pattern)\",",
         "           \"--formation\", \"$(arg formation)\", \"--profile\", \"$(arg profile)\",",
-        "           \"--zenoh\", \"$(dirname)/../zenoh/client.json5\", \"--duration\", \"$(arg duration)\"]",
+        "           \"--zenoh\", \"$(dirname)/../zenoh/client.json5\", \"--duration\", \"$(arg duration)\",",
+        "           \"--sensor-rate\", \"$(arg sensor_rate)\", \"--camera-rate\", \"$(arg camera_rate)\"]",
         f"    depends_on: [router, {', '.join(ids)}]",
         "    delay: 2.0",
     ]

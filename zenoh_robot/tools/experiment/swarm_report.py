@@ -6,14 +6,36 @@ from pathlib import Path
 from typing import Any
 
 COLUMNS = [("drones", "N", "{:d}"), ("mode", "mode", "{}"), ("camera", "camera", "{}"),
+           ("downlink", "asked sensor Hz / fps", "{}"),
            ("setpoint_hz_min", "setpoint Hz (min)", "{:.1f}"), ("setpoint_delivered_min", "setpoint % (min)", "{:.1f}"),
            ("sensor_delivered_min", "sensor % (min)", "{:.1f}"), ("sensor_hz_avg", "sensor Hz", "{:.0f}"),
            ("state_delivered_min", "state % (min)", "{:.1f}"), ("image_fps_avg", "img fps", "{:.1f}"),
            ("image_sent_fps_avg", "img sent fps", "{:.1f}"),
            ("sensor_age_p50_ms", "sensor age p50 ms", "{:.1f}"), ("sensor_age_p99_ms", "p99 ms", "{:.1f}"),
            ("cpu_gcs_pct", "GCS % core", "{:.0f}"), ("cpu_gcs_per_drone_pct", "GCS %/drone", "{:.1f}"),
+           ("cpu_gcs_marginal_pct", "GCS marginal %/drone", "{:.1f}"),
            ("cpu_companion_avg_pct", "companion % core", "{:.0f}"), ("cpu_router_pct", "router % core", "{:.0f}"),
-           ("rss_gcs_mb", "GCS MB", "{:.0f}"), ("rss_companion_avg_mb", "companion MB", "{:.0f}")]
+           ("rss_gcs_mb", "GCS MB", "{:.0f}"), ("rss_companion_avg_mb", "companion MB", "{:.0f}"),
+           ("load_avg_1m", "load 1m", "{:.1f}")]
+
+
+def _group(s: dict[str, Any]) -> tuple[Any, ...]:
+    return (s["mode"], s["camera"], s.get("sensor_asked_hz"), s.get("camera_asked_fps"))
+
+
+def with_marginal(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Each row with ``downlink`` and the GCS's marginal cost per drone: the slope of its % of a core from the
+    next smaller N measured with the same mode, camera and downlink (the fixed cost of one GCS drops out)."""
+    out = []
+    for s in rows:
+        smaller = [r for r in rows if _group(r) == _group(s) and r["drones"] < s["drones"]]
+        slope = float("nan")
+        if smaller:
+            prev = max(smaller, key=lambda r: r["drones"])
+            slope = (s["cpu_gcs_pct"] - prev["cpu_gcs_pct"]) / (s["drones"] - prev["drones"])
+        asked = f"{s.get('sensor_asked_hz', float('nan')):g} / {s.get('camera_asked_fps', float('nan')):g}"
+        out.append({**s, "cpu_gcs_marginal_pct": slope, "downlink": asked})
+    return out
 
 
 def _fmt(fmt: str, v: Any) -> str:
@@ -26,7 +48,7 @@ def _fmt(fmt: str, v: Any) -> str:
 
 
 def table(results: list[dict[str, Any]]) -> str:
-    rows = [r["summary"] for r in results]
+    rows = with_marginal([r["summary"] for r in results])
     head = "| " + " | ".join(c[1] for c in COLUMNS) + " |"
     sep = "|" + "|".join("---" for _ in COLUMNS) + "|"
     body = ["| " + " | ".join(_fmt(f, r.get(k, float("nan"))) for k, _, f in COLUMNS) + " |" for r in rows]

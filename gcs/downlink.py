@@ -1,0 +1,143 @@
+"""Downlink rates: ask each drone, when it joins, for the sensor and camera rates this GCS wants.
+
+A companion publishes SensorCombined at ``sensor_rate_hz`` (200 Hz asked of PX4) and camera
+frames at ``camera_rate_hz`` (30) whatever its GCS needs; a swarm GCS that shows ten drones
+does not need 200 Hz of IMU or 30 fps from each. With ``--sensor-rate`` / ``--camera-rate``
+the GCS sets those two live parameters on ``/<drone>/companion`` (the same parameter service
+``zenoh-robot param set`` uses) once per join.
+
+A join is the first state heard from a drone, a state after ``REJOIN_S`` of silence, or a state
+showing a sensor rate other than the one applied (the companion restarted with its defaults).
+Every outcome is reported once per join: applied (log), refused or unanswered (log warning and
+the drone's ``failures``, which the dashboard shows); a failed request is asked again at the
+next join, never in a loop. Calls block, so they run on one worker thread, never the executor.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from zenoh_robot.parameters import Parameter, ParameterType
+from zenoh_robot.parameters.client import ParameterClient
+
+if TYPE_CHECKING:
+    from zenoh_robot import Node
+
+log = logging.getLogger("gcs.downlink")
+REJOIN_S = 3.0       # a state after this much silence is a (re)join: ask again
+RECHECK_S = 5.0      # at most one "rate differs from the one applied" re-ask per drone per this
+CALL_TIMEOUT_S = 3.0
+PARAMS = {"sensor_rate_hz": "sensor", "camera_rate_hz": "camera"}
+
+
+@dataclass
+class DownlinkStatus:
+    """One drone's answer to the rates asked (what the summary and the sweep report)."""
+    status: str = "pending"        # pending | asking | applied | refused | unanswered
+    detail: str = ""
+    asked: int = 0                 # requests sent (one per join)
+    applied_at: float = 0.0
+    answers: list[str] = field(default_factory=list)   # every outcome, bounded
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"status": self.status, "detail": self.detail, "asked": self.asked, "answers": list(self.answers)}
+
+
+class DownlinkRates:
+    """Sets ``rates`` (companion parameter name -> value) on each drone that joins."""
+
+    MAX_ANSWERS = 10
+
+    def __init__(self, node: Node, rates: dict[str, float], report: Callable[[str, str], None],
+                 timeout: float = CALL_TIMEOUT_S) -> None:
+        bad = {k: v for k, v in rates.items() if k not in PARAMS or not (math.isfinite(v) and v > 0)}
+        if bad:
+            raise ValueError(f"downlink rates: {bad} (sensor_rate_hz, camera_rate_hz > 0)")
+        self.node = node
+        self.rates = dict(rates)
+        self.timeout = timeout
+        self._report = report          # (drone, refusal text): the drone's failures list
+        self.status: dict[str, DownlinkStatus] = {}
+        self._clients: dict[str, ParameterClient] = {}
+        self._pending: list[str] = []  # bounded: a drone is at most once in it
+        self._recheck_at: dict[str, float] = {}
+        self._cv = threading.Condition()
+        self._stop = False
+        self._thread = threading.Thread(target=self._run, name="gcs-downlink", daemon=True)
+        self._thread.start()
+
+    # -- joins (executor thread: never blocks) ---------------------------------------
+    def on_state(self, drone: str, previous_at: float, now: float, sensor_requested_hz: float) -> None:
+        """Called with every state: decides whether this is a join worth asking at."""
+        st = self.status.get(drone)
+        if st is None or previous_at == 0.0 or now - previous_at > REJOIN_S:
+            self.joined(drone)
+            return
+        want = self.rates.get("sensor_rate_hz")
+        # Restarted within REJOIN_S: its state shows its default rate again.
+        if (st.status == "applied" and want is not None and math.isfinite(sensor_requested_hz)
+                and abs(sensor_requested_hz - want) > 1e-3 and now >= self._recheck_at.get(drone, 0.0)):
+            self._recheck_at[drone] = now + RECHECK_S
+            self.joined(drone)
+
+    def joined(self, drone: str) -> None:
+        with self._cv:
+            st = self.status.setdefault(drone, DownlinkStatus())
+            if drone in self._pending or st.status == "asking":
+                return
+            st.status = "pending"
+            self._pending.append(drone)
+            self._cv.notify()
+
+    # -- requests (worker thread) ----------------------------------------------------
+    def _run(self) -> None:
+        while True:
+            with self._cv:
+                while not self._pending and not self._stop:
+                    self._cv.wait()
+                if self._stop:
+                    return
+                drone = self._pending.pop(0)
+                st = self.status[drone]
+                st.status, st.asked = "asking", st.asked + 1
+            status, detail = self._ask(drone)
+            with self._cv:
+                st.status, st.detail = status, detail
+                if status == "applied":
+                    st.applied_at = time.monotonic()
+                st.answers.append(f"{status}: {detail}" if detail else status)
+                del st.answers[:-self.MAX_ANSWERS]
+            asked = ", ".join(f"{PARAMS[k]} {v:g} Hz" for k, v in self.rates.items())
+            if status == "applied":
+                log.info("%s: downlink %s applied", drone, asked)
+            else:   # once per join: the next join asks again
+                log.warning("%s: downlink %s %s: %s (asked again when it rejoins)", drone, asked, status, detail)
+                self._report(drone, f"downlink {status}: {detail}")
+
+    def _ask(self, drone: str) -> tuple[str, str]:
+        try:
+            client = self._clients.get(drone)
+            if client is None:
+                client = self._clients[drone] = ParameterClient(self.node, f"/{drone}/companion", self.timeout)
+            params = [Parameter(k, ParameterType.DOUBLE, float(v)) for k, v in self.rates.items()]
+            results = client.set(params)
+        except Exception as exc:   # timeout, no server, a closing session: reported, never raised
+            return "unanswered", f"{type(exc).__name__}: {exc}"[:200]
+        if len(results) != len(params):
+            return "refused", f"{len(results)} answers for {len(params)} parameters"
+        why = "; ".join(r.reason for r in results if not r.successful)
+        if why or not all(r.successful for r in results):
+            return "refused", why[:200] or "refused"
+        return "applied", ""
+
+    def close(self) -> None:
+        with self._cv:
+            self._stop = True
+            self._cv.notify()
+        if self._thread is not threading.current_thread():
+            self._thread.join(timeout=self.timeout + 3.0)
