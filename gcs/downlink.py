@@ -10,7 +10,8 @@ A join is the first state heard from a drone, a state after ``REJOIN_S`` of sile
 showing a sensor rate other than the one applied (the companion restarted with its defaults).
 Every outcome is reported once per join: applied (log), refused or unanswered (log warning and
 the drone's ``failures``, which the dashboard shows); a failed request is asked again at the
-next join, never in a loop. Calls block, so they run on one worker thread, never the executor.
+next join, never in a loop. Each rate is set on its own (as ``param set``): a refused one is
+named, and one applied beside it is said to be. Calls block, so they run on one worker thread, never the executor.
 """
 from __future__ import annotations
 
@@ -130,9 +131,12 @@ class DownlinkRates:
             return "unanswered", f"{type(exc).__name__}: {exc}"[:200]
         if len(results) != len(params):
             return "refused", f"{len(results)} answers for {len(params)} parameters"
-        why = "; ".join(r.reason for r in results if not r.successful)
-        if why or not all(r.successful for r in results):
-            return "refused", why[:200] or "refused"
+        # Each parameter is set on its own (rclpy's set_parameters): say which were applied and which not.
+        refused = [r.reason if p.name in r.reason else f"{p.name}: {r.reason or 'refused'}"
+                   for p, r in zip(params, results, strict=True) if not r.successful]
+        if refused:
+            applied = [p.name for p, r in zip(params, results, strict=True) if r.successful]
+            return "refused", ("; ".join(refused) + (f" ({', '.join(applied)} applied)" if applied else ""))[:300]
         return "applied", ""
 
     def close(self) -> None:
