@@ -26,7 +26,8 @@ PROFILE = stream_profile("resilient")
 
 
 @contextmanager
-def swarm(ns: str, tmp: Path, drones: int, camera: str, **gcs: object) -> Iterator[Gcs]:
+def swarm(ns: str, tmp: Path, drones: int, camera: str, procs: list[subprocess.Popen[str]] | None = None,
+          **gcs: object) -> Iterator[Gcs]:
     port = free_port()
     endpoints = [f"tcp/127.0.0.1:{port}", f"udp/127.0.0.1:{port}"]
     router = open_session(SessionConfig(mode="router", listen=endpoints, multicast_scouting=False,
@@ -36,12 +37,10 @@ def swarm(ns: str, tmp: Path, drones: int, camera: str, **gcs: object) -> Iterat
     conf = tmp / "client.json5"
     conf.write_text(json.dumps(client))
     ids = [f"{ns}_{i + 1}" for i in range(drones)]
-    procs: list[subprocess.Popen[str]] = []
+    procs = [] if procs is None else procs    # the caller's list: it may restart a companion (companion())
     try:
         for i, d in enumerate(ids):
-            procs.append(python_proc("-m", "companion", "--id", d, "--px4", "sim", "--sysid", str(i + 1),
-                                     "--zenoh", str(conf), "--camera", camera, "--camera-rate", "30",
-                                     "--no-topic-statistics"))
+            procs.append(companion(conf, d, i + 1, camera))
         with Node("gcs", config=SessionConfig(mode="client", listen=[], connect=endpoints,
                                               multicast_scouting=False, shared_memory=False),
                   enable_topic_statistics=False) as node:
@@ -59,6 +58,11 @@ def swarm(ns: str, tmp: Path, drones: int, camera: str, **gcs: object) -> Iterat
             except subprocess.TimeoutExpired:
                 p.kill()
         router.close()
+
+
+def companion(conf: Path, drone: str, sysid: int, camera: str) -> subprocess.Popen[str]:
+    return python_proc("-m", "companion", "--id", drone, "--px4", "sim", "--sysid", str(sysid),
+                       "--zenoh", str(conf), "--camera", camera, "--camera-rate", "30", "--no-topic-statistics")
 
 
 def _parallel(g: Gcs, name: str, value: float = 0.0) -> dict[str, str]:
@@ -125,3 +129,52 @@ def test_sensor_delivery_does_not_collapse_when_images_flow(ns: str, tmp_path: P
             assert not any(frames.values()), frames
         # Before the fix the GCS kept 6-10 % of sensor samples when five cameras streamed.
         assert delivered >= 80.0, f"sensor delivered {delivered:.1f} % (camera {camera})"
+
+
+def _fps(d: object, seconds: float) -> float:
+    before = d.image.frames   # type: ignore[attr-defined]
+    threading.Event().wait(seconds)
+    return (d.image.frames - before) / seconds   # type: ignore[attr-defined]
+
+
+def test_gcs_asks_each_drone_for_its_downlink_and_again_after_a_restart(ns: str, tmp_path: Path) -> None:
+    """--sensor-rate 50 --camera-rate 10: every companion applies both (its state shows the sensor rate it
+    asks of PX4, frames arrive at ~10 fps, not 30); a companion restarted with its defaults is asked again."""
+    procs: list[subprocess.Popen[str]] = []
+    with swarm(ns, tmp_path, 2, "test", procs=procs, pattern="hover", sensor_rate_hz=50.0, camera_rate_hz=10.0) as g:
+        dl = g.downlink
+        assert dl is not None
+        assert wait_for(lambda: all(dl.status.get(d, None) is not None and dl.status[d].status == "applied"
+                                    for d in g.drones), 15), {d: s.as_dict() for d, s in dl.status.items()}
+        assert wait_for(lambda: all(d.state is not None and d.state.sensor_rate_requested_hz == 50.0
+                                    for d in g.drones.values()), 5)
+        first = g.drones[f"{ns}_1"]
+        # The camera rate is the sender's: load can only make it lower than asked, never 30.
+        assert 0 < _fps(first, 3.0) <= 15.0
+        assert not any(d.failures for d in g.drones.values())
+        assert all(s.asked == 1 for s in dl.status.values())
+        # Restart drone 1: it comes back at 200 Hz / 30 fps and must be asked again.
+        procs[0].terminate()
+        procs[0].wait(timeout=10)
+        procs[0] = companion(tmp_path / "client.json5", first.id, 1, "test")
+        assert wait_for(lambda: dl.status[first.id].asked == 2 and dl.status[first.id].status == "applied", 30), \
+            dl.status[first.id].as_dict()
+        assert wait_for(lambda: first.state is not None and first.state.sensor_rate_requested_hz == 50.0, 5)
+        assert dl.status[f"{ns}_2"].asked == 1      # the other drone was not asked again
+        assert 0 < _fps(first, 3.0) <= 15.0
+
+
+def test_a_refused_downlink_is_reported_once_and_named(ns: str, tmp_path: Path) -> None:
+    """A camera rate the companion refuses (500 fps > its 120 limit): the GCS reports the refusal, once, on the
+    drone's failures, naming it; the sensor rate asked with it is set on its own and applied."""
+    with swarm(ns, tmp_path, 1, "none", pattern="hover", sensor_rate_hz=50.0, camera_rate_hz=500.0) as g:
+        dl = g.downlink
+        d = next(iter(g.drones.values()))
+        assert dl is not None
+        assert wait_for(lambda: d.id in dl.status and dl.status[d.id].status == "refused", 15), dl.status
+        detail = dl.status[d.id].detail
+        assert "camera_rate_hz" in detail and "120" in detail and "(sensor_rate_hz applied)" in detail, detail
+        assert wait_for(lambda: d.state is not None and d.state.sensor_rate_requested_hz == 50.0, 5)
+        threading.Event().wait(2.0)   # states keep coming: no re-ask, no second report
+        assert [f for f in d.failures if f.startswith("downlink")] == [f"downlink refused: {detail}"]
+        assert dl.status[d.id].asked == 1
