@@ -276,3 +276,26 @@ def test_secure_flags_make_plain_profiles_secure_twins(keys_dir: Path) -> None:
     finally:
         for s in reversed(sessions):
             s.close()
+
+
+def test_put_carried_calls_pass_the_acl_for_their_owners_only(system: tuple[str, Drone, zenoh.Session],
+                                                               keys_dir: Path) -> None:
+    """services.py's put-carried path (<key>/@rq, <key>/@rp/<client>): '**' in a rule never matches
+    those verbatim chunks, so the ACL names them; another drone's GCS still cannot reach the request key."""
+    endpoint, drone, gcs = system
+    requests: list[bytes] = []
+    replies: list[bytes] = []
+    drone.session.declare_subscriber(f"{drone.key}/@rq", lambda s: requests.append(s.payload.to_bytes()))
+    gcs.declare_subscriber(f"{drone.key}/@rp/*", lambda s: replies.append(s.payload.to_bytes()))
+    rogue = secure_client(keys_dir, "gcs2", endpoint)
+    try:
+        time.sleep(0.3)
+        rogue.put(f"{drone.key}/@rq", b"rogue")
+        gcs.put(f"{drone.key}/@rq", b"arm")
+        assert wait_for(lambda: b"arm" in requests, 3.0)
+        drone.session.put(f"{drone.key}/@rp/client1", b"accepted")
+        assert wait_for(lambda: replies == [b"accepted"], 3.0)
+        time.sleep(SETTLE)
+        assert b"rogue" not in requests
+    finally:
+        rogue.close()

@@ -110,7 +110,8 @@ def acl_config(nodes: dict[str, NodeEntry], domain: int = 0) -> dict[str, Any]:
                       "key_exprs": keys})
         return rid
 
-    everything = [f"{p}**", f"{p}@srv/**", f"{p}@zr/**"]
+    # '**' never matches a verbatim '@' chunk: the put-carried service keys are named (services.py).
+    everything = [f"{p}**", f"{p}@srv/**", f"{p}@srv/**/@rq", f"{p}@srv/**/@rp/*", f"{p}@zr/**"]
     egress = rule("egress_all", _ALL, everything, ["egress"])
     # Every node keeps the graph (node list, matching, QoS checks, duplicate-name refusal).
     graph_read = rule("graph_read", _GRAPH_READ, [f"{p}{_GRAPH}/**"])
@@ -140,6 +141,10 @@ def _drone_rules(rule: Any, p: str, name: str) -> list[str]:
         rule(f"drone_{name}_data", ["put", "delete", "declare_subscriber"], [f"{ns}/**"]),
         # Its command and parameter services (@srv/<id>/command, @srv/<id>/companion/...).
         rule(f"drone_{name}_srv", ["declare_queryable", "reply"], [f"{p}@srv/{name}/**"]),
+        # The same services' put-carried calls (services.py: requests on <key>/@rq, replies on
+        # <key>/@rp/<client>): '**' never matches a verbatim '@' chunk, so they are named.
+        rule(f"drone_{name}_srv_requests", ["declare_subscriber"], [f"{p}@srv/{name}/**/@rq"]),
+        rule(f"drone_{name}_srv_replies", ["put"], [f"{p}@srv/{name}/**/@rp/*"]),
         # Graph tokens only for nodes in its own namespace.
         rule(f"drone_{name}_graph", ["liveliness_token"], [f"{p}{_GRAPH}/*/*/*/{name}/**"]),
         # Heartbeats of its own publishers, and the GCS's heartbeats on its setpoint subscription.
@@ -162,6 +167,11 @@ def _gcs_rules(rule: Any, p: str, node: NodeEntry) -> list[str]:
         # Its own topics and services; its root-namespace nodes' parameter services.
         rule(f"gcs_{name}_own", ["put", "delete", "declare_queryable", "reply", "query"],
              [f"{p}{name}/**", *own_srv]),
+        # Put-carried service calls (services.py): its own services' requests and replies, and the
+        # replies addressed to its clients ('**' never matches the verbatim '@rq'/'@rp' chunks).
+        rule(f"gcs_{name}_srv_requests", ["declare_subscriber"], [f"{k}/@rq" for k in own_srv]),
+        rule(f"gcs_{name}_srv_replies", ["put"], [f"{k}/@rp/*" for k in own_srv]),
+        rule(f"gcs_{name}_srv_answers", ["declare_subscriber"], [f"{p}@srv/**/@rp/*"]),
         # Statistics of its root-namespace nodes' other subscriptions (statistics/zr_link, ...).
         rule(f"gcs_{name}_root_statistics", ["put"], [f"{p}statistics/**"]),
         # Graph tokens of its nodes: root namespace (gcs, gcs_cmd) or its own.
@@ -177,6 +187,7 @@ def _gcs_rules(rule: Any, p: str, node: NodeEntry) -> list[str]:
                      f"{p}{_ALIVE}/{d}/setpoint",   # its heartbeats (leased / manual liveliness)
                      f"{p}{d}/statistics/**",       # its subscriptions' statistics, filed under the drone
                      f"{p}{d}/mavlink/up",          # QGC's MAVLink through the tunnel (companion decides)
-                     f"{p}@srv/{d}/**"]             # commands and the companion's parameter services
+                     f"{p}@srv/{d}/**",             # commands and the companion's parameter services
+                     f"{p}@srv/{d}/**/@rq"]         # ... and their put-carried requests
         out.append(rule(f"gcs_{name}_command", ["put", "query"], keys))
     return out
