@@ -178,3 +178,28 @@ def test_a_refused_downlink_is_reported_once_and_named(ns: str, tmp_path: Path) 
         threading.Event().wait(2.0)   # states keep coming: no re-ask, no second report
         assert [f for f in d.failures if f.startswith("downlink")] == [f"downlink refused: {detail}"]
         assert dl.status[d.id].asked == 1
+
+
+def test_swarm_launch_files_ask_a_swarm_sized_downlink() -> None:
+    """The checked-in launch files are the generator's, and their GCS asks every drone for 50 Hz / 15 fps."""
+    from conftest import ROOT
+
+    from zenoh_robot.tools.experiment.swarm import SWARM_CAMERA_FPS, SWARM_SENSOR_HZ, swarm_launch
+    for n, name in ((3, "swarm.yaml"), (10, "swarm10.yaml")):
+        text = (Path(ROOT) / "configs" / "launch" / name).read_text()
+        assert text == swarm_launch(n), f"{name}: regenerate with `zenoh-robot swarm --launch {n}`"
+        assert '"--sensor-rate", "$(arg sensor_rate)", "--camera-rate", "$(arg camera_rate)"' in text
+        assert f'sensor_rate: {{default: "{SWARM_SENSOR_HZ:g}"' in text
+        assert f'camera_rate: {{default: "{SWARM_CAMERA_FPS:g}"' in text
+
+
+def test_swarm_report_marginal_cost_is_the_slope_within_one_downlink() -> None:
+    from zenoh_robot.tools.experiment.swarm_report import with_marginal
+
+    def row(n: int, cpu: float, hz: float) -> dict[str, object]:
+        return {"drones": n, "mode": "peer", "camera": True, "sensor_asked_hz": hz, "camera_asked_fps": 15.0,
+                "cpu_gcs_pct": cpu}
+    rows = with_marginal([row(1, 10.0, 50.0), row(1, 14.0, 200.0), row(3, 16.0, 50.0), row(5, 30.0, 200.0)])
+    assert [r["cpu_gcs_marginal_pct"] for r in rows][2:] == [3.0, 4.0]
+    assert rows[0]["cpu_gcs_marginal_pct"] != rows[0]["cpu_gcs_marginal_pct"]   # NaN: nothing smaller
+    assert rows[2]["downlink"] == "50 / 15"
