@@ -21,6 +21,8 @@ from pathlib import Path
 
 import pytest
 
+from zenoh_robot.tools.experiment.stall_runs import wait_ready  # noqa: F401  (one READY protocol: tests and the stall runs)
+
 ROOT = Path(__file__).resolve().parents[1]
 
 # Files whose tests run alone (`-m serial`): what they assert depends on the machine's load.
@@ -123,19 +125,6 @@ def stop_process(proc: subprocess.Popen, timeout: float = 15.0) -> str:
         proc.kill()
         out, _ = proc.communicate()
     return out or ""
-
-
-def wait_ready(proc: subprocess.Popen, max_lines: int = 50) -> bool:
-    """Read a helper process's stdout up to its READY line. Zenoh 1.10 logs its own errors to stdout
-    (e.g. a transient "Unknown wire expr" while sessions meet): those lines are not the protocol."""
-    assert proc.stdout is not None
-    for _ in range(max_lines):
-        line = proc.stdout.readline()
-        if not line:
-            return False
-        if line.strip() == "READY":
-            return True
-    return False
 
 
 def last_json(out: str) -> dict:

@@ -168,7 +168,9 @@ def _read_json_line(stream: IO[str]) -> dict[str, Any]:
     raise RuntimeError("helper ended without its JSON line")
 
 
-def _wait_ready(proc: subprocess.Popen[str], max_lines: int = 50) -> bool:
+def wait_ready(proc: subprocess.Popen[str], max_lines: int = 50) -> bool:
+    """Read a helper process's stdout up to its READY line. Zenoh 1.10 logs its own errors to stdout
+    (e.g. a transient "Unknown wire expr" while sessions meet): those lines are not the protocol."""
     assert proc.stdout is not None
     for _ in range(max_lines):
         line = proc.stdout.readline()
@@ -215,7 +217,7 @@ def run_pairs(pairs: int, seconds: float = SECONDS) -> list[PairResult]:
                 stack.callback(p.kill)
                 procs.append(p)
         for p in drones + gcss:
-            if not _wait_ready(p):
+            if not wait_ready(p):
                 raise RuntimeError("a helper ended before READY (see its output above)")
         time.sleep(1.0)       # a few Join rounds (every 250 ms): the peers know each other
 
