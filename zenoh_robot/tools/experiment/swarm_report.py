@@ -95,21 +95,21 @@ def figure(results: list[dict[str, Any]], path: Path) -> Path | None:
     except ImportError:
         return None
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
+    downlinks = sorted({_group(r["summary"])[2:] for r in results}, key=lambda d: -d[0])
     for mode, marker in (("peer", "o"), ("router", "s")):
-        rows = sorted((r["summary"] for r in results if r["summary"]["mode"] == mode and r["summary"]["camera"]),
-                      key=lambda s: s["drones"])
-        if not rows:
-            continue
-        n = [s["drones"] for s in rows]
-        axes[0].plot(n, [s["setpoint_delivered_min"] for s in rows], marker=marker, label=f"setpoint, {mode}")
-        axes[0].plot(n, [s["sensor_delivered_min"] for s in rows], marker=marker, ls="--", label=f"sensor, {mode}")
-        axes[1].plot(n, [s["image_fps_avg"] for s in rows], marker=marker, label=f"received, {mode}")
-        axes[1].plot(n, [s["image_sent_fps_avg"] for s in rows], marker=marker, ls=":", label=f"sent, {mode}")
-        axes[2].plot(n, [s["cpu_gcs_pct"] for s in rows], marker=marker, label=f"GCS, {mode}")
-        axes[2].plot(n, [s["cpu_companion_avg_pct"] for s in rows], marker=marker, ls="--",
-                     label=f"companion (each), {mode}")
-        if mode == "router":
-            axes[2].plot(n, [s["cpu_router_pct"] for s in rows], marker=marker, ls=":", label="router")
+        for asked in downlinks:
+            rows = sorted((r["summary"] for r in results if r["summary"]["mode"] == mode and r["summary"]["camera"]
+                           and _group(r["summary"])[2:] == asked), key=lambda s: s["drones"])
+            if not rows:
+                continue
+            n = [s["drones"] for s in rows]
+            tag = f"{mode} {asked[0]:g}/{asked[1]:g}"
+            axes[0].plot(n, [s["setpoint_delivered_min"] for s in rows], marker=marker, label=f"setpoint, {tag}")
+            axes[0].plot(n, [s["sensor_delivered_min"] for s in rows], marker=marker, ls="--", label=f"sensor, {tag}")
+            axes[1].plot(n, [s["image_fps_avg"] for s in rows], marker=marker, label=f"received, {tag}")
+            axes[2].plot(n, [s["cpu_gcs_pct"] for s in rows], marker=marker, label=f"GCS, {tag}")
+            axes[2].plot(n, [s["cpu_companion_avg_pct"] for s in rows], marker=marker, ls="--",
+                         label=f"companion (each), {tag}")
     for ax, title, unit in zip(axes, ("delivered (worst drone)", "image fps per drone", "CPU"),
                                ("%", "fps", "% of one core"), strict=True):
         ax.set_title(title)
@@ -117,7 +117,7 @@ def figure(results: list[dict[str, Any]], path: Path) -> Path | None:
         ax.set_ylabel(unit)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
-    fig.suptitle("one GCS, N drones with cameras, on a shared 2-core machine")
+    fig.suptitle("one GCS, N drones with cameras (asked sensor Hz / fps), on a shared 2-core machine")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
