@@ -107,3 +107,14 @@ def test_report_files_commands_joined_and_sliced_ages_from_the_raw_record(tmp_pa
     for name in ("summary_after.png", "summary_after_unicast.png", "image_after.png", "results.csv"):
         assert (tmp_path / name).stat().st_size > 0
     assert "Command success per loss: not in this report" in markdown_report(sweep)
+
+
+def test_a_cell_where_the_link_failed_the_stack_is_a_zero_not_a_gap() -> None:
+    """Both apps ran through the window but the GCS, never hearing its drone, sent nothing: the thesis's
+    "nothing arrives", tabled as 0 % and named, not dropped as a measurement fault to rerun."""
+    failed = _cell("reliable", 70, link_failed="setpoint, sensor not sent through the whole window")
+    failed["topics"]["setpoint"] = {**_stream(0.0, 8000.0, 8000.0, 1, 0.0, sent=0), "delivered_pct": 0.0}
+    md = markdown_report([failed, _cell("resilient", 70)])
+    row = next(line for line in md.splitlines() if line.startswith("| 70% | reliable |"))
+    assert row.startswith("| 70% | reliable | 0.0% |")
+    assert "Cells where the link failed the stack" in md and "- 70% reliable: setpoint, sensor not sent" in md

@@ -79,7 +79,7 @@ def skipped_reason(r: dict[str, Any]) -> str | None:
         return f"error: {r['error']}"
     if r.get("invalid"):
         return f"invalid: {r['invalid']}"
-    if not r.get("topics", {}).get("setpoint", {}).get("sent"):
+    if not r.get("topics", {}).get("setpoint", {}).get("sent") and not r.get("link_failed"):
         return "invalid: no setpoint sent in the window"
     return None
 
@@ -155,7 +155,12 @@ def images_table(rows: list[dict[str, Any]]) -> str:
 def skipped_list(rows: list[dict[str, Any]]) -> str:
     bad = [(r, skipped_reason(r)) for r in rows]
     items = [f"- {float(r.get('loss', math.nan)):g}% {r.get('profile')}: {why}" for r, why in bad if why]
-    return "\n".join(["Cells left out (not measurements):", *items]) if items else ""
+    failed = [f"- {float(r.get('loss', math.nan)):g}% {r.get('profile')}: {r['link_failed']}"
+              for r in rows if r.get("link_failed")]
+    parts = (["Cells left out (not measurements):", *items] if items else []) + \
+        (["Cells where the link failed the stack (both apps ran; counted as 0 % delivered):", *failed]
+         if failed else [])
+    return "\n".join(parts)
 
 
 def oldest_strip_ages(strips: dict[str, Any], t0_ns: int, t1_ns: int) -> dict[str, float]:
