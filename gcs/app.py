@@ -213,9 +213,11 @@ class DroneLink:
         if got is None:
             return
         frame, now = got.info.frame, info.received_stamp_ns
-        # A rebuilt FEC frame is whole and fresh: one "strip" per frame, numbered by frame.
-        for name in ("image", "image_whole", "image_strip"):
+        # A rebuilt FEC frame is whole and fresh: one "strip" per frame, numbered as the companion
+        # numbers what it sent (frame * MAX_SLICES).
+        for name in ("image", "image_whole"):
             self.streams[name].record(frame, got.stamp, now)
+        self.streams["image_strip"].record(frame * MAX_SLICES, got.stamp, now)
         img = Image(got.header, got.height, got.width, "jpeg", 0, 0, got.jpeg)
         self.frames.add_image(img, got.info)
         self.image.frames, self.image.complete = self.frames.frames, self.frames.complete

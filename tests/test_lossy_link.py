@@ -152,6 +152,9 @@ def test_experiment_cell_window_lies_within_both_apps_streams(tmp_path: Path,
         assert min(rec["arrival_ns"]) < t0 and max(rec["arrival_ns"]) > t1, f"{name} do not cover the window"
     # Nothing in the window is a start-up or shut-down artefact: at 0 % loss every setpoint sent in it arrived.
     assert r["topics"]["setpoint"]["delivered_pct"] == 100.0
+    # The FEC frames the GCS rebuilt count as fresh strips too (both ends number them frame * MAX_SLICES).
+    whole, strip = r["topics"]["image_whole"], r["topics"]["image_strip"]
+    assert whole["unique"] > 0 and strip["delivered_pct"] == whole["delivered_pct"], (whole, strip)
 
 
 def test_sweep_resume_reruns_invalid_cells_and_reports_skip_them(tmp_path: Path,

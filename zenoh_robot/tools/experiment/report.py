@@ -146,7 +146,8 @@ def images_table(rows: list[dict[str, Any]]) -> str:
         bw = r.get("bandwidth_kBps", {})
         lines.append("| " + " | ".join([
             f"{float(r['loss']):g}%", str(r["profile"]), mode, _num(whole.get("rate_hz")),
-            _pct(whole.get("delivered_pct"), 0), _pct(strip.get("delivered_pct"), 0),
+            # A FEC frame is whole or not shown: its strips are exactly as fresh as its frames.
+            _pct(whole.get("delivered_pct"), 0), _pct((whole if mode == "fec" else strip).get("delivered_pct"), 0),
             _fmt_ms(oldest) if mode == "sliced" else "n/a", _num(bw.get("gcs")), _num(bw.get("drone")),
         ]) + " |")
     return "\n".join(lines)
