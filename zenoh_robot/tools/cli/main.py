@@ -23,7 +23,8 @@ from typing import Any
 
 # Others (security: keys, router) append theirs; a module that does not exist yet is skipped.
 SUBCOMMANDS = ["topic", "node", "interface", "stats", "param", "service", "launch", "doctor", "completion",
-               "bench", "experiment", "demo", "keys", "router", "bag", "foxglove", "swarm"]
+               "bench", "experiment", "demo", "keys", "router", "bag", "foxglove", "swarm",
+               "linkshim"]
 EXIT_USER_ERROR = 1
 
 

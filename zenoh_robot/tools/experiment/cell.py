@@ -46,7 +46,7 @@ class CellSpec:
         return self.profile if self.transport == "default" else f"{self.profile}@{self.transport}"
 
 
-TRANSPORTS = ("default", "unicast", "router", "router-udp")
+TRANSPORTS = ("default", "unicast", "router", "router-udp", "router-shim")
 # A unicast session must cross a handshake: under loss, retry it fast and give each try little time
 # (zenoh 1.10 defaults: 10 s open/accept timeouts, retries backing off to 4 s). UDP is listed first:
 # a client holds one link, the first endpoint that opens, and a TCP connect under loss waits on the
@@ -66,7 +66,7 @@ def router_cmd(link: LossyLink) -> list[str]:
 
 def transport_for(profile: str, link: LossyLink, side: str, transport: str = "default") -> dict[str, Any]:
     """The Zenoh config of one side, as JSON (valid JSON5) for ``--zenoh``."""
-    if profile == "resilient" and transport in ("router", "router-udp"):
+    if profile == "resilient" and transport in ("router", "router-udp", "router-shim"):
         # Both clients of the ground router; a client's open blocks until its session is up and retries
         # forever (fast_open(client=True)): the companion holds (no setpoints, PX4 never armed) meanwhile.
         extra = fast_open(client=True)
@@ -79,6 +79,8 @@ def transport_for(profile: str, link: LossyLink, side: str, transport: str = "de
             connect = [f"udp/{link.addr('gcs')}:{PORT}", f"tcp/{link.addr('gcs')}:{PORT}"]
             if transport == "router":
                 extra["connect/endpoints"] = [{"strategy": "allOf", "locators": connect}]
+            elif transport == "router-shim":   # one UDP link through the repeating shim (docs/results/linkshim.md)
+                connect = [f"udp/127.0.0.1:{SHIM_LOCAL}"]
             else:   # "router-udp": one UDP link (forms fastest; the control plane then rides it unacknowledged)
                 connect = connect[:1]
         return SessionConfig(mode="client", listen=[], connect=connect, multicast_scouting=False,
@@ -158,6 +160,8 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
         # A backstop only (the parent stops the apps): they must outlive any start-up and the window.
         if spec.transport.startswith("router"):
             procs["router"] = _start_router(link, workdir)
+        if spec.transport == "router-shim":
+            procs.update(_start_shims(link, workdir))
         common = ["--profile", spec.profile, "--duration", str(spec.startup_timeout + spec.warmup + spec.duration + 30)]
         drone_cmd = [sys.executable, "-m", "companion", "--id", DRONE_ID, "--px4", "sim",
                      "--zenoh", str(workdir / "drone.json5"), "--record", str(workdir / "drone.json"), *common]
@@ -181,6 +185,7 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
             time.sleep(0 if waiting else spec.duration)
             t1 = time.time_ns()
             tx1 = {side: link.tx_bytes(side) for side in link.sides}
+            apps_ran = all(procs[k].poll() is None for k in ("gcs", "drone"))
             routed = spec.transport.startswith("router") and not waiting
             command = _command_through_router(link, workdir) if routed else None
             link.set_loss(0)
@@ -189,6 +194,9 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
             _stop({k: procs[k] for k in ("gcs", "drone")}, timeout=5.0 if waiting else 30.0)
             if "router" in procs:      # after the apps: they say goodbye through it
                 _stop({"router": procs["router"]}, timeout=10.0)
+            shims = {k: p for k, p in procs.items() if k.startswith("shim-")}
+            if shims:
+                _stop(shims, timeout=5.0)
         finally:
             for p in procs.values():
                 if p.poll() is None:
@@ -201,6 +209,17 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
     result.update(formation(workdir, launch_ns))
     if command is not None:
         result["command"] = command
+    if result.get("invalid") and apps_ran and startup_s is not None:
+        # Both apps ran through the window, yet a sender had nothing to send: the GCS streams
+        # setpoints only to a drone it hears, the drone senses only while its session lives. That is
+        # the link failing the stack (the thesis's "nothing"), a result, not a window to rerun.
+        result["link_failed"] = result.pop("invalid")
+        for name in ("setpoint", "sensor"):
+            topic = result["topics"].get(name, {})
+            if not topic.get("unique"):
+                topic["delivered_pct"] = 0.0
+    if spec.transport == "router-shim":
+        result["shim"] = {side: _last_json(workdir / f"shim-{side}.log") for side in link.sides}
     if waiting:
         # Not a window to skip: the link did not let the session form (a client's open blocks until it
         # does; the companion meanwhile sends nothing and PX4 is never armed).
@@ -226,6 +245,38 @@ def _start_router(link: LossyLink, workdir: Path) -> subprocess.Popen[bytes]:
     proc.kill()
     proc.wait()
     raise RuntimeError(f"router did not start (see {log_path})")
+
+
+SHIM_LOCAL = 7448      # the drone end of the shim, on the drone's loopback (the companion connects to it)
+SHIM_WIRE = 7449       # the ground end, on the veth
+
+
+def _start_shims(link: LossyLink, workdir: Path) -> dict[str, subprocess.Popen[bytes]]:
+    """``zenoh-robot linkshim`` at both ends (the ground end forwards to the router's UDP endpoint), each
+    waited for until it listens; each prints its counters as JSON when stopped."""
+    gcs = link.addr("gcs")
+    cli = [sys.executable, "-m", "zenoh_robot.tools.cli.linkshim"]
+    cmds = {"gcs": cli + ["ground", "--listen", f"{gcs}:{SHIM_WIRE}", "--target", f"{gcs}:{PORT}"],
+            "drone": cli + ["drone", "--listen", f"127.0.0.1:{SHIM_LOCAL}", "--peer", f"{gcs}:{SHIM_WIRE}"]}
+    procs = {}
+    for side, cmd in cmds.items():
+        path = workdir / f"shim-{side}.log"
+        procs[f"shim-{side}"] = p = subprocess.Popen(link.exec_in(side) + cmd, stdout=open(path, "w"),
+                                                     stderr=subprocess.STDOUT, preexec_fn=_default_sigint)
+        end = time.monotonic() + 30
+        while "listening" not in path.read_text(errors="replace"):
+            if p.poll() is not None or time.monotonic() > end:
+                raise RuntimeError(f"linkshim {side} did not start (see {path})")
+            time.sleep(0.05)
+    return procs
+
+
+def _last_json(path: Path) -> dict[str, Any] | None:
+    try:
+        lines = [x for x in path.read_text(errors="replace").splitlines() if x.startswith("{")]
+        return json.loads(lines[-1]) if lines else None
+    except (OSError, ValueError):
+        return None
 
 
 def _command_through_router(link: LossyLink, workdir: Path, timeout: float = 6.0) -> dict[str, Any]:

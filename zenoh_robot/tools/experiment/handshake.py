@@ -37,6 +37,7 @@ class Variant:
     protocols: tuple[str, ...]      # connect order
     keys: dict[str, Any] = field(default_factory=dict, hash=False)
     all_links: bool = False         # a client opening every endpoint (Zenoh's "allOf" group), as the router cell
+    shim: bool = False              # UDP through `zenoh-robot linkshim` at both ends (docs/results/linkshim.md)
 
 
 VARIANTS = {
@@ -52,11 +53,35 @@ VARIANTS = {
     "allof-udp-tcp-250ms": Variant("allof-udp-tcp-250ms", "client", ("udp", "tcp"), fast_open(client=True), True),
     # The same as a peer (the unicast cell): Zenoh connects to every endpoint at once, in the background.
     "peer-udp-250ms": Variant("peer-udp-250ms", "peer", ("udp", "tcp"), fast_open()),
+    # A client with one UDP link through the repeating shim: the handshake's datagrams are sent K times.
+    "shim-udp-250ms": Variant("shim-udp-250ms", "client", ("udp",), fast_open(client=True), shim=True),
 }
+SHIM_LOCAL = 7448       # the drone end's port on the drone's loopback (Zenoh connects to it)
+SHIM_WIRE = 7449        # the ground end's port on the lossy link
+
+
+def shim_cmds(router_addr: str) -> dict[str, list[str]]:
+    """The two shim ends, per namespace side: the ground end forwards to the router's UDP endpoint."""
+    cli = [sys.executable, "-m", "zenoh_robot.tools.cli.linkshim"]
+    return {"gcs": cli + ["ground", "--listen", f"{router_addr}:{SHIM_WIRE}", "--target", f"{router_addr}:{PORT}"],
+            "drone": cli + ["drone", "--listen", f"127.0.0.1:{SHIM_LOCAL}", "--peer", f"{router_addr}:{SHIM_WIRE}"]}
+
+
+def start_shims(link: LossyLink) -> list[subprocess.Popen[str]]:
+    """Both ends, each waited for until it listens."""
+    procs = []
+    for side, cmd in shim_cmds(link.addr("gcs")).items():
+        p = subprocess.Popen(link.exec_in(side) + cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        procs.append(p)
+        while p.stdout is not None and (line := p.stdout.readline()) and "listening" not in line:
+            pass
+    return procs
 
 
 def node_config(variant: Variant, router_addr: str) -> SessionConfig:
     endpoints = [f"{p}/{router_addr}:{PORT}" for p in variant.protocols]
+    if variant.shim:
+        endpoints = [f"udp/127.0.0.1:{SHIM_LOCAL}"]
     extra = dict(variant.keys)
     if variant.all_links:
         extra["connect/endpoints"] = [{"strategy": "allOf", "locators": endpoints}]
@@ -106,9 +131,12 @@ def measure(variant: str, loss: float, tries: int, timeout: float) -> list[float
     """Formation seconds per try (None: not within ``timeout``)."""
     links = [LossyLink(loss_pct=loss) for _ in range(tries)]
     procs: list[tuple[subprocess.Popen[str], subprocess.Popen[str]]] = []
+    shims: list[subprocess.Popen[str]] = []
     try:
         for link in links:
             link.up()
+        if VARIANTS[variant].shim:     # before the routers: a router's wait starts at its launch
+            shims.extend(p for link in links for p in start_shims(link))
         for link in links:
             me = [sys.executable, "-m", MODULE]
             r = subprocess.Popen(link.exec_in("gcs") + me + ["router", link.addr("gcs"), str(timeout)],
@@ -134,6 +162,13 @@ def measure(variant: str, loss: float, tries: int, timeout: float) -> list[float
             out.append(formed)
         return out
     finally:
+        for shim in shims:
+            shim.terminate()
+            try:
+                shim.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                shim.kill()
+                shim.wait()
         for pair in procs:
             for p in pair:
                 if p is not None and p.poll() is None:
