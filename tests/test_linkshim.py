@@ -171,7 +171,7 @@ def pair():
 
 
 def test_echo_crosses_once_and_copies_stop_when_the_link_is_clean(pair) -> None:
-    drone, ground = pair(ShimConfig(k_warm=8, warm_s=0.3, quiet_s=5.0))
+    drone, ground = pair(ShimConfig(k_warm=8, warm_s=0.3, quiet_s=5.0, warm_datagrams=5))
     app = _udp()
     for i in range(5):                               # warm: 8 copies each way, one forwarded
         app.sendto(b"ping%d" % i, drone.address)
@@ -194,7 +194,7 @@ def test_echo_crosses_once_and_copies_stop_when_the_link_is_clean(pair) -> None:
 def test_k_follows_a_measured_loss(pair) -> None:
     """Through a relay losing 50 % each way: every ping comes back (K copies), each end measures ~50 %
     from its pseq gaps, tells the other, and the other sends ceil(ln 1e-3 / ln 0.5) = 10 copies."""
-    drone, ground = pair(ShimConfig(k_warm=16, warm_s=0.2, quiet_s=5.0), loss=0.5)
+    drone, ground = pair(ShimConfig(k_warm=16, warm_s=0.2, quiet_s=5.0, warm_datagrams=10), loss=0.5)
     app = _udp()
     app.settimeout(0.5)
     back = 0
@@ -281,3 +281,35 @@ def test_a_session_forms_through_the_shims_from_a_70_percent_lossy_start() -> No
         skip_unless_required(f"linkshim netns test: {reason}")
     times = handshake.measure("shim-udp-250ms", 70.0, tries=2, timeout=10.0)
     assert all(t is not None and t < 10.0 for t in times), times
+
+
+def test_a_later_datagram_waits_for_an_earlier_ones_copy_but_not_forever() -> None:
+    """Zenoh drops a frame older than one it has seen: seq 1 must not overtake seq 0 whose first copy was
+    lost. Held until 0's copy comes, or given up after the hold time (counted)."""
+    clock = [100.0]
+    shim = LinkShim("ground", LO, target=("127.0.0.1", 9), cfg=ShimConfig(spacing_s=0.003),
+                    clock=lambda: clock[0])
+    out: list[bytes] = []
+    shim._forward = lambda flow, payload: out.append(payload)   # type: ignore[method-assign]
+    try:
+        flow = shim._wire_flow(1, ("127.0.0.1", 5), clock[0])
+        assert flow is not None
+
+        def arrive(seq: int, data: bytes) -> None:
+            shim._in_order(flow, Header(8, 1, seq, seq, None), data, clock[0])
+        arrive(0, b"a")
+        arrive(2, b"c")                  # seq 1 missing: c is held
+        assert out == [b"a"] and shim.counters["held"] == 1
+        arrive(1, b"b")                  # a copy of 1 arrives: both go, in order
+        assert out == [b"a", b"b", b"c"]
+        arrive(4, b"e")                  # seq 3 never comes
+        clock[0] += 0.01
+        shim._expire_holds(clock[0])
+        assert out == [b"a", b"b", b"c"]   # within 8 * 3 ms + 5 ms: still waiting
+        clock[0] += 0.03
+        shim._expire_holds(clock[0])
+        assert out[-1] == b"e" and shim.counters["gaps_skipped"] == 1
+        arrive(3, b"d")                  # too late: forwarded anyway, counted
+        assert out[-1] == b"d" and shim.counters["late"] == 1
+    finally:
+        shim.stop()

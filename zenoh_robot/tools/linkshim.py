@@ -58,6 +58,8 @@ class ShimConfig:
     miss_small: float = 1e-3    # target chance that every copy of a small datagram is lost
     miss_big: float = 0.1
     warm_s: float = 5.0         # a flow's first seconds: handshake and declarations
+    warm_datagrams: int = 100   # a flow's first datagrams get k_warm whatever their size: declarations are
+    # batched up to the batch size at start-up, and one lost batch silences a stream for good
     quiet_s: float = 1.0        # nothing from the other end for this long: the session may be re-forming
     spacing_s: float = 0.003    # between copies: spreads them over a burst of loss
     max_flows: int = 64
@@ -65,6 +67,12 @@ class ShimConfig:
     max_pending: int = 20000    # copies waiting for their send time
     budget_Bps: float = 4e6     # bytes/s of extra copies (first copies are never held back)
     log_every_s: float = 5.0
+    # Zenoh drops a frame older than one it has (per channel): a later datagram must not overtake an earlier
+    # one whose first copies were lost, or the reliable channel (declarations) loses it for good. Hold the
+    # later ones until the gap fills from a copy, at most spacing * K + hold_margin_s (capped).
+    max_hold_s: float = 0.06
+    hold_margin_s: float = 0.005
+    max_held: int = 256         # datagrams held per flow; beyond, the oldest gap is given up
 
     def __post_init__(self) -> None:
         if not 1 <= self.k_big_max <= self.k_small_max <= 255 or not 1 <= self.k_warm <= 255:
@@ -174,6 +182,9 @@ class Flow:
     dedup: Dedup = field(default_factory=Dedup)
     meter: LossMeter = field(default_factory=LossMeter)
     peer_loss: float | None = None              # the other end's measurement of what we send
+    next_seq: int = -1                          # the next seq to forward in order (-1: none yet)
+    held: dict[int, bytes] = field(default_factory=dict)
+    hold_until: float = 0.0
 
 
 class RateLimitedLog:
@@ -231,7 +242,7 @@ class LinkShim:
         self.counters: dict[str, int] = {k: 0 for k in (
             "rx_local", "rx_wire", "forwarded", "duplicates", "stale", "garbage", "unknown_flow", "tx_first",
             "tx_copies", "tx_bytes", "copies_over_budget", "copies_queue_full", "flows_opened",
-            "flows_evicted", "send_errors")}
+            "flows_evicted", "send_errors", "held", "gaps_skipped", "late")}
         self.rlog = RateLimitedLog(self.cfg.log_every_s)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -258,10 +269,13 @@ class LinkShim:
         last_sweep = self.clock()
         while not self._stop.is_set():
             now = self.clock()
-            timeout = 0.2 if not self.pending else max(0.0, min(0.2, self.pending[0][0] - now))
+            due = [self.pending[0][0]] if self.pending else []
+            due += [f.hold_until for f in self._all_flows() if f.held]
+            timeout = max(0.0, min([0.2, *(d - now for d in due)]))
             for key, _ in self.sel.select(timeout):
                 key.data(key.fileobj)
             self._flush_due(self.clock())
+            self._expire_holds(self.clock())
             if self.clock() - last_sweep > 1.0:
                 last_sweep = self.clock()
                 self._evict_idle(last_sweep)
@@ -318,17 +332,58 @@ class LinkShim:
             if not flow.dedup.fresh(head.seq):
                 self.counters["duplicates" if flow.dedup.hi - head.seq < flow.dedup.window else "stale"] += 1
                 continue
-            self.counters["forwarded"] += 1
-            try:
-                if self.role == "drone":
-                    assert flow.local_addr is not None
-                    self.sock.sendto(payload, flow.local_addr)
-                else:
-                    assert flow.sock is not None
-                    flow.sock.send(payload)
-            except OSError as exc:
-                self.counters["send_errors"] += 1
-                self.rlog.warn("fwd", "linkshim %s: forward failed: %s", self.role, exc)
+            self._in_order(flow, head, payload, now)
+
+    def _in_order(self, flow: Flow, head: Header, payload: bytes, now: float) -> None:
+        seq = head.seq
+        if flow.next_seq < 0 or seq == flow.next_seq:
+            self._forward(flow, payload)
+            flow.next_seq = (seq + 1) & 0xFFFFFFFF
+            self._release(flow)
+        elif seq < flow.next_seq:
+            # Its gap was given up: forward anyway (it may be in order on its own Zenoh channel).
+            self.counters["late"] += 1
+            self._forward(flow, payload)
+        else:
+            if not flow.held:
+                flow.hold_until = now + min(self.cfg.max_hold_s, self.cfg.spacing_s * head.copies
+                                            + self.cfg.hold_margin_s)
+            flow.held[seq] = payload
+            self.counters["held"] += 1
+            if len(flow.held) > self.cfg.max_held:
+                self._skip_gap(flow)
+
+    def _release(self, flow: Flow) -> None:
+        while flow.next_seq in flow.held:
+            self._forward(flow, flow.held.pop(flow.next_seq))
+            flow.next_seq = (flow.next_seq + 1) & 0xFFFFFFFF
+
+    def _skip_gap(self, flow: Flow) -> None:
+        """The missing datagram is not coming: forward from the oldest held one on."""
+        first = min(flow.held)
+        self.counters["gaps_skipped"] += 1
+        flow.next_seq = first
+        self._release(flow)
+
+    def _expire_holds(self, now: float) -> None:
+        for flow in self._all_flows():
+            if flow.held and now >= flow.hold_until:
+                self._skip_gap(flow)
+                if flow.held:       # another gap behind: it gets its own (short) wait
+                    flow.hold_until = now + self.cfg.hold_margin_s
+
+    def _forward(self, flow: Flow, payload: bytes) -> None:
+        self.counters["forwarded"] += 1
+        try:
+            if self.role == "drone":
+                assert flow.local_addr is not None
+                self.sock.sendto(payload, flow.local_addr)
+            else:
+                assert flow.sock is not None
+                flow.sock.send(payload)
+        except OSError as exc:
+            self.counters["send_errors"] += 1
+            self.rlog.warn("fwd", "linkshim %s: forward failed: %s", self.role, exc)
 
     def _on_target(self, sock: socket.socket) -> None:
         """Ground end: the router answers a flow."""
@@ -424,7 +479,8 @@ class LinkShim:
             self.counters["garbage"] += 1
             return
         warm = now - flow.created < self.cfg.warm_s or now - flow.last_rx > self.cfg.quiet_s
-        k = copies(self.cfg, len(payload), flow.peer_loss, warm)
+        k = self.cfg.k_warm if flow.seq < self.cfg.warm_datagrams else copies(self.cfg, len(payload),
+                                                                              flow.peer_loss, warm)
         seq = flow.seq
         flow.seq = (flow.seq + 1) & 0xFFFFFFFF
         self._emit(flow, k, seq, payload)
