@@ -52,7 +52,8 @@ def test_one_table_set_per_start_and_transport_with_every_column(sweep: list[dic
     # setpoint delivered, max gap, p99 gap, gaps > 500 ms, p99 age; sensor delivered, p99 age
     assert row == "| 50% | resilient | 100.0% | 137 ms | 134 ms | 0 | 38 ms | 97.5% | 12 ms |"
     img = [line for line in md.splitlines() if line.startswith("| 50% | resilient | fec |")]
-    assert img == ["| 50% | resilient | fec | 26.2 | 88% | 88% | n/a | 69.1 | 507.1 |"]   # FEC: strips as fresh as frames
+    # A FEC frame's strips are exactly as fresh as its frames.
+    assert img == ["| 50% | resilient | fec | 26.2 | 88% | 88% | n/a | 69.1 | 507.1 |"]
     assert "| 0% | best_effort | raw |" in md
 
 

@@ -213,7 +213,8 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
         # Both apps ran through the window, yet a sender had nothing to send: the GCS streams
         # setpoints only to a drone it hears, the drone senses only while its session lives. That is
         # the link failing the stack (the thesis's "nothing"), a result, not a window to rerun.
-        result["link_failed"] = result.pop("invalid")
+        result["link_failed"] = (f"{result.pop('invalid').split(' not sent')[0]} not sent in the window although "
+                                 "both apps ran: the GCS streams only to a drone it hears (no session)")
         for name in ("setpoint", "sensor"):
             topic = result["topics"].get(name, {})
             if not topic.get("unique"):
