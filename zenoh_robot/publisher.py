@@ -54,6 +54,7 @@ class Publisher(Generic[M]):
         self._seq = 0
         self._lock = threading.Lock()
         self._encode = ts.encode
+        self._pack = envelope.EnvelopePacker(ts.name, ts.hash, self.publisher_id).pack   # under self._lock
         self.published = 0
         self.last_publish_mono: float | None = None
         self.last_stamp_ns = 0      # source stamp of the last sample (its seq is `sequence`)
@@ -108,7 +109,7 @@ class Publisher(Generic[M]):
             if self._repeats:
                 # Tells every subscriber, whatever its own QoS, that copies follow: deduplicate.
                 extra = {**(extra or {}), REPEAT_KEY: self._repeats}
-            payload = envelope.pack(self.type_name, self.type_hash, self.publisher_id, seq, stamp, body, extra)
+            payload = self._pack(seq, stamp, body, extra)
             self._zpub.put(payload)
             if self._repeats and self._repeat_window is not None:
                 self.context.repeater.schedule_latest(self.publisher_id, self._zpub.put, payload, self._repeats,

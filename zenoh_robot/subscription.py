@@ -153,6 +153,7 @@ class Subscription(Generic[M]):
         # The envelope being handled in raw mode: (type_name, type_hash, extra, data).
         self._raw_env: tuple[str, str, dict[str, Any], bytes] | None = None
         self._executor = context.executor
+        self._drain_work = self._drain     # one bound method, not a new one per scheduling
         self._lifespan_ns = int(qos.lifespan * 1e9) if qos.lifespan else None
         self.sample_hooks: list[Callable[[M, MessageInfo], None]] = []
         self.statistics: Any = None   # a TopicStatisticsCollector when statistics are enabled
@@ -198,7 +199,7 @@ class Subscription(Generic[M]):
             if self._scheduled:
                 return      # the drain already queued picks this one up: one executor wake-up per drain
             self._scheduled = True
-        self._executor.submit(self._drain)
+        self._executor.submit(self._drain_work)
 
     def _make_room(self, size: int) -> None:
         # Under self._lock (the rare path of _on_sample: the queue is full).
@@ -218,7 +219,7 @@ class Subscription(Generic[M]):
             # Whatever happened to a sample, a subscription with queued samples stays scheduled
             # and one without is unscheduled (in _drain_some, under the lock): it never stops draining.
             if more:
-                self._executor.submit(self._drain)   # give other entities a turn
+                self._executor.submit(self._drain_work)   # give other entities a turn
 
     def _drain_some(self) -> bool:
         """Handle up to DRAIN_BATCH samples; False once the queue is empty (then unscheduled)."""
@@ -327,18 +328,25 @@ class Subscription(Generic[M]):
         if events.leased_writers:
             events.on_sample(pub_id, now)
         hooks = self.sample_hooks
-        if not (hooks or self._with_info):
-            self.deliver(msg, None)     # type: ignore[arg-type]   # a 1-argument callback: no info to build
-            return
-        info = MessageInfo(pub_id, seq, stamp_ns, received_ns, type_name)
-        for hook in hooks:
-            try:
-                hook(msg, info)
-            except Exception:
-                self.counters.hook_errors += 1
-                self._rlog.error("hook", "sample hook %r on %r raised (error %d); the sample is still delivered",
-                                 hook, self.topic, self.counters.hook_errors, exc_info=True)
-        self.deliver(msg, info)
+        with_info = self._with_info
+        if hooks or with_info:
+            info = MessageInfo(pub_id, seq, stamp_ns, received_ns, type_name)
+            for hook in hooks:
+                try:
+                    hook(msg, info)
+                except Exception:
+                    self.counters.hook_errors += 1
+                    self._rlog.error("hook", "sample hook %r on %r raised (error %d); the sample is still "
+                                     "delivered", hook, self.topic, self.counters.hook_errors, exc_info=True)
+        # deliver(), inline: one call fewer per sample.
+        try:
+            if with_info:
+                self.callback(msg, info)
+            else:
+                self.callback(msg)      # a 1-argument callback: no info was built
+            self.counters.delivered += 1
+        except Exception:
+            self._callback_error()
 
     def _raw_sample(self, body: Any) -> RawMessage:
         # Raw mode's decoder: the envelope being handled names the type (set in _handle, same turn).
@@ -355,9 +363,13 @@ class Subscription(Generic[M]):
                 self.callback(msg)
             self.counters.delivered += 1
         except Exception:
-            self.counters.callback_errors += 1
-            self._rlog.error("callback", "callback for topic %r raised (error %d); the node keeps running",
-                             self.topic, self.counters.callback_errors, exc_info=True)
+            self._callback_error()
+
+    def _callback_error(self) -> None:
+        # In the except block of a callback: exc_info logs its traceback.
+        self.counters.callback_errors += 1
+        self._rlog.error("callback", "callback for topic %r raised (error %d); the node keeps running",
+                         self.topic, self.counters.callback_errors, exc_info=True)
 
     def _track_sequence(self, pub_id: int, seq: int) -> int:
         """Samples lost before ``seq`` (0 if none). A jump is counted only once the next sample

@@ -42,15 +42,32 @@ def _default(obj: Any) -> Any:
     raise TypeError(f"cannot serialise {type(obj).__name__} in a message field")
 
 
-_packer = msgpack.Packer(default=_default, use_bin_type=True, autoreset=True)
-
-
 def pack(type_name: str, type_hash: str, publisher_id: int, seq: int, stamp_ns: int,
          body: Any, extra: dict[str, Any] | None = None) -> bytes:
-    # A fresh Packer per call would cost ~1 us; Packer is not thread safe, so callers hold
-    # the publisher's lock (publish is serialised per publisher anyway).
+    # A fresh Packer per call (~0.9 us of a 1.7 us pack): fine for services and tools; a
+    # publisher keeps its own EnvelopePacker.
     return msgpack.packb((MAGIC, type_name, type_hash, publisher_id, seq, stamp_ns, body, extra or {}),
                          default=_default, use_bin_type=True)
+
+
+class EnvelopePacker:
+    """:func:`pack` for one sender (fixed type and id) with its own msgpack ``Packer``, kept
+    across samples: the same bytes, ~0.9 us less a sample. A Packer is not thread safe (a
+    ``default`` hook runs Python mid-pack), so the caller serialises calls, as ``Publisher``
+    does under its lock."""
+
+    __slots__ = ("_pack", "_type_name", "_type_hash", "_publisher_id")
+
+    def __init__(self, type_name: str, type_hash: str, publisher_id: int) -> None:
+        # autoreset: pack() returns the bytes and empties the buffer, also after an exception.
+        self._pack = msgpack.Packer(default=_default, use_bin_type=True, autoreset=True).pack
+        self._type_name = type_name
+        self._type_hash = type_hash
+        self._publisher_id = publisher_id
+
+    def pack(self, seq: int, stamp_ns: int, body: Any, extra: dict[str, Any] | None = None) -> bytes:
+        return self._pack((MAGIC, self._type_name, self._type_hash, self._publisher_id, seq, stamp_ns,
+                           body, extra or {}))
 
 
 MAX_NAME_LEN = 256      # type names and hashes: bounded, they end up in logs
