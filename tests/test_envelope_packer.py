@@ -27,3 +27,18 @@ def test_a_failed_pack_leaves_nothing_behind_for_the_next() -> None:
     with pytest.raises(TypeError, match="cannot serialise"):
         p.pack(1, 2, [1.0, object()])
     assert p.pack(2, 3, [1.0]) == envelope.pack("T", "h", 1, 2, 3, [1.0])
+
+
+@pytest.mark.parametrize("obj, why", [
+    ([1, 2], "not a zenoh-robot envelope"),
+    (["zr0", "T", "h", 1, 1, 1, [], {}], "not a zenoh-robot envelope"),
+    (["zr1", "T", "h", True, 1, 1, [], {}], "wrong field types"),
+    (["zr1", "T", "h", 1, 1, 1.5, [], {}], "wrong field types"),
+    (["zr1", "T" * 257, "h", 1, 1, 1, [], {}], "too long"),
+    (["zr1", "T", "h", -1, 1, 1, [], {}], "out of range"),
+    (["zr1", "T", "h", 1, -5, 1, [], {}], "out of range"),
+])
+def test_unpack_names_what_is_wrong(obj, why) -> None:
+    import msgpack
+    with pytest.raises(envelope.MalformedSample, match=why):
+        envelope.unpack_fields(msgpack.packb(obj))

@@ -85,18 +85,31 @@ def unpack_fields(data: bytes | memoryview) -> Header:
         obj = _unpackb(data, raw=False, strict_map_key=False)
     except Exception as exc:  # msgpack raises several unrelated types on garbage
         raise MalformedSample(f"not msgpack: {type(exc).__name__}") from None
-    if type(obj) is not list or len(obj) != 8 or obj[0] != MAGIC:
-        raise MalformedSample("not a zenoh-robot envelope")
-    _, type_name, type_hash, pub_id, seq, stamp, body, extra = obj
+    # One condition for a good envelope (the hot path); _rejection names what is wrong with a bad one.
     # type() is, not isinstance: True is an int to isinstance, and a bool is no sequence number.
+    # msgpack decodes no int >= 2**64, so ids and sequence numbers need only be >= 0 to fit a uint64.
+    if type(obj) is list and len(obj) == 8:
+        magic, type_name, type_hash, pub_id, seq, stamp, body, extra = obj
+        if (magic == MAGIC and type(type_name) is str and type(type_hash) is str and type(pub_id) is int
+                and type(seq) is int and type(stamp) is int and type(extra) is dict
+                and len(type_name) <= MAX_NAME_LEN and len(type_hash) <= MAX_NAME_LEN
+                and pub_id >= 0 and seq >= 0):
+            return type_name, type_hash, pub_id, seq, stamp, body, extra
+    raise MalformedSample(_rejection(obj))
+
+
+def _rejection(obj: Any) -> str:
+    if type(obj) is not list or len(obj) != 8 or obj[0] != MAGIC:
+        return "not a zenoh-robot envelope"
+    _, type_name, type_hash, pub_id, seq, stamp, _body, extra = obj
     if not (type(type_name) is str and type(type_hash) is str and type(pub_id) is int
             and type(seq) is int and type(stamp) is int and type(extra) is dict):
-        raise MalformedSample("envelope header has wrong field types")
+        return "envelope header has wrong field types"
     if len(type_name) > MAX_NAME_LEN or len(type_hash) > MAX_NAME_LEN:
-        raise MalformedSample("envelope type name or hash too long")
+        return "envelope type name or hash too long"
     if not (0 <= pub_id < _U64 and 0 <= seq < _U64):
-        raise MalformedSample("envelope publisher id or sequence number out of range")
-    return type_name, type_hash, pub_id, seq, stamp, body, extra
+        return "envelope publisher id or sequence number out of range"
+    return "not a zenoh-robot envelope"    # unreachable: the accepting condition above is these checks
 
 
 def unpack(data: bytes | memoryview) -> Envelope:
