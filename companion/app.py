@@ -38,9 +38,10 @@ from companion.interface import (
     valid_client_id,
 )
 from px4_link import Px4Link
-from px4_link.commands import CommandError
+from px4_link.commands import CommandError, CommandTimeout, NotConnected
 from px4_link.setpoints import PositionSetpoint, Setpoint, SetpointRejected, VelocitySetpoint
 from px4_link.telemetry import Attitude, Battery, Imu, LocalPosition
+from px4_link.wire import message_id
 from zenoh_robot import Node
 from zenoh_robot._wire.feedback import LinkMonitor
 from zenoh_robot.events import SubscriptionEventCallbacks
@@ -54,7 +55,7 @@ from zenoh_robot.tools.stream_profiles import StreamProfile, stream_profile
 from .camera import RateKeeper, open_source
 from .control import ControlArbiter
 from .offboard import SAFE_MODE, OffboardLifecycle, OffboardState, Refused, VehicleMotion, check_against_vehicle
-from .params import CompanionParameters
+from .params import PX4_STREAMS, CompanionParameters
 from .reporting import RateLimiter
 
 log = logging.getLogger("companion")
@@ -65,6 +66,56 @@ DEFAULT_PARAM_ALLOW = ("MPC_XY_VEL_MAX", "MPC_XY_CRUISE", "MPC_Z_VEL_MAX_UP", "M
 FLIGHT_COMMANDS = ("arm", "disarm", "takeoff", "land", "hold", "rtl", "offboard_start", "offboard_stop",
                    "set_param", "take_control")
 COMMANDS = (*FLIGHT_COMMANDS, "release_control")
+
+# PX4's streams (issue #18). On an onboard link PX4 sends ~240 messages/s in the simulator (~490
+# from real SITL) by default, and packing (simulator) and parsing (px4link-rx) them was most of a
+# companion's CPU. px4_streams "lean" asks, when the link comes up, for what the companion and
+# px4_link read, at the rate each is needed, and switches off what nothing reads; px4_link asks
+# again after a PX4 reconnect or reboot (PX4 forgets). HIGHRES_IMU is asked on its own
+# (sensor_rate_hz). The rates, and why:
+LEAN_STREAMS_HZ: dict[str, float] = {
+    # VehicleState's attitude, sampled at 5 Hz: at 10 Hz it is at most 100 ms old. The reboot
+    # watch (px4_link/rates.py BootWatch) needs no particular rate: see JUMP_MS there.
+    "ATTITUDE": 10.0,
+    # VehicleState's position, and the setpoint offset checks (check_against_vehicle, px4_link's
+    # jump check), which want it fresh within ~100 ms: at 20 Hz it is <= 50 ms old, room for jitter.
+    "LOCAL_POSITION_NED": 20.0,
+    # Only takeoff reads it (home AMSL = alt - relative_alt, which does not move): 1 Hz.
+    "GLOBAL_POSITION_INT": 1.0,
+    # Read by nothing: off (interval -1). Those after GPS_RAW_INT are real PX4's only (the
+    # simulator ACKs them as PX4 does and sends none of them anyway).
+    "VFR_HUD": 0.0, "GPS_RAW_INT": 0.0,
+    "ATTITUDE_QUATERNION": 0.0, "ODOMETRY": 0.0, "ALTITUDE": 0.0, "DISTANCE_SENSOR": 0.0,
+    "ATTITUDE_TARGET": 0.0, "POSITION_TARGET_LOCAL_NED": 0.0, "POSITION_TARGET_GLOBAL_INT": 0.0,
+    "SERVO_OUTPUT_RAW": 0.0,
+}
+# Not asked, PX4's defaults fit: EXTENDED_SYS_STATE 5 Hz (landed state: VehicleState, forced-disarm
+# check), BATTERY_STATUS 0.5 Hz (VehicleState's battery), SYS_STATUS 5 Hz, SYSTEM_TIME / TIMESYNC
+# (PX4's own link protocol, 1 / 10 Hz), HEARTBEAT (no stream: PX4 refuses an interval for it).
+# With the MAVLink tunnel nothing is cut: QGC draws attitude and position from PX4's default streams.
+SUMMARY_STREAMS = ("HIGHRES_IMU", "ATTITUDE", "LOCAL_POSITION_NED", "GLOBAL_POSITION_INT", "VFR_HUD",
+                   "GPS_RAW_INT", "SYS_STATUS", "EXTENDED_SYS_STATE", "BATTERY_STATUS")
+
+
+def ask_streams(link: Px4Link, plan: dict[str, float]) -> dict[str, str]:
+    """Ask PX4 for each stream of ``plan`` at its rate (0: off); returns {stream: why} for those
+    not applied. All are remembered first, so px4_link asks for every one again after a PX4
+    reconnect or reboot even when this round stopped early."""
+    for name, hz in plan.items():
+        link.telemetry.intervals.remember(message_id(name), hz)
+    refused: dict[str, str] = {}
+    names = list(plan)
+    for i, name in enumerate(names):
+        try:
+            link.telemetry.request_message_interval(name, plan[name])
+        except (CommandTimeout, NotConnected) as exc:
+            # PX4 silent or gone: not 4 s more per stream on the command worker; asked again
+            # when it comes back.
+            refused.update({n: f"not asked: {exc}" for n in names[i:]})
+            break
+        except CommandError as exc:   # refused (a PX4 build without that stream): its default stays
+            refused[name] = str(exc)
+    return refused
 
 
 @dataclass
@@ -86,6 +137,8 @@ class CompanionConfig:
     allow_force_disarm: bool = False     # a forced disarm in flight drops the vehicle
     param_allow: tuple[str, ...] = DEFAULT_PARAM_ALLOW
     report_interval_s: float = 2.0       # repeated refusals: one event per key per interval
+    px4_streams: str = "lean"            # lean: only the PX4 streams read (LEAN_STREAMS_HZ); default: PX4's
+    mavlink_tunnel: bool = False         # a QGC reads PX4's streams through the tunnel: nothing is cut
     qos_overrides: dict[str, Any] = field(default_factory=dict)   # -p reliability/history/depth, as given
 
 
@@ -121,6 +174,9 @@ class Companion:
         self._limiter = RateLimiter(config.report_interval_s)
         self._rate_since = time.monotonic()
         self.sensor_rate_requested = config.sensor_rate_hz
+        self.px4_streams = self._streams_in_force(config)
+        self.streams_asked = dict(LEAN_STREAMS_HZ) if self.px4_streams == "lean" else {}
+        self.streams_refused: dict[str, str] = {}   # stream -> why; bounded by the plan
         self._sensor_low_warned = 0.0
         self._park_sent = 0.0
         self._resume_tried = 0.0
@@ -307,16 +363,44 @@ class Companion:
             # PX4 came up after the companion: px4_link re-asks only after a *re*connect, so ask now.
             self._rate_since = time.monotonic()
             self._commands.submit(self._guarded, "sensor rate", self.request_rates)
+            self._commands.submit(self._guarded, "px4 streams", self.request_streams)
         elif (name == "connected" and details.get("reconnect")) or name == "rebooted":
             self._rate_since = time.monotonic()   # px4_link asks PX4 for the intervals again
+            streams = f", {self.px4_streams} streams" if self.streams_asked else ""
             self._event("px4_reconnected", f"PX4 {'rebooted' if name == 'rebooted' else 'heartbeats back'}: "
-                        "sensor rate asked again", f"HIGHRES_IMU {self.sensor_rate_requested:g} Hz")
+                        f"sensor rate{' and streams' if streams else ''} asked again",
+                        f"HIGHRES_IMU {self.sensor_rate_requested:g} Hz{streams}")
         elif name == "disconnected":
             self._event("px4_disconnected", f"no PX4 heartbeat for {details.get('silent_s', 0):.1f} s", "")
 
     def request_rates(self) -> None:
         # px4_link remembers the interval and asks again after a PX4 reconnect or reboot.
         self.link.telemetry.request_message_interval("HIGHRES_IMU", self.sensor_rate_requested)
+
+    @staticmethod
+    def _streams_in_force(config: CompanionConfig) -> str:
+        if config.px4_streams not in PX4_STREAMS:
+            raise ValueError(f"px4_streams {config.px4_streams!r}: one of {', '.join(PX4_STREAMS)}")
+        if config.mavlink_tunnel and config.px4_streams != "default":
+            log.info("px4_streams %s not applied: the MAVLink tunnel's QGC reads PX4's default streams",
+                     config.px4_streams)
+            return "default"
+        return config.px4_streams
+
+    def request_streams(self) -> None:
+        """Ask PX4 for the lean streams (nothing with px4_streams default); a refusal or silence
+        is logged once per stream and the stream stays at PX4's rate."""
+        if not self.streams_asked:
+            return
+        refused = ask_streams(self.link, self.streams_asked)
+        for name, why in refused.items():
+            if name not in self.streams_refused:
+                log.warning("PX4 stream %s at %g Hz: %s; PX4's own rate applies", name,
+                            self.streams_asked[name], why)
+            self.streams_refused[name] = why
+        if not refused:
+            log.info("PX4 streams asked (%s): %s", self.px4_streams,
+                     ", ".join(f"{n} {hz:g} Hz" if hz > 0 else f"{n} off" for n, hz in self.streams_asked.items()))
 
     def sensor_rate_hz(self) -> float:
         """HIGHRES_IMU rate PX4 really delivers (NaN for the first window after start or a reconnect)."""
@@ -569,6 +653,9 @@ class Companion:
                 "control": vars(self.control.counters), "sensor_rate_hz": self.sensor_rate_hz(),
                 "offboard_state": self.lifecycle.state.value, "events": self.events_sent,
                 "final_mode": self.link.state.mode,
+                "px4_streams": {"in_force": self.px4_streams, "asked_hz": self.streams_asked,
+                                "refused": self.streams_refused,
+                                "delivered_hz": {n: self.link.telemetry.rate_hz(n) for n in SUMMARY_STREAMS}},
                 "px4": {"ever_connected": self.link.system_id is not None, "connected": self.link.connected},
                 "parameters": {"changed": self.params.changed, "refused": self.params.refused},
                 "logs": {"sent": {k: v.to_dict() for k, v in self.sent.items()},

@@ -20,7 +20,7 @@ from zenoh_robot.session_config import add_session_arguments, apply_session_argu
 from zenoh_robot.tools.stream_profiles import IMAGE_MODES, PROFILES, STREAMS, StreamProfile, stream_profile
 
 from .app import DEFAULT_PARAM_ALLOW, Companion, CompanionConfig
-from .params import QOS_PARAMS, CompanionParameters, known_names
+from .params import PX4_STREAMS, QOS_PARAMS, CompanionParameters, known_names
 from .summary import summary_line, write_summary
 
 log = logging.getLogger("companion")
@@ -56,6 +56,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="raw rgb8 (as the thesis), one JPEG per frame, or sliced JPEG; default: the profile's")
     p.add_argument("--jpeg-quality", type=int, help="JPEG quality 1..95 (default: the profile's)")
     p.add_argument("--sensor-rate", type=float, default=200.0, help="HIGHRES_IMU rate asked of PX4, Hz")
+    p.add_argument("--px4-streams", choices=PX4_STREAMS, default="lean",
+                   help="lean (default): ask PX4 only for the telemetry the companion reads, at the rates it "
+                        "needs, the rest off; default: PX4's own streams (always so with --mavlink-tunnel)")
     p.add_argument("--max-offset", type=float, default=10.0,
                    help="farthest a position setpoint may lie from the vehicle, m (default 10)")
     p.add_argument("--control-lease", type=float, default=5.0,
@@ -121,7 +124,8 @@ def run(args: argparse.Namespace) -> int:
                              resume_on_setpoints=args.resume_on_setpoints, sensor_rate_hz=args.sensor_rate,
                              camera=None if args.camera == "none" else args.camera, camera_rate_hz=args.camera_rate,
                              max_offset_m=args.max_offset, control_lease_s=args.control_lease,
-                             allow_force_disarm=args.allow_force_disarm,
+                             allow_force_disarm=args.allow_force_disarm, px4_streams=args.px4_streams,
+                             mavlink_tunnel=args.mavlink_tunnel,
                              param_allow=tuple(n for n in args.param_allow.split(",") if n),
                              qos_overrides={k: params[k] for k in QOS_PARAMS if k in params})
     unknown = sorted(set(params) - known_names())
@@ -158,6 +162,7 @@ def run(args: argparse.Namespace) -> int:
                 companion.request_rates()
             except CommandError as exc:   # PX4's default rate applies until it reconnects
                 log.warning("could not set the HIGHRES_IMU rate: %s", exc)
+            companion.request_streams()   # logs what PX4 refused; never raises a CommandError
         spinner = threading.Thread(target=node.spin, name="companion-spin", daemon=True)
         spinner.start()
         try:

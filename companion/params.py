@@ -32,6 +32,7 @@ if TYPE_CHECKING:
 QOS_PARAMS = ("reliability", "history", "depth")   # the thesis's node parameters, applied to every stream
 QOS_POLICIES = ("reliability", "history", "depth")
 PX4_PARAM_NAME = re.compile(r"^[A-Za-z0-9_]{1,16}$")   # PX4's param_info: at most 16 characters
+PX4_STREAMS = ("lean", "default")   # which telemetry the companion asks PX4 for (app.py LEAN_STREAMS_HZ)
 
 
 def _range(lo: float, hi: float, unit: str) -> Callable[[Any], str]:
@@ -49,6 +50,10 @@ def _any(v: Any) -> str:
 def _allow_list(v: Any) -> str:
     bad = [n for n in v if not PX4_PARAM_NAME.match(n)]
     return f"not PX4 parameter names: {bad}" if bad else ""
+
+
+def _px4_streams(v: Any) -> str:
+    return "" if v in PX4_STREAMS else f"{v!r}: one of {', '.join(PX4_STREAMS)}"
 
 
 def _camera(v: Any) -> str:
@@ -74,6 +79,10 @@ SPECS: tuple[Spec, ...] = (
     Spec("resume_on_setpoints", "after a failsafe HOLD, resume OFFBOARD by itself when setpoints return"),
     Spec("sensor_rate_hz", "HIGHRES_IMU rate asked of PX4 (MAV_CMD_SET_MESSAGE_INTERVAL), Hz",
          _range(1.0, 1000.0, "Hz"), live=True),
+    # Read-only: asked once when PX4 comes up (and again by px4_link after a reboot); a live switch
+    # back to default would need every stream restored, for a saving nobody needs mid-flight.
+    Spec("px4_streams", "PX4 telemetry asked: lean (only what the companion reads, at the rates it needs) "
+         "or default (PX4's own streams; always with --mavlink-tunnel)", _px4_streams),
     Spec("sensor_rate_tolerance", "a sensor_rate_low event when PX4 delivers less than this share of the rate",
          _range(0.0, 1.0, ""), live=True),
     Spec("state_rate_hz", "VehicleState publication rate, Hz", _range(0.1, 100.0, "Hz")),

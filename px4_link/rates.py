@@ -45,7 +45,11 @@ class RateMeter:
 class BootWatch:
     """Spots a vehicle reboot from its boot clock going backwards (ATTITUDE, SYSTEM_TIME)."""
 
-    JUMP_MS = 250    # UDP reordering of 100 Hz ATTITUDE never moves time_boot_ms back this far
+    # UDP reordering never moves time_boot_ms back this far, whatever the stream's rate: the
+    # watch works as well on a companion's 10 Hz ATTITUDE as on PX4's default 100 Hz. Nor does
+    # a slow rate delay the detection: a rebooted PX4 has forgotten the interval asked and
+    # sends ATTITUDE at its default rate again (and SYSTEM_TIME at 1 Hz) from its first second.
+    JUMP_MS = 250
 
     def __init__(self) -> None:
         self._last_ms: int | None = None

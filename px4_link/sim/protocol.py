@@ -34,6 +34,16 @@ DEFAULT_RATES_HZ: dict[str, float] = {
     "GPS_RAW_INT": 5.0,
 }
 MAX_RATE_HZ = 400.0  # the loop cannot honour more; PX4 also caps by link bandwidth
+# Streams real PX4 also sends on this link (SUMMARY.txt of the SITL trace) that the simulator
+# does not build. PX4 accepts MAV_CMD_SET_MESSAGE_INTERVAL for any message it has a stream
+# for (mavlink_receiver.cpp set_message_interval: get_stream_name(msgId) found -> ACCEPTED,
+# else FAILED), so the simulator ACKs these too and only records the rate asked.
+NOT_SIMULATED_STREAMS: frozenset[str] = frozenset({
+    "ATTITUDE_QUATERNION", "ODOMETRY", "ALTITUDE", "DISTANCE_SENSOR", "ATTITUDE_TARGET",
+    "POSITION_TARGET_LOCAL_NED", "POSITION_TARGET_GLOBAL_INT", "SERVO_OUTPUT_RAW", "TIMESYNC",
+    "ESTIMATOR_STATUS", "VIBRATION", "SCALED_PRESSURE", "SYSTEM_TIME", "MISSION_CURRENT",
+    "OPEN_DRONE_ID_LOCATION", "OPEN_DRONE_ID_SYSTEM", "PING", "GPS_GLOBAL_ORIGIN",
+})
 # PX4 sends a stream only when its uORB source has a new sample, at the first sample after
 # the interval: a stream is delivered at source_rate / ceil(source_rate / asked). SITL's
 # sensor_combined arrives at ~247 Hz, so 200 Hz asked gives ~123 Hz (trace: 123.5 Hz).
@@ -79,6 +89,9 @@ class StreamTable:
     def __init__(self, rates: dict[str, float] | None = None) -> None:
         self.defaults = dict(DEFAULT_RATES_HZ)
         self.rates: dict[str, float] = dict(self.defaults)
+        # Intervals (us, as asked: -1 off, 0 default) of streams PX4 has but the simulator
+        # never sends; bounded by NOT_SIMULATED_STREAMS.
+        self.not_simulated_us: dict[str, float] = {}
         self._next: dict[str, float] = {}
         for name, hz in (rates or {}).items():
             self.set_rate(name, hz)
@@ -91,9 +104,13 @@ class StreamTable:
         self._next.pop(name, None)
 
     def set_interval(self, msg_id: int, interval_us: float) -> bool:
-        """PX4 semantics: -1 disables, 0 restores the default, > 0 sets the interval."""
+        """PX4 semantics: -1 disables, 0 restores the default, > 0 sets the interval;
+        False (PX4: MAV_RESULT_FAILED) for HEARTBEAT and messages PX4 has no stream for."""
         cls = mavlink2.mavlink_map.get(msg_id)
         name = cls.msgname if cls is not None else None
+        if name in NOT_SIMULATED_STREAMS:
+            self.not_simulated_us[name] = interval_us
+            return True
         if name not in self.defaults:
             return False
         if interval_us < 0:
@@ -261,7 +278,9 @@ class SimProtocol:
         cmd = m.command
         if cmd == mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL:
             wanted_id = int_param(p[0], -1)
-            ok = math.isfinite(p[1]) and self.streams.set_interval(wanted_id, p[1])
+            # PX4 refuses what it cannot do: a response target (param7) or param3/param4 in use.
+            extras_unused = all(int_param(v) == 0 for v in (p[2], p[3], p[6]))
+            ok = math.isfinite(p[1]) and extras_unused and self.streams.set_interval(wanted_id, p[1])
             result, text = (ACCEPTED, None) if ok else (FAILED, f"stream {wanted_id} not available")
         elif cmd in (mavlink2.MAV_CMD_REQUEST_MESSAGE, mavlink2.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES):
             wanted = 148 if cmd == mavlink2.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES else int_param(p[0], -1)

@@ -105,11 +105,13 @@ class Simulator:
         assert proto is not None and self._sock is not None
         next_phys = time.monotonic()
         next_hb = next_phys
+        readable = True
         while not self._stop.is_set():
             now = time.monotonic()
             with self._lock:
                 try:
-                    proto.drain(now)
+                    if readable:   # most wake-ups are timers: a recvfrom raising EAGAIN costs as much as a step
+                        proto.drain(now)
                     steps = 0
                     while next_phys <= now and steps < 20:
                         target = self.commander.update(next_phys)
@@ -132,7 +134,7 @@ class Simulator:
             wake = min(next_phys, next_hb, self.streams.next_due() or next_phys)
             timeout = max(0.0, wake - time.monotonic())
             try:
-                select.select([self._sock], [], [], timeout)
+                readable = bool(select.select([self._sock], [], [], timeout)[0])
             except (OSError, ValueError):
                 break
 
@@ -219,6 +221,11 @@ class Simulator:
     def message_rates(self) -> dict[str, float]:
         """Rates requested (or default), Hz."""
         return dict(self.streams.rates)
+
+    @property
+    def not_simulated_intervals(self) -> dict[str, float]:
+        """Intervals asked (us: -1 off, 0 default) for PX4 streams the simulator does not send."""
+        return dict(self.streams.not_simulated_us)
 
     @property
     def delivered_rates(self) -> dict[str, float]:
