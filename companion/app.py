@@ -51,6 +51,7 @@ from zenoh_robot.msgs import Header, Image, SensorCombined
 from zenoh_robot.publisher import PublisherClosed
 from zenoh_robot.tools.stream_metrics import StreamRecorder
 from zenoh_robot.tools.stream_profiles import StreamProfile, stream_profile
+from zenoh_robot.topic_statistics import with_cpu_budget
 
 from .camera import RateKeeper, open_source
 from .control import ControlArbiter
@@ -66,6 +67,10 @@ DEFAULT_PARAM_ALLOW = ("MPC_XY_VEL_MAX", "MPC_XY_CRUISE", "MPC_Z_VEL_MAX_UP", "M
 FLIGHT_COMMANDS = ("arm", "disarm", "takeoff", "land", "hold", "rtl", "offboard_start", "offboard_stop",
                    "set_param", "take_control")
 COMMANDS = (*FLIGHT_COMMANDS, "release_control")
+# Executor % of one core the setpoint subscription may take (`zenoh-robot stats`, issue #18): 10 Hz
+# of setpoints with their copies measured 0.4 % (median, quiet host; max 0.7): 1.5 leaves room for
+# a loaded host and still flags a slow callback or a flood.
+SETPOINT_CPU_BUDGET_PCT = 1.5
 
 # PX4's streams (issue #18). On an onboard link PX4 sends ~240 messages/s in the simulator (~490
 # from real SITL) by default, and packing (simulator) and parsing (px4link-rx) them was most of a
@@ -203,7 +208,8 @@ class Companion:
             self.link_monitor.adapt(self.image_pub.set_loss)
         self.setpoint_sub = node.create_subscription(
             DroneSetpoint, "setpoint", self._on_setpoint, q["setpoint"].replace(deadline=config.setpoint_deadline),
-            event_callbacks=SubscriptionEventCallbacks(deadline=self._on_deadline_missed))
+            event_callbacks=SubscriptionEventCallbacks(deadline=self._on_deadline_missed),
+            topic_statistics=with_cpu_budget(node.enable_topic_statistics, SETPOINT_CPU_BUDGET_PCT))
         command_srv = node.create_service("command", Command, CommandResult, self._on_command)
         if self.link_monitor is not None:   # reply copies sized from the measured loss (services.py)
             self.link_monitor.adapt(command_srv.set_loss)

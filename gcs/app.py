@@ -53,6 +53,7 @@ from zenoh_robot.msgs import Header, Image, SensorCombined
 from zenoh_robot.services import ServiceCallError, command_retry
 from zenoh_robot.tools.stream_metrics import StreamRecorder
 from zenoh_robot.tools.stream_profiles import StreamProfile, stream_profile
+from zenoh_robot.topic_statistics import with_cpu_budget
 
 from .downlink import DownlinkRates
 from .formation import lead, slot
@@ -63,6 +64,13 @@ log = logging.getLogger("gcs")
 _DRONE_ID = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 MAX_LEAD_M = 5.0     # how far ahead of the drone a target may lie (the companion refuses > 10 m)
 MAX_TARGET_SPEED = 5.0   # m/s a formation target may move (the companion refuses jumps faster than 10 m/s)
+# Executor time (% of one core) each drone stream may take before `zenoh-robot stats` shows it red
+# and the log warns (TopicStatisticsOptions.cpu_budget_pct). The whole GCS costs ~2-3.5 % of a core
+# per drone with the swarm downlink (docs/swarm.md). busy_pct measured (1 drone, FEC camera, quiet
+# host, medians of 40 windows x 3 runs): at 50 Hz / 15 fps sensor 0.6-0.7, image 0.5-0.6, state 0.1;
+# at the drone's own 200 Hz / 30 fps sensor 1.6, image 1.1. The budgets leave ~3x for a loaded host
+# and sum to 4.5, under the 5 % per drone of issue #18: a stream over its budget is worth a look.
+STREAM_CPU_BUDGET_PCT = {"sensor": 2.0, "state": 0.5, "image": 2.0}
 
 
 def default_client_id() -> str:
@@ -141,18 +149,24 @@ class DroneLink:
         self._led: Target | None = None     # the last formation target (see target())
         ns = f"/{drone_id}"
         self.setpoint_pub = node.create_publisher(DroneSetpoint, f"{ns}/setpoint", q["setpoint"])
-        node.create_subscription(SensorCombined, f"{ns}/sensor", self._on_sensor, q["sensor"])
-        node.create_subscription(VehicleState, f"{ns}/state", self._on_state, q["state"])
+        budget = {k: with_cpu_budget(node.enable_topic_statistics, v) for k, v in STREAM_CPU_BUDGET_PCT.items()}
+        node.create_subscription(SensorCombined, f"{ns}/sensor", self._on_sensor, q["sensor"],
+                                 topic_statistics=budget["sensor"])
+        node.create_subscription(VehicleState, f"{ns}/state", self._on_state, q["state"],
+                                 topic_statistics=budget["state"])
         node.create_subscription(FailsafeEvent, f"{ns}/events", self._on_event, q["events"])
         if cfg.profile.image_mode == "sliced":
             # A frame's slices come in a burst: the queue holds a frame's worth (as ImageSubscription's).
             node.create_subscription(ImageSlice, f"{ns}/image", self._on_slice,
-                                     q["image"].replace(depth=max(q["image"].depth, 256)))
+                                     q["image"].replace(depth=max(q["image"].depth, 256)),
+                                     topic_statistics=budget["image"])
         elif cfg.profile.image_mode == "fec":   # shares + parity: rebuilt JPEG filed, decoded on demand
             node.create_subscription(ImageShare, f"{ns}/image", self._on_share,
-                                     q["image"].replace(depth=max(q["image"].depth, 512)))
+                                     q["image"].replace(depth=max(q["image"].depth, 512)),
+                                     topic_statistics=budget["image"])
         else:   # raw rgb8 or one JPEG per Image message
-            node.create_subscription(Image, f"{ns}/image", self._on_raw_image, q["image"])
+            node.create_subscription(Image, f"{ns}/image", self._on_raw_image, q["image"],
+                                     topic_statistics=budget["image"])
         # Retried with one request id until the deadline; the companion runs each call once (services.py).
         self.commands = node.create_client(f"{ns}/command", Command, CommandResult, retry=command_retry(node))
 

@@ -56,6 +56,7 @@ M = TypeVar("M")
 _unpack_fields = envelope.unpack_fields
 _time_ns = time.time_ns
 _monotonic = time.monotonic
+_perf_ns = time.perf_counter_ns
 DRAIN_BATCH = 64  # samples per executor turn, so one busy topic cannot starve the others
 # Received data is bounded (see "Hostile input" in the module doc): per sample, the default
 # lets a raw 4K RGB image through; per queue, KEEP_ALL's 10,000 samples cannot hold gigabytes.
@@ -102,6 +103,7 @@ class SubscriptionCounters:
     oversize: int = 0          # samples over max_sample_bytes, dropped before being copied
     hook_errors: int = 0       # a sample hook (e.g. topic statistics) raised; the sample was still delivered
     internal_errors: int = 0   # anything else that failed on one sample; the subscription kept draining
+    busy_ns: int = 0           # executor time draining, counted only with topic statistics (busy_pct)
     # Highest seq per publisher id, for `lost`; bounded (least recently seen id forgotten first).
     per_publisher_seq: dict[int, int] = field(default_factory=OrderedDict)
 
@@ -156,7 +158,7 @@ class Subscription(Generic[M]):
         self._drain_work = self._drain     # one bound method, not a new one per scheduling
         self._lifespan_ns = int(qos.lifespan * 1e9) if qos.lifespan else None
         self.sample_hooks: list[Callable[[M, MessageInfo], None]] = []
-        self.statistics: Any = None   # a TopicStatisticsCollector when statistics are enabled
+        self._statistics: Any = None   # a TopicStatisticsCollector when statistics are enabled
         # Redundant or repeated publishers send samples more than once: deliver each once, in order.
         self.dedup = Deduplicator() if (qos.redundancy or qos.repeat) else None
         self.gid = secrets.randbits(63)
@@ -220,6 +222,20 @@ class Subscription(Generic[M]):
             # and one without is unscheduled (in _drain_some, under the lock): it never stops draining.
             if more:
                 self._executor.submit(self._drain_work)   # give other entities a turn
+
+    def _drain_timed(self) -> None:
+        # _drain with statistics on (the `statistics` setter picks it): one clock pair per batch, not
+        # per sample, gives the executor time this stream takes (topic_statistics: busy_pct). Without
+        # statistics _drain runs, which times nothing and checks nothing more. No lock: drains of one
+        # subscription run one at a time (_scheduled), and the collector only reads the total.
+        more = True
+        start = _perf_ns()
+        try:
+            more = self._drain_some()
+        finally:
+            self.counters.busy_ns += _perf_ns() - start
+            if more:
+                self._executor.submit(self._drain_work)
 
     def _drain_some(self) -> bool:
         """Handle up to DRAIN_BATCH samples; False once the queue is empty (then unscheduled)."""
@@ -418,6 +434,17 @@ class Subscription(Generic[M]):
         self._rlog.error("internal", "sample on %r failed in %s: %s: %s (%d so far); the subscription keeps "
                          "draining", self.topic, where, type(exc).__name__, str(exc)[:300],
                          self.counters.internal_errors, exc_info=True)
+
+    @property
+    def statistics(self) -> Any:
+        """The TopicStatisticsCollector when statistics are enabled, else None."""
+        return self._statistics
+
+    @statistics.setter
+    def statistics(self, collector: Any) -> None:
+        self._statistics = collector
+        # The drain scheduled from now on: timed only with a collector to report to.
+        self._drain_work = self._drain if collector is None else self._drain_timed
 
     @property
     def pending(self) -> int:

@@ -19,6 +19,17 @@ publishes a ``msgs.TopicStatistics`` with, in milliseconds:
 An empty window reports NaN average/min/max/std and ``sample_count`` 0, never the
 previous window's values. ``std_dev`` is the population standard deviation.
 
+``busy_pct`` (issue #18, per-stream CPU): the executor time this subscription took over the
+window (decoding, checks, statistics hook, the user callback), in % of one core. The
+subscription reads ``time.perf_counter_ns()`` once before and once after each drain batch
+(up to ``DRAIN_BATCH`` samples) into ``counters.busy_ns``, only when statistics are on (a
+collector makes it drain with ``_drain_timed``), so the default receive path is untouched.
+It is wall time on the executor thread: on a loaded host it includes time waiting for the GIL
+or for a core, i.e. what the stream cost the executor, not pure CPU. With
+``TopicStatisticsOptions(cpu_budget_pct=5.0)`` a window above the budget logs a rate-limited
+warning naming the topic and counts ``over_budget_windows`` (on the collector and, cumulative,
+in the message, whose ``budget_pct`` carries the budget; NaN: none).
+
 The default statistics topic is ``<namespace>/statistics/<topic>``, ``<topic>`` being
 the subscription's key without the node's namespace prefix (``uav1/setpoint`` in
 namespace ``uav1`` -> ``uav1/statistics/setpoint``; ``chatter`` with no namespace ->
@@ -32,9 +43,10 @@ import math
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
+from ._ratelimit import RateLimitedLog
 from .msgs import StatisticsEntry, TopicStatistics
 from .node import register_subscription_hook
 from .qos import QoSProfile, ReliabilityPolicy
@@ -55,10 +67,12 @@ class TopicStatisticsOptions:
     """``window``: seconds per statistics message; ``topic``: where to publish (None: the
     default ``<namespace>/statistics/<topic>``; a relative name is resolved in the node's
     namespace, a ``/name`` is absolute); ``publish``: False to only compute (``last``,
-    listeners) without a publisher."""
+    listeners) without a publisher; ``cpu_budget_pct``: % of one core this subscription may take
+    on the executor per window before a warning (None: no budget)."""
     window: float = 1.0
     topic: str | None = None
     publish: bool = True
+    cpu_budget_pct: float | None = None
 
     def __post_init__(self) -> None:
         w = self.window
@@ -72,6 +86,13 @@ class TopicStatisticsOptions:
                              f"got {self.topic!r}")
         if not isinstance(self.publish, bool):
             raise TypeError(f"TopicStatisticsOptions.publish must be True or False, got {self.publish!r}")
+        b = self.cpu_budget_pct
+        if b is not None:
+            if isinstance(b, bool) or not isinstance(b, (int, float)):
+                raise TypeError(f"TopicStatisticsOptions.cpu_budget_pct must be a % of one core or None, got {b!r}")
+            if not (b > 0 and math.isfinite(b)):
+                raise ValueError(f"TopicStatisticsOptions.cpu_budget_pct must be a finite % > 0, got {b!r}")
+            object.__setattr__(self, "cpu_budget_pct", float(b))
 
 
 class _Moments:
@@ -171,9 +192,15 @@ class TopicStatisticsCollector:
         self._period = _Moments()
         self._prev_received_ns: int | None = None
         self._window_start_ns = time.time_ns()
+        # busy_pct's window is measured on the same clock as the busy time (wall time can step).
+        self._window_start_perf = time.perf_counter_ns()
+        self._busy_seen_ns = sub.counters.busy_ns   # the subscription's running total at the last window
+        self._budget = math.nan if options.cpu_budget_pct is None else options.cpu_budget_pct
+        self._rlog = RateLimitedLog(log, burst=1, interval=30.0)   # one line per topic per 30 s
         self._last: TopicStatistics | None = None
         self._closed = False
         self.windows = 0
+        self.over_budget_windows = 0
         if options.topic is None:
             self.topic = default_statistics_key(node.namespace, sub.key)
         else:
@@ -204,6 +231,7 @@ class TopicStatisticsCollector:
 
     def _on_window(self) -> None:
         stop = time.time_ns()
+        stop_perf = time.perf_counter_ns()
         counters = self.subscription.counters
         with self._lock:
             if self._closed:
@@ -211,12 +239,24 @@ class TopicStatisticsCollector:
             age, period = self._age, self._period
             self._age, self._period = _Moments(), _Moments()
             start, self._window_start_ns = self._window_start_ns, stop
+            elapsed, self._window_start_perf = stop_perf - self._window_start_perf, stop_perf
+            total = counters.busy_ns     # Subscription._drain_timed adds each drain batch's time
+            busy, self._busy_seen_ns = total - self._busy_seen_ns, total
+            busy_pct = 100.0 * busy / elapsed if elapsed > 0 else math.nan
+            over = busy_pct > self._budget     # False for a NaN budget or a NaN busy_pct
+            if over:
+                self.over_budget_windows += 1
             stats = TopicStatistics(topic=self._topic_name, node=self._node_name, window_start=start,
                                     window_stop=stop, message_age_ms=age.entry(),
                                     message_period_ms=period.entry(), received=counters.received,
-                                    lost=counters.lost, dropped=counters.dropped)
+                                    lost=counters.lost, dropped=counters.dropped, busy_pct=busy_pct,
+                                    budget_pct=self._budget, over_budget_windows=self.over_budget_windows)
             self._last = stats
             self.windows += 1
+        if over:
+            self._rlog.warning("over_budget", "%s took %.1f %% of a core on the executor over the last %.2f s, "
+                               "over its budget of %g %% (%d window(s) over so far)", self._topic_name,
+                               busy_pct, elapsed / 1e9, self._budget, self.over_budget_windows)
         pub = self.publisher
         if pub is not None:
             try:
@@ -276,10 +316,21 @@ def attach(node: "Node", sub: "Subscription[Any]",
     return TopicStatisticsCollector(node, sub, options)
 
 
+def with_cpu_budget(setting: Any, cpu_budget_pct: float) -> TopicStatisticsOptions | None:
+    """A node's statistics setting (its ``enable_topic_statistics``: False, True or options) with a
+    CPU budget, for ``create_subscription(topic_statistics=...)``; None when statistics are off
+    (the subscription then follows the node: none)."""
+    if not setting:
+        return None
+    base = setting if isinstance(setting, TopicStatisticsOptions) else TopicStatisticsOptions()
+    return replace(base, cpu_budget_pct=cpu_budget_pct)
+
+
 def _on_new_subscription(node: "Node", sub: "Subscription[Any]", setting: Any) -> None:
     sub.statistics = attach(node, sub, None if setting is True else setting)
 
 
 register_subscription_hook(_on_new_subscription)
 
-__all__ = ["TopicStatisticsOptions", "TopicStatisticsCollector", "attach", "default_statistics_key"]
+__all__ = ["TopicStatisticsOptions", "TopicStatisticsCollector", "attach", "default_statistics_key",
+           "with_cpu_budget"]

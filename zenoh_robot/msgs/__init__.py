@@ -184,6 +184,11 @@ class TopicStatistics(Message):
     received: int = 0         # cumulative counters of the subscription
     lost: int = 0
     dropped: int = 0
+    # Executor time spent draining this subscription (decode, checks, hooks, callback) over the
+    # window, in % of one core (wall time around each drain batch); NaN where not measured.
+    busy_pct: float = float("nan")
+    budget_pct: float = float("nan")   # TopicStatisticsOptions.cpu_budget_pct; NaN: no budget
+    over_budget_windows: int = 0       # cumulative: windows whose busy_pct exceeded budget_pct
 
     def __post_init__(self) -> None:
         if self.message_age_ms is None:

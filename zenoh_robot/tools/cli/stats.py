@@ -4,7 +4,9 @@ Subscriptions with statistics enabled publish a ``TopicStatistics`` per window o
 ``<namespace>/statistics/<topic>`` (zenoh_robot.topic_statistics.default_statistics_key).
 ``drop`` counts samples the subscriber's own KEEP_LAST queue overwrote before its callback
 ran (the application, or its executor, was slower than the stream); ``lost`` counts samples
-that never arrived. Both are totals since the subscription started.
+that never arrived. Both are totals since the subscription started. ``cpu %`` is the
+executor time the subscription took over the window in % of one core (``busy_pct``), then
+``/budget`` when it has one (``TopicStatisticsOptions.cpu_budget_pct``), red when over.
 
 This listens to ``**/statistics/**`` with a plain Zenoh subscriber (no graph entry, no QoS
 matching: it hears every publisher of statistics), skipping and counting samples there that are not ``TopicStatistics``.
@@ -39,11 +41,13 @@ STALE_WINDOWS = 3                  # a row not updated for this many windows is 
 LEGEND = ("lost: samples that never arrived (gaps in the publisher's sequence numbers); "
           "drop: samples the subscriber's KEEP_LAST queue overwrote before the callback ran: "
           "the application was slower than the stream (or the stream came in bursts longer than the depth); "
-          "both counted since the subscription started")
+          "both counted since the subscription started; "
+          "cpu %: executor time draining the subscription (decode, checks, callback) over the window, "
+          "% of one core, /budget when set, red when over")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("stats", help="live table of topic statistics (age, period, rate, lost)")
+    p = sub.add_parser("stats", help="live table of topic statistics (age, period, rate, lost, cpu %)")
     p.add_argument("topic", nargs="?", help="only statistics of this measured topic, e.g. /uav1/setpoint")
     add_config_arg(p)
     add_duration_arg(p)
@@ -150,33 +154,53 @@ def _samples(row: StatsRow) -> int:
     return max((c for c in counts if isinstance(c, int)), default=0)
 
 
+def _pct(value: Any) -> str:
+    v = _number(value)
+    return "-" if v is None else f"{v:.1f}"
+
+
+def cpu_text(s: "TopicStatistics") -> str:
+    """``3.1`` or, with a budget, ``3.1/5``; ``-`` when not measured."""
+    budget = _number(s.budget_pct)
+    return _pct(s.busy_pct) + ("" if budget is None else f"/{budget:g}")
+
+
+def over_budget(s: "TopicStatistics") -> bool:
+    busy, budget = _number(s.busy_pct), _number(s.budget_pct)
+    return busy is not None and budget is not None and busy > budget
+
+
 def plain_line(row: StatsRow) -> str:
     s = row.stats
     age = s.message_age_ms
     stamp = time.strftime("%H:%M:%S", time.localtime(row.updated_wall))
+    over = f" OVER_BUDGET windows_over={s.over_budget_windows}" if over_budget(s) else ""
     return (f"{row.topic} node={s.node} age_ms avg={_ms(age.average)} min={_ms(age.minimum)} "
             f"max={_ms(age.maximum)} period_ms avg={_ms(s.message_period_ms.average)} rate_hz={_rate(row)} "
-            f"samples={_samples(row)} lost={s.lost} dropped={s.dropped} updated={stamp} key={row.key}")
+            f"samples={_samples(row)} lost={s.lost} dropped={s.dropped} cpu_pct={cpu_text(s)}{over} "
+            f"updated={stamp} key={row.key}")
 
 
 def render_table(board: StatsBoard) -> "Table":
     from rich import box
     from rich.table import Table
+    from rich.text import Text
 
     table = Table(title=f"topic statistics on {STATS_KEY} (ms; n: samples in the window; last: s since update)",
                   title_justify="left", box=box.SIMPLE_HEAD, pad_edge=False)
     for name in ("topic", "node"):
         table.add_column(name, overflow="fold", min_width=8)
-    for name in ("age avg/min/max", "period", "Hz", "n", "lost", "drop", "last"):
+    for name in ("age avg/min/max", "period", "Hz", "n", "lost", "drop", "cpu %", "last"):
         table.add_column(name, justify="right", no_wrap=True)
     now = time.monotonic()
     for row in board.rows():
         s, age = row.stats, row.stats.message_age_ms
         since = now - row.updated_mono
         stale = row.window_s > 0 and since > STALE_WINDOWS * row.window_s
+        cpu = Text(cpu_text(s), style="bold red" if over_budget(s) else "")
         table.add_row(row.topic, s.node, f"{_ms(age.average)}/{_ms(age.minimum)}/{_ms(age.maximum)}",
                       _ms(s.message_period_ms.average), _rate(row), str(_samples(row)), str(s.lost),
-                      str(s.dropped), f"{since:.1f}", style="dim" if stale else None)
+                      str(s.dropped), cpu, f"{since:.1f}", style="dim" if stale else None)
     if not table.rows:
         table.caption = "waiting for topic statistics (subscriptions publish them when statistics are enabled)"
     else:
