@@ -114,6 +114,18 @@ def linked_nodes(ns: str, links: int = 2):
         yield a, b
 
 
+@contextmanager
+def spinning_nodes(ns: str, links: int = 1):
+    """linked_nodes, both spinning in background threads (joined once the nodes are closed)."""
+    with linked_nodes(ns, links=links) as (a, b):
+        threads = [threading.Thread(target=n.spin, daemon=True) for n in (a, b)]
+        for t in threads:
+            t.start()
+        yield a, b
+    for t in threads:   # close() shut the executors down
+        t.join(timeout=2.0)
+
+
 def stop_process(proc: subprocess.Popen, timeout: float = 15.0) -> str:
     """Ctrl-C a process as a user would (it stops cleanly and prints its summary), kill it if it
     hangs; returns what it printed."""

@@ -12,7 +12,7 @@ from collections.abc import Callable
 from typing import Any
 
 import pytest
-from conftest import linked_configs, linked_nodes, wait_for
+from conftest import linked_configs, spinning_nodes, wait_for
 
 from zenoh_robot import Node, QoSProfile
 from zenoh_robot.msgs import Header, Setpoint, StatisticsEntry, String, TopicStatistics
@@ -25,13 +25,8 @@ RELIABLE = QoSProfile(reliability="reliable", depth=50)
 @pytest.fixture
 def pair(ns: str):
     """(talker, listener), linked over loopback, both spinning in background threads."""
-    with linked_nodes(ns, links=1) as (a, b):
-        threads = [threading.Thread(target=n.spin, daemon=True) for n in (a, b)]
-        for t in threads:
-            t.start()
-        yield a, b
-    for t in threads:   # close() shut the executors down
-        t.join(timeout=2.0)
+    with spinning_nodes(ns) as nodes:
+        yield nodes
 
 
 class Stream:

@@ -8,12 +8,11 @@ from __future__ import annotations
 import io
 import logging
 import math
-import threading
 import time
 from typing import Any
 
 import pytest
-from conftest import linked_nodes, wait_for
+from conftest import spinning_nodes, wait_for
 from test_topic_statistics import Stream, _matched, _windows
 
 from zenoh_robot import QoSProfile
@@ -28,13 +27,8 @@ BURN_S = 0.005
 
 @pytest.fixture
 def pair(ns: str):
-    with linked_nodes(ns, links=1) as (a, b):
-        threads = [threading.Thread(target=n.spin, daemon=True) for n in (a, b)]
-        for t in threads:
-            t.start()
-        yield a, b
-    for t in threads:
-        t.join(timeout=2.0)
+    with spinning_nodes(ns) as nodes:
+        yield nodes
 
 
 def _burn(_msg: Any) -> None:
