@@ -28,7 +28,9 @@ from typing import Any
 
 import zenoh
 
-from companion.interface import (
+from drone_contract.commands import COMMANDS
+from drone_contract.limits import COMPANION_DEADLINE_S, CONTROL_LEASE_S, MAX_OFFSET_M, MAX_SPEED_MS
+from drone_contract.messages import (
     CONTROL_TOKEN_PREFIX,
     Command,
     CommandResult,
@@ -37,20 +39,20 @@ from companion.interface import (
     VehicleState,
     valid_client_id,
 )
+from drone_contract.streams import StreamProfile, stream_profile
 from px4_link import Px4Link
 from px4_link.commands import CommandError, CommandTimeout, NotConnected
 from px4_link.setpoints import PositionSetpoint, Setpoint, SetpointRejected, VelocitySetpoint
 from px4_link.telemetry import Attitude, Battery, Imu, LocalPosition
 from px4_link.wire import message_id
 from zenoh_robot import Node
-from zenoh_robot._wire.feedback import LinkMonitor
 from zenoh_robot.events import SubscriptionEventCallbacks
 from zenoh_robot.image_fec import FecImagePublisher
 from zenoh_robot.image_transport import MAX_SLICES, ImagePublisher, encode_strip
+from zenoh_robot.loss_feedback import LinkMonitor
 from zenoh_robot.msgs import Header, Image, SensorCombined
 from zenoh_robot.publisher import PublisherClosed
 from zenoh_robot.tools.stream_metrics import StreamRecorder
-from zenoh_robot.tools.stream_profiles import StreamProfile, stream_profile
 from zenoh_robot.topic_statistics import with_cpu_budget
 
 from .camera import RateKeeper, open_source
@@ -64,9 +66,6 @@ log = logging.getLogger("companion")
 # Parameters a GCS may set by default: speeds and takeoff/landing behaviour, never failsafes or geofence.
 DEFAULT_PARAM_ALLOW = ("MPC_XY_VEL_MAX", "MPC_XY_CRUISE", "MPC_Z_VEL_MAX_UP", "MPC_Z_VEL_MAX_DN",
                        "MPC_TKO_SPEED", "MPC_LAND_SPEED", "MIS_TAKEOFF_ALT")
-FLIGHT_COMMANDS = ("arm", "disarm", "takeoff", "land", "hold", "rtl", "offboard_start", "offboard_stop",
-                   "set_param", "take_control")
-COMMANDS = (*FLIGHT_COMMANDS, "release_control")
 # Executor % of one core the setpoint subscription may take (`zenoh-robot stats`, issue #18): 10 Hz
 # of setpoints with their copies measured 0.4 % (median, quiet host; max 0.7): 1.5 leaves room for
 # a loaded host and still flags a slow callback or a flood.
@@ -127,7 +126,7 @@ def ask_streams(link: Px4Link, plan: dict[str, float]) -> dict[str, str]:
 class CompanionConfig:
     drone_id: str = "uav1"
     profile: StreamProfile = field(default_factory=lambda: stream_profile("resilient"))
-    setpoint_deadline: float = 1.0
+    setpoint_deadline: float = COMPANION_DEADLINE_S
     resume_on_setpoints: bool = False
     sensor_rate_hz: float = 200.0        # the thesis's SensorCombined rate; asked of PX4 via MAVLink
     sensor_rate_tolerance: float = 0.9   # warn when PX4 delivers less than this share of it
@@ -136,9 +135,9 @@ class CompanionConfig:
     camera_rate_hz: float = 30.0
     image_width: int = 320
     image_height: int = 240
-    max_offset_m: float = 10.0           # how far a position target may lie from the vehicle
-    max_speed: float = 10.0              # velocity setpoints, m/s
-    control_lease_s: float = 5.0         # a controller without liveliness token is gone after this silence
+    max_offset_m: float = MAX_OFFSET_M   # how far a position target may lie from the vehicle
+    max_speed: float = MAX_SPEED_MS      # velocity setpoints, m/s
+    control_lease_s: float = CONTROL_LEASE_S   # a controller without liveliness token is gone after this silence
     allow_force_disarm: bool = False     # a forced disarm in flight drops the vehicle
     param_allow: tuple[str, ...] = DEFAULT_PARAM_ALLOW
     report_interval_s: float = 2.0       # repeated refusals: one event per key per interval
@@ -202,7 +201,7 @@ class Companion:
                 self.image_pub = FecImagePublisher(node, "image", q["image"], quality=config.profile.jpeg_quality)
             else:
                 self.image_pub = node.create_publisher(Image, "image", q["image"])
-        # Loss feedback (_wire/feedback.py): image parity follows the loss the GCS measures.
+        # Loss feedback (loss_feedback.py): image parity follows the loss the GCS measures.
         self.link_monitor = LinkMonitor(node) if config.profile.loss_feedback else None
         if self.link_monitor is not None and isinstance(self.image_pub, FecImagePublisher):
             self.link_monitor.adapt(self.image_pub.set_loss)

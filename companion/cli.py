@@ -11,13 +11,13 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from drone_contract.streams import IMAGE_MODES, PROFILES, STREAMS, StreamProfile, stream_profile
 from px4_link import CommandError, Px4Link
 from zenoh_robot import Node, SessionConfig
 from zenoh_robot.names import validate_node_name
 from zenoh_robot.parameters import ParameterError, ParameterStore, add_param_argument, params_from_args
 from zenoh_robot.qos import load_qos
 from zenoh_robot.session_config import add_session_arguments, apply_session_arguments
-from zenoh_robot.tools.stream_profiles import IMAGE_MODES, PROFILES, STREAMS, StreamProfile, stream_profile
 
 from .app import DEFAULT_PARAM_ALLOW, Companion, CompanionConfig
 from .params import PX4_STREAMS, QOS_PARAMS, CompanionParameters, known_names

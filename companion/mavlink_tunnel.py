@@ -30,14 +30,10 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink2
 
-from zenoh_robot.message import Message, message
-from zenoh_robot.qos import QoSProfile, ReliabilityPolicy
+from drone_contract.tunnel import MAX_DATAGRAM, TUNNEL_DOWN, TUNNEL_QOS, TUNNEL_UP, MavlinkPacket
 
 log = logging.getLogger("companion.mavlink_tunnel")
 
-MAX_DATAGRAM = 65535
-# Bursty telemetry, best effort (MAVLink has its own retries for what matters), a deep queue.
-TUNNEL_QOS = QoSProfile(ReliabilityPolicy.BEST_EFFORT, depth=200)
 
 # Read-only traffic a QGC needs to show a vehicle: always allowed up.
 READ_ONLY = frozenset({
@@ -54,12 +50,6 @@ READ_ONLY_COMMANDS = frozenset({
 })
 COMMANDS = frozenset({"COMMAND_LONG", "COMMAND_INT"})
 STATUSTEXT_PERIOD = 2.0     # at most one refusal notice per this many seconds
-
-
-@message(name="zenoh_robot/MavlinkPacket")
-class MavlinkPacket(Message):
-    """One UDP datagram of MAVLink, as PX4 or QGC sent it (one or more frames)."""
-    data: bytes = b""
 
 
 @dataclass
@@ -175,8 +165,8 @@ class MavlinkTunnel:
         self.tee = tee
         self.policy = MavlinkPolicy(allow_control)
         self.counters = TunnelCounters()
-        self._down = node.create_publisher(MavlinkPacket, "mavlink/down", TUNNEL_QOS)
-        self._up = node.create_subscription(MavlinkPacket, "mavlink/up", self._on_up, TUNNEL_QOS)
+        self._down = node.create_publisher(MavlinkPacket, TUNNEL_DOWN, TUNNEL_QOS)
+        self._up = node.create_subscription(MavlinkPacket, TUNNEL_UP, self._on_up, TUNNEL_QOS)
         self._reply = mavlink2.MAVLink(None, srcSystem=sysid, srcComponent=compid)
         self._notice_at = 0.0
         self._logged_at = 0.0

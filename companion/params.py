@@ -23,8 +23,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Protocol
 
+from drone_contract.streams import STREAMS
 from zenoh_robot.parameters import Parameter, ParameterType, SetParametersResult
-from zenoh_robot.tools.stream_profiles import STREAMS
 
 if TYPE_CHECKING:
     from .app import CompanionConfig

@@ -36,7 +36,8 @@ from typing import Any
 
 import numpy as np
 
-from companion.interface import (
+from drone_contract.limits import GCS_MAX_LEAD_M, GCS_MAX_TARGET_SPEED_MS
+from drone_contract.messages import (
     CONTROL_TOKEN_PREFIX,
     FAILSAFE_KINDS,
     Command,
@@ -45,14 +46,14 @@ from companion.interface import (
     FailsafeEvent,
     VehicleState,
 )
+from drone_contract.streams import StreamProfile, stream_profile
 from zenoh_robot import Node
-from zenoh_robot._wire.feedback import LinkMonitor, apply_repeat_plan
 from zenoh_robot.image_fec import FecAssembler, ImageShare
 from zenoh_robot.image_transport import MAX_SLICES, FrameInfo, ImageSlice
+from zenoh_robot.loss_feedback import LinkMonitor, apply_repeat_plan
 from zenoh_robot.msgs import Header, Image, SensorCombined
 from zenoh_robot.services import ServiceCallError, command_retry
 from zenoh_robot.tools.stream_metrics import StreamRecorder
-from zenoh_robot.tools.stream_profiles import StreamProfile, stream_profile
 from zenoh_robot.topic_statistics import with_cpu_budget
 
 from .downlink import DownlinkRates
@@ -62,8 +63,8 @@ from .patterns import Target, make_pattern, path_distance
 
 log = logging.getLogger("gcs")
 _DRONE_ID = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
-MAX_LEAD_M = 5.0     # how far ahead of the drone a target may lie (the companion refuses > 10 m)
-MAX_TARGET_SPEED = 5.0   # m/s a formation target may move (the companion refuses jumps faster than 10 m/s)
+MAX_LEAD_M = GCS_MAX_LEAD_M      # within the companion's max_offset_m (drone_contract.limits)
+MAX_TARGET_SPEED = GCS_MAX_TARGET_SPEED_MS   # within its max_speed
 # Executor time (% of one core) each drone stream may take before `zenoh-robot stats` shows it red
 # and the log warns (TopicStatisticsOptions.cpu_budget_pct). The whole GCS costs ~2-3.5 % of a core
 # per drone with the swarm downlink (docs/swarm.md). busy_pct measured (1 drone, FEC camera, quiet
@@ -344,7 +345,7 @@ class Gcs:
             # Discovery: any namespace publishing a VehicleState on <id>/state is a drone.
             self._discovery = node.session.declare_subscriber("*/state", self._on_any_state)
         node.create_timer(1.0 / config.rate_hz, self._stream)
-        # Loss feedback (_wire/feedback.py): setpoint copies follow the loss the drones measure.
+        # Loss feedback (loss_feedback.py): setpoint copies follow the loss the drones measure.
         self.link_monitor = LinkMonitor(node) if config.profile.loss_feedback else None
         if self.link_monitor is not None:
             self.link_monitor.adapt(self._adapt_copies)

@@ -13,20 +13,18 @@ from typing import Any
 from rich.console import Console
 from rich.live import Live
 
+from drone_contract.commands import CLI_COMMANDS, resolve_cli_name
+from drone_contract.streams import IMAGE_MODES, PROFILES, StreamProfile, stream_profile
 from zenoh_robot import Node, SessionConfig
 from zenoh_robot.parameters import add_param_argument, params_from_args
 from zenoh_robot.services import command_retry
 from zenoh_robot.session_config import add_session_arguments, apply_session_arguments
-from zenoh_robot.tools.stream_profiles import IMAGE_MODES, PROFILES, StreamProfile, stream_profile
 
 from .app import Gcs, GcsConfig
 from .dashboard import RateMeter, plain_lines, render
 from .formation import FORMATIONS, resolve
 from .mission import ON_FAILURE, run_mission, run_swarm_mission
 from .patterns import PATTERNS
-
-COMMANDS = ("arm", "disarm", "takeoff", "land", "hold", "rtl", "offboard", "offboard_start", "offboard_stop",
-            "set_param", "take_control", "release_control")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -36,7 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     c = actions.add_parser("cmd", help="send one command to a drone, or to all: arm, takeoff 5, land, hold, ...")
     c.add_argument("drone", help="a drone id, or 'all': every drone of --drones, else every drone heard "
                                  "within --discover s")
-    c.add_argument("command", choices=COMMANDS)
+    c.add_argument("command", choices=CLI_COMMANDS)
     c.add_argument("value", nargs="?", help="takeoff altitude, or NAME=VALUE for set_param")
     c.add_argument("--force", action="store_true",
                    help="disarm: in flight (the companion refuses unless started with --allow-force-disarm); "
@@ -207,7 +205,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _client_id(args: argparse.Namespace) -> str | None:
-    from companion.interface import valid_client_id
+    from drone_contract.messages import valid_client_id
 
     from .app import default_client_id
     cid = args.gcs_id or default_client_id()
@@ -315,9 +313,9 @@ def _print_summary(console: Console, summary: dict[str, Any]) -> None:
 
 
 def run_command(args: argparse.Namespace) -> int:
-    from companion.interface import Command, CommandResult
+    from drone_contract.messages import Command, CommandResult
     from zenoh_robot.services import ServiceCallError
-    name = "offboard_start" if args.command == "offboard" else args.command
+    name = str(resolve_cli_name(args.command))
     value, text = 0.0, ""
     if name == "takeoff":
         value = float(args.value) if args.value else 5.0

@@ -20,7 +20,7 @@ from collections import deque
 from rich.console import Group
 from rich.table import Table
 
-from companion.interface import VehicleState
+from drone_contract.messages import VehicleState
 
 from .app import DroneLink, Gcs
 

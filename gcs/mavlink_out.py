@@ -14,7 +14,7 @@ import threading
 from dataclasses import dataclass
 from typing import Any
 
-from companion.mavlink_tunnel import MAX_DATAGRAM, TUNNEL_QOS, MavlinkPacket
+from drone_contract.tunnel import MAX_DATAGRAM, TUNNEL_DOWN, TUNNEL_QOS, TUNNEL_UP, MavlinkPacket
 
 log = logging.getLogger("gcs.mavlink_out")
 
@@ -41,8 +41,8 @@ class MavlinkOut:
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self._sock.bind(("127.0.0.1" if self.target[0].startswith("127.") else "0.0.0.0", 0))
         ns = "/" + drone_ns.strip("/")
-        self._up = node.create_publisher(MavlinkPacket, f"{ns}/mavlink/up", TUNNEL_QOS)
-        self._sub = node.create_subscription(MavlinkPacket, f"{ns}/mavlink/down", self._on_down, TUNNEL_QOS)
+        self._up = node.create_publisher(MavlinkPacket, f"{ns}/{TUNNEL_UP}", TUNNEL_QOS)
+        self._sub = node.create_subscription(MavlinkPacket, f"{ns}/{TUNNEL_DOWN}", self._on_down, TUNNEL_QOS)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._read_qgc, name="mavlink-out", daemon=True)
         self._thread.start()

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-from zenoh_robot.tools.experiment.stall_runs import wait_ready  # noqa: F401  (one READY protocol: tests and the stall runs)
+from drone_lab.experiment.stall_runs import wait_ready  # noqa: F401  (one READY protocol: tests and the stall runs)
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -16,7 +16,9 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("zenoh_robot", "px4_link", "companion", "gcs")
+PACKAGES = ("zenoh_robot", "px4_link", "companion", "gcs", "drone_contract", "drone_lab")
+# The drone wing: the contract, the apps, the lab and px4_link; none of it below the tools.
+DRONE_WING = ("companion", "gcs", "px4_link", "drone_contract", "drone_lab")
 
 
 def _module_name(path: Path) -> str:
@@ -175,11 +177,52 @@ def test_no_import_cycle_among_the_projects_modules() -> None:
 
 
 def test_px4_link_never_imports_zenoh() -> None:
-    assert _offenders("px4_link", ("zenoh", "zenoh_robot", "companion", "gcs")) == []
+    assert _offenders("px4_link", ("zenoh", "zenoh_robot", "companion", "gcs", "drone_contract", "drone_lab")) == []
 
 
 def test_the_library_never_imports_mavlink_or_the_apps() -> None:
-    assert _offenders("zenoh_robot", ("pymavlink", "px4_link", "companion", "gcs"), exclude="zenoh_robot.tools") == []
+    assert _offenders("zenoh_robot", ("pymavlink", *DRONE_WING), exclude="zenoh_robot.tools") == []
+
+
+def test_the_apps_never_import_each_other() -> None:
+    assert _offenders("gcs", ("companion", "drone_lab")) == []
+    assert _offenders("companion", ("gcs", "drone_lab")) == []
+
+
+def test_the_contract_imports_only_the_library() -> None:
+    # Both apps import it: it must not drag either one (or MAVLink, or a tool) into the other.
+    assert _offenders("drone_contract", ("companion", "gcs", "px4_link", "drone_lab", "pymavlink",
+                                         "zenoh_robot.tools")) == []
+
+
+def test_nothing_outside_the_library_imports_its_private_modules() -> None:
+    bad = []
+    for prefix in ("zenoh_robot.tools", *DRONE_WING):
+        for module, names in _all_imports(prefix).items():
+            bad += [f"{module} imports {n}" for n in names
+                    if n.startswith("zenoh_robot.") and any(part.startswith("_") for part in n.split(".")[1:])]
+    assert bad == []
+
+
+def _started_modules(prefix: str) -> list[str]:
+    """``python -m X`` argv literals under ``prefix``: a dependency an import scan cannot see."""
+    found = []
+    for name, path in MODULES.items():
+        if name != prefix and not name.startswith(prefix + "."):
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, (ast.List, ast.Tuple)):
+                items = [e.value if isinstance(e, ast.Constant) else None for e in node.elts]
+                found += [f"{name} starts {items[i + 1]}" for i, v in enumerate(items[:-1])
+                          if v == "-m" and isinstance(items[i + 1], str)]
+    return found
+
+
+def test_tools_never_start_the_drone_system() -> None:
+    started = _started_modules("zenoh_robot")
+    assert any("zenoh_robot.tools" in s for s in started)    # the scan sees the tools' own -m starts
+    assert [s for s in started if s.split(" starts ")[1].split(".")[0] in DRONE_WING] == []
+    assert any(s.split(" starts ")[1].split(".")[0] == "companion" for s in _started_modules("drone_lab"))
 
 
 def test_the_library_never_imports_its_tools() -> None:
@@ -187,7 +230,7 @@ def test_the_library_never_imports_its_tools() -> None:
 
 
 def test_tools_never_import_the_drone_system() -> None:
-    assert _offenders("zenoh_robot.tools", ("companion", "gcs", "px4_link")) == []
+    assert _offenders("zenoh_robot.tools", DRONE_WING) == []
 
 
 def test_no_self_any_in_the_library() -> None:
@@ -209,7 +252,7 @@ def test_node_is_one_class_not_mixins() -> None:
 
 
 FORBIDDEN_ON_IMPORT = ("zenoh_robot.tools", "rich", "matplotlib", "subprocess", "csv", "pymavlink",
-                       "px4_link", "companion", "gcs", "PIL", "mcap", "foxglove", "cryptography")
+                       *DRONE_WING, "PIL", "mcap", "foxglove", "cryptography")
 
 
 def test_import_zenoh_robot_loads_no_tool() -> None:

@@ -21,7 +21,7 @@ pytest.importorskip("foxglove")
 
 from mcap.reader import make_reader  # noqa: E402
 
-from companion.interface import VehicleState  # noqa: E402
+from drone_contract.messages import VehicleState  # noqa: E402
 from zenoh_robot import Node, msgs, qos  # noqa: E402
 from zenoh_robot.tools.bag.info import Record, iter_records, read_info  # noqa: E402
 from zenoh_robot.tools.bag.play import BagPlayer  # noqa: E402

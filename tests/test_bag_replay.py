@@ -22,7 +22,7 @@ pytest.importorskip("foxglove")
 from mcap.reader import make_reader  # noqa: E402
 from test_bag import CLI, _cfg_session, talker  # noqa: E402,F401  (talker: the fixture)
 
-from companion.interface import VehicleState  # noqa: E402
+from drone_contract.messages import VehicleState  # noqa: E402
 from zenoh_robot import Node, msgs, qos  # noqa: E402
 from zenoh_robot.graph import EndpointType, decode_qos  # noqa: E402
 from zenoh_robot.image_transport import ImagePublisher  # noqa: E402

@@ -1,7 +1,7 @@
 """Commands over the resilient multicast session under loss each way: answered, and executed once.
 
 Two network namespaces joined by a veth (netns.LossyLink, root), a server process and a client
-process (zenoh_robot/tools/experiment/commands.py), 60 calls with a 2 s deadline per cell.
+process (drone_lab/experiment/commands.py), 60 calls with a 2 s deadline per cell.
 At 50 %: >= 97 % answered within 2 s (the plan, _wire/call_plan.py, predicts > 99.9 %). At 70 %
 the old behaviour (reply copies sent back to back, so one datagram: p = 0.3 * 0.3 per attempt,
 ~17 attempts in 2 s) answered ~80 %: the >= 95 % bound fails with it, and passes with spread
@@ -17,8 +17,8 @@ from conftest import skip_unless_required, wait_ready
 @pytest.mark.netns
 @pytest.mark.parametrize(("loss", "bound"), [(50.0, 0.97), (70.0, 0.95)])
 def test_commands_answered_and_executed_once_under_loss(loss: float, bound: float) -> None:
-    from zenoh_robot.tools.experiment.commands import run_level
-    from zenoh_robot.tools.experiment.netns import unavailable_reason
+    from drone_lab.experiment.commands import run_level
+    from drone_lab.experiment.netns import unavailable_reason
 
     reason = unavailable_reason()
     if reason:
@@ -67,7 +67,7 @@ def test_link_up_and_peers_on_a_multicast_session() -> None:
     import subprocess
     import sys
 
-    from zenoh_robot.tools.experiment.netns import LossyLink, unavailable_reason
+    from drone_lab.experiment.netns import LossyLink, unavailable_reason
 
     reason = unavailable_reason()
     if reason:
@@ -96,8 +96,8 @@ def test_link_up_and_peers_on_a_multicast_session() -> None:
 
 
 def test_multicast_profile_needs_an_interface() -> None:
+    from drone_contract.streams import stream_profile
     from zenoh_robot.qos import QoSError
-    from zenoh_robot.tools.stream_profiles import stream_profile
 
     with pytest.raises(QoSError, match="--iface"):
         stream_profile("resilient_multicast").session_config(None)

@@ -15,10 +15,10 @@ from pathlib import Path
 import pytest
 from conftest import ROOT, free_port, python_proc, wait_for
 
-from companion.interface import FailsafeEvent, VehicleState
 from companion.params import SPECS, qos_param_names
+from drone_contract.messages import FailsafeEvent, VehicleState
+from drone_contract.streams import stream_profile
 from zenoh_robot import Node, SessionConfig
-from zenoh_robot.tools.stream_profiles import stream_profile
 
 CLI = [sys.executable, "-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())"]
 

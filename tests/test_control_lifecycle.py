@@ -13,14 +13,14 @@ import pytest
 from conftest import linked_configs, wait_for
 
 from companion.app import Companion, CompanionConfig
-from companion.interface import Command, CommandResult, DroneSetpoint, FailsafeEvent, VehicleState
+from drone_contract.messages import Command, CommandResult, DroneSetpoint, FailsafeEvent, VehicleState
+from drone_contract.streams import SETPOINT_DEADLINE, stream_profile
 from gcs.app import Gcs, GcsConfig
 from gcs.mission import run_mission
 from px4_link import Px4Link
 from px4_link.sim import Simulator
 from zenoh_robot import MultiThreadedExecutor, Node
 from zenoh_robot.msgs import Header
-from zenoh_robot.tools.stream_profiles import SETPOINT_DEADLINE, stream_profile
 
 FAST = {"MPC_TKO_SPEED": 3.0, "MPC_LAND_SPEED": 2.0}
 PROFILE = stream_profile("resilient")

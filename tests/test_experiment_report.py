@@ -9,7 +9,7 @@ from typing import Any
 
 import pytest
 
-from zenoh_robot.tools.experiment.report import MAX_SLICES, groups, main, markdown_report, oldest_strip_ages
+from drone_lab.experiment.report import MAX_SLICES, groups, main, markdown_report, oldest_strip_ages
 
 MS = 1_000_000
 

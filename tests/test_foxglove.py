@@ -21,7 +21,7 @@ from conftest import free_port, linked_configs, python_proc
 pytest.importorskip("foxglove")
 websockets = pytest.importorskip("websockets")
 
-from companion.interface import VehicleState  # noqa: E402
+from drone_contract.messages import VehicleState  # noqa: E402
 from zenoh_robot import Node, msgs, qos  # noqa: E402
 from zenoh_robot.image_transport import ImagePublisher  # noqa: E402
 

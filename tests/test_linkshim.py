@@ -274,8 +274,8 @@ def test_a_zenoh_session_forms_through_two_shims_and_a_put_crosses() -> None:
 @pytest.mark.netns
 def test_a_session_forms_through_the_shims_from_a_70_percent_lossy_start() -> None:
     """Without the shim this takes ~45 s on average (0/8 within 30 s at 70 % for some variants)."""
-    from zenoh_robot.tools.experiment import handshake
-    from zenoh_robot.tools.experiment.netns import unavailable_reason
+    from drone_lab.experiment import handshake
+    from drone_lab.experiment.netns import unavailable_reason
     reason = unavailable_reason()
     if reason:
         skip_unless_required(f"linkshim netns test: {reason}")

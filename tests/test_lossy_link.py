@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 from conftest import last_json, skip_unless_required, wait_ready
 
-from zenoh_robot.tools.experiment.netns import LossyLink, unavailable_reason
+from drone_lab.experiment.netns import LossyLink, unavailable_reason
 
 ROOT = Path(__file__).resolve().parents[1]
 PEER = str(ROOT / "tests" / "procs" / "lossy_peer.py")
@@ -78,8 +78,8 @@ def test_reliable_profile_never_drops_at_the_sender() -> None:
     2-batch queue full for 1 ms (TCP retransmitting). Reliable blocks instead; best effort drops."""
     import zenoh
 
+    from drone_contract.streams import PROFILES
     from zenoh_robot.qos_mapping import publisher_options
-    from zenoh_robot.tools.stream_profiles import PROFILES
 
     for stream, q in PROFILES["reliable"].qos.items():
         assert publisher_options(q)["congestion_control"] == zenoh.CongestionControl.BLOCK, stream
@@ -129,7 +129,7 @@ def test_experiment_cell_window_lies_within_both_apps_streams(tmp_path: Path,
     the analysis read those seconds as every stream silent at once. Here both apps start slowly on
     purpose (a sitecustomize that sleeps 3 s, as imports on a loaded machine do): with the old timing
     the window opened before any stream, every run; now it must lie within both apps' streams."""
-    from zenoh_robot.tools.experiment.cell import CellSpec, run_cell
+    from drone_lab.experiment.cell import CellSpec, run_cell
 
     reason = unavailable_reason()
     if reason:
@@ -162,8 +162,8 @@ def test_sweep_resume_reruns_invalid_cells_and_reports_skip_them(tmp_path: Path,
     """A cell flagged ``invalid`` (its window missed the apps' streams) measured nothing about the link:
     the report must not show it and ``--resume`` must run it again. A session that never formed is
     a result (kept, not rerun); a harness error is rerun."""
-    from zenoh_robot.tools.experiment import sweep
-    from zenoh_robot.tools.experiment.cell import CellSpec
+    from drone_lab.experiment import sweep
+    from drone_lab.experiment.cell import CellSpec
 
     def line(loss: float, **kw: object) -> str:
         return json.dumps({"profile": "resilient@router", "transport": "router", "loss": loss, "start": "startup",
@@ -195,7 +195,7 @@ def test_router_cell_from_a_lossy_start(tmp_path: Path) -> None:
     """Issue #17 item 6: the resilient profile through a ground router, 30 % loss from start-up (the
     companion's handshake crosses it). Once the session has formed, every setpoint arrives with no
     gap over PX4's 500 ms, images arrive whole, and a command crosses the router both ways."""
-    from zenoh_robot.tools.experiment.cell import CellSpec, run_cell
+    from drone_lab.experiment.cell import CellSpec, run_cell
 
     reason = unavailable_reason()
     if reason:

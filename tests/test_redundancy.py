@@ -143,7 +143,7 @@ def test_deadline_copies_are_spread_and_a_newer_payload_replaces_them() -> None:
 
 
 def test_repeat_plan_follows_loss_and_bounds_cost() -> None:
-    from zenoh_robot._wire.feedback import repeat_plan
+    from zenoh_robot.loss_feedback import repeat_plan
     plans = {p: repeat_plan(p, 0.5) for p in (0.0, 0.3, 0.5, 0.7, 0.9)}
     rates = {p: c / w for p, (c, w) in plans.items()}          # copies per second while samples flow
     assert rates[0.0] <= 41 and list(rates.values()) == sorted(rates.values())
@@ -156,7 +156,7 @@ def test_repeat_plan_follows_loss_and_bounds_cost() -> None:
 def test_link_monitor_measures_silence_and_adapts_a_publisher(ns: str) -> None:
     """Two nodes probe each other: no loss measured; when one goes silent the other sees ~100 %,
     and the adapter re-sizes a real deadline publisher's copies from it."""
-    from zenoh_robot._wire.feedback import LinkMonitor, apply_repeat_plan
+    from zenoh_robot.loss_feedback import LinkMonitor, apply_repeat_plan
     from zenoh_robot.msgs import Header
     from zenoh_robot.qos import RESILIENT
 
@@ -199,7 +199,7 @@ def test_link_monitor_running_counts_measure_the_same_loss_as_a_rescan(monkeypat
     from collections import OrderedDict
 
     from zenoh_robot._wire import feedback
-    from zenoh_robot._wire.feedback import LinkMonitor, LinkProbe
+    from zenoh_robot.loss_feedback import LinkMonitor, LinkProbe
 
     clock = [1000.0]
 

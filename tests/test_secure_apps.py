@@ -20,11 +20,11 @@ import zenoh
 from conftest import free_port, python_proc, stop_process, wait_for
 
 pytest.importorskip("cryptography")
-from companion.interface import Command, CommandResult, DroneSetpoint  # noqa: E402
+from drone_contract.messages import Command, CommandResult, DroneSetpoint  # noqa: E402
+from drone_contract.streams import stream_profile  # noqa: E402
 from zenoh_robot import Node, ServiceCallError  # noqa: E402
 from zenoh_robot.msgs import Header  # noqa: E402
 from zenoh_robot.session_config import SessionConfig  # noqa: E402
-from zenoh_robot.tools.stream_profiles import stream_profile  # noqa: E402
 
 CLI = ("-m", "zenoh_robot.tools.cli.main")
 OP = "op"

@@ -1,6 +1,6 @@
 """The secure profile on the lossy link: mTLS QUIC between two network namespaces, random drop.
 
-Two bounded cells of ``zenoh_robot.tools.experiment.secure_sweep`` (the one behind the table
+Two bounded cells of ``drone_lab.experiment.secure_sweep`` (the one behind the table
 in docs/security.md): at 0 % the secure session must form and deliver everything; with 30 %
 loss per direction applied once it is up, the resilient setpoint stream must still deliver
 most setpoints. The sweep measured 76-100 % in repeated runs of that cell (QUIC's congestion
@@ -16,8 +16,8 @@ import pytest
 from conftest import skip_unless_required
 
 pytest.importorskip("cryptography")
-from zenoh_robot.tools.experiment import secure_sweep as ss  # noqa: E402
-from zenoh_robot.tools.experiment.netns import LossyLink, unavailable_reason  # noqa: E402
+from drone_lab.experiment import secure_sweep as ss  # noqa: E402
+from drone_lab.experiment.netns import LossyLink, unavailable_reason  # noqa: E402
 
 
 @pytest.fixture(scope="module")

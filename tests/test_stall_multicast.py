@@ -6,7 +6,7 @@ CPU. The stall hit a run now and then, so one run proves nothing: this test runs
 GCS <-> drone pairs at once (each pair in its own namespaces, joined by a veth with no loss),
 under two busy-looping CPU hogs, and asserts that every stream delivered to the end.
 
-The pair runner is ``zenoh_robot.tools.experiment.stall_runs`` (which also runs 50 consecutive
+The pair runner is ``drone_lab.experiment.stall_runs`` (which also runs 50 consecutive
 runs from the command line: docs/results/stall_runs.md). Each pair runs what the ``resilient``
 profile runs on one session: LinkMonitor probes from their own thread, the GCS's setpoint copies
 following the fed-back loss, the drone's paced FEC image bursts; three threads put concurrently
@@ -19,7 +19,7 @@ import os
 
 import pytest
 
-from zenoh_robot.tools.experiment.stall_runs import cpu_hogs, run_pairs, setpoint_gaps_ms
+from drone_lab.experiment.stall_runs import cpu_hogs, run_pairs, setpoint_gaps_ms
 
 RUNS = 8            # at once: the stall needs load, and the runs are part of it
 SECONDS = 4.0
@@ -40,7 +40,7 @@ def test_resilient_streams_with_loss_feedback_never_stall_on_multicast_under_cpu
     pytest.importorskip("zfec", reason="FEC images need the [image] extra")
     from conftest import skip_unless_required
 
-    from zenoh_robot.tools.experiment.netns import unavailable_reason
+    from drone_lab.experiment.netns import unavailable_reason
 
     reason = unavailable_reason()
     if reason:

@@ -17,10 +17,10 @@ from pathlib import Path
 import pytest
 from conftest import free_port, python_proc, wait_for
 
+from drone_contract.streams import stream_profile
 from gcs.app import Gcs, GcsConfig
 from zenoh_robot import Node, SessionConfig
 from zenoh_robot.session_config import open_session
-from zenoh_robot.tools.stream_profiles import stream_profile
 
 PROFILE = stream_profile("resilient")
 
@@ -184,7 +184,7 @@ def test_swarm_launch_files_ask_a_swarm_sized_downlink() -> None:
     """The checked-in launch files are the generator's, and their GCS asks every drone for 50 Hz / 15 fps."""
     from conftest import ROOT
 
-    from zenoh_robot.tools.experiment.swarm import SWARM_CAMERA_FPS, SWARM_SENSOR_HZ, swarm_launch
+    from drone_lab.experiment.swarm import SWARM_CAMERA_FPS, SWARM_SENSOR_HZ, swarm_launch
     for n, name in ((3, "swarm.yaml"), (10, "swarm10.yaml")):
         text = (Path(ROOT) / "configs" / "launch" / name).read_text()
         assert text == swarm_launch(n), f"{name}: regenerate with `zenoh-robot swarm --launch {n}`"
@@ -194,7 +194,7 @@ def test_swarm_launch_files_ask_a_swarm_sized_downlink() -> None:
 
 
 def test_swarm_report_marginal_cost_is_the_slope_within_one_downlink() -> None:
-    from zenoh_robot.tools.experiment.swarm_report import with_marginal
+    from drone_lab.experiment.swarm_report import with_marginal
 
     def row(n: int, cpu: float, hz: float) -> dict[str, object]:
         return {"drones": n, "mode": "peer", "camera": True, "sensor_asked_hz": hz, "camera_asked_fps": 15.0,

@@ -20,11 +20,11 @@ from pathlib import Path
 from conftest import python_proc, stop_process, wait_for
 from px4_helpers import assert_no_px4_failsafe
 
-from companion.interface import Command, CommandResult, DroneSetpoint, FailsafeEvent, VehicleState
+from drone_contract.messages import Command, CommandResult, DroneSetpoint, FailsafeEvent, VehicleState
+from drone_contract.streams import SETPOINT_DEADLINE, stream_profile
 from px4_link.sim import Simulator
 from zenoh_robot import Node, qos
 from zenoh_robot.msgs import Header
-from zenoh_robot.tools.stream_profiles import SETPOINT_DEADLINE, stream_profile
 
 OP = "test-op"   # the GCS id the test's processes and nodes share
 

@@ -76,7 +76,7 @@ _GRAPH_READ = ["declare_liveliness_subscriber", "liveliness_query"]
 # Key families the library and apps use besides topics (each one's writer is restricted below).
 _GRAPH = "@zr/lv"            # graph tokens: @zr/lv/<kind>/<zid>/<gid>/<namespace>/<node>/...
 _ALIVE = "@zr/alive"         # MANUAL_BY_TOPIC / leased publishers' heartbeats: @zr/alive/<topic key>
-_CONTROL = "zr_gcs"          # a GCS's liveliness token zr_gcs/<client id> (companion.interface)
+_CONTROL = "zr_gcs"          # a GCS's liveliness token zr_gcs/<client id> (drone_contract.messages)
 _LINK = "zr_link"            # loss-feedback probes every node sends and hears (_wire/feedback.LINK_TOPIC)
 # Nodes a GCS runs in the root namespace (gcs app, `gcs cmd`): their parameter services live at
 # @srv/<node>/... whatever the certificate's name.

@@ -23,7 +23,7 @@ from typing import Any
 
 # Others (security: keys, router) append theirs; a module that does not exist yet is skipped.
 SUBCOMMANDS = ["topic", "node", "interface", "stats", "param", "service", "launch", "doctor", "completion",
-               "bench", "experiment", "demo", "keys", "router", "bag", "foxglove", "swarm",
+               "bench", "keys", "router", "bag", "foxglove",
                "linkshim"]
 EXIT_USER_ERROR = 1
 

@@ -1,4 +1,10 @@
-"""Whole configurations for a GCS-drone link: the QoS of each stream, the image path, the transport.
+"""The drone's streams and whole configurations for a GCS-drone link: the QoS of each stream, the
+image path, the transport.
+
+``STREAM_SPECS`` is the one table of the streams between a GCS and a drone: the topic (under the
+drone's namespace), who publishes it and what type it carries. The companion and the GCS declare
+their publishers and subscriptions from it, and tests/test_contract.py fails when a stream is
+declared here but not wired on both sides.
 
 The thesis compared two launch variants (every stream RELIABLE, or every stream
 BEST_EFFORT, raw images); ``resilient`` is ours. A profile is more than QoS: how
@@ -10,13 +16,35 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+from zenoh_robot.msgs import SensorCombined
 from zenoh_robot.qos import RESILIENT, HistoryPolicy, Priority, QoSError, QoSProfile, ReliabilityPolicy
 from zenoh_robot.session_config import SessionConfig
 
-STREAMS = ("setpoint", "sensor", "state", "image", "events")
-# The GCS offers this deadline on setpoints: PX4 leaves OFFBOARD below 2 Hz, so a setpoint
-# stream that promises less is no use. A companion may request any deadline >= this one.
-SETPOINT_DEADLINE = 0.5
+from .limits import SETPOINT_DEADLINE_S as SETPOINT_DEADLINE
+from .messages import DroneSetpoint, FailsafeEvent, VehicleState
+
+UP = "up"         # GCS -> drone
+DOWN = "down"     # drone -> GCS
+
+
+@dataclass(frozen=True)
+class StreamSpec:
+    """One stream of the contract: ``<drone id>/<name>``, published by the drone (down) or the GCS (up).
+    ``message`` is None where the type follows the profile's image mode (image_transport, image_fec)."""
+    name: str
+    direction: str
+    message: type[Any] | None
+    description: str
+
+
+STREAM_SPECS: dict[str, StreamSpec] = {s.name: s for s in (
+    StreamSpec("setpoint", UP, DroneSetpoint, "position or velocity targets from the GCS in control"),
+    StreamSpec("sensor", DOWN, SensorCombined, "PX4's IMU (HIGHRES_IMU) at the sensor rate"),
+    StreamSpec("state", DOWN, VehicleState, "mode, arming, position, battery, the companion's lifecycle"),
+    StreamSpec("image", DOWN, None, "the camera, as the profile's image mode carries it"),
+    StreamSpec("events", DOWN, FailsafeEvent, "what the companion saw and did: refusals, failsafes, control"),
+)}
+STREAMS = tuple(STREAM_SPECS)
 IMAGE_MODES = ("raw", "jpeg", "sliced", "fec")
 SETPOINT_REPEAT_CEILING = 64
 TRANSPORT_KINDS = ("unicast", "multicast", "auto")

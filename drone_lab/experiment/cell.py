@@ -17,10 +17,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from drone_contract.streams import stream_profile
 from zenoh_robot.session_config import RESILIENT_GROUP, SessionConfig, fast_open
+from zenoh_robot.tools.stream_metrics import StreamRecorder, analyse
 
-from ..stream_metrics import StreamRecorder, analyse
-from ..stream_profiles import stream_profile
 from .netns import LossyLink
 
 DRONE_ID = "uav1"

@@ -27,7 +27,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from ..stream_metrics import StreamRecorder, analyse
+from zenoh_robot.tools.stream_metrics import StreamRecorder, analyse
 
 ZENOH_ROBOT = [sys.executable, "-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())"]
 DRONE_SENSOR_HZ = 200.0    # what a companion asks of PX4 unless its GCS asks otherwise (companion --sensor-rate)

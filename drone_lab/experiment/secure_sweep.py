@@ -18,7 +18,7 @@ Per cell: delivered % (unique / sent in the window), mean and p99 age, the longe
 session set-up time (launch to the first sample at each end). ``--start after`` applies the loss
 once the sessions are up, ``--start startup`` from the first packet. Needs root (namespaces).
 
-    python -m zenoh_robot.tools.experiment.secure_sweep --out /tmp/secure-sweep
+    python -m drone_lab.experiment.secure_sweep --out /tmp/secure-sweep
 """
 from __future__ import annotations
 
@@ -35,11 +35,11 @@ from pathlib import Path
 from typing import Any
 
 from zenoh_robot.session_config import SessionConfig
+from zenoh_robot.tools.stream_metrics import StreamRecorder, analyse
 
-from ..stream_metrics import StreamRecorder, analyse
 from .netns import LossyLink, NetnsUnavailable, unavailable_reason
 
-MODULE = "zenoh_robot.tools.experiment.secure_sweep"
+MODULE = "drone_lab.experiment.secure_sweep"
 PORT = 7447
 SENSOR_HZ = 200.0
 SETPOINT_HZ = 10.0
@@ -121,9 +121,9 @@ def session_kwargs(profile: str, side: str, link: LossyLink, keys_dir: Path) -> 
 def endpoint(side: str, config_kw: dict[str, Any], duration: float, out: Path, drain: float = 0.0,
              setpoint_repeat: int | None = None) -> None:
     """Publish for ``duration`` s from now, listen ``drain`` s more; write the records and first-sample times."""
+    from drone_contract.streams import stream_profile
     from zenoh_robot import Node
     from zenoh_robot.msgs import Header, SensorCombined, Setpoint
-    from zenoh_robot.tools.stream_profiles import stream_profile
 
     qos = dict(stream_profile("resilient").qos)
     if setpoint_repeat is not None:
@@ -270,7 +270,7 @@ def markdown(results: list[dict[str, Any]]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m zenoh_robot.tools.experiment.secure_sweep", description=__doc__,
+    p = argparse.ArgumentParser(prog="python -m drone_lab.experiment.secure_sweep", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="cmd")
     e = sub.add_parser("endpoint", help="(internal) one side of a cell, run inside its namespace")

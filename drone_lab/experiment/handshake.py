@@ -6,7 +6,7 @@ is from just before the node's ``zenoh.open`` to the router's first probe (one w
 host). Tries of one (variant, loss) run side by side in their own namespace pairs, so a cell
 costs at most ``--timeout`` seconds. Needs root.
 
-``python -m zenoh_robot.tools.experiment.handshake --loss 30,50,70,90 --tries 10``
+``python -m drone_lab.experiment.handshake --loss 30,50,70,90 --tries 10``
 """
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ from .netns import LossyLink
 
 PORT = 7447
 PROBE = "hs/probe"
-MODULE = "zenoh_robot.tools.experiment.handshake"
+MODULE = "drone_lab.experiment.handshake"
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,6 @@
 """Command delivery over the lossy link: success rate, latency and double executions per loss level.
 
-``python -m zenoh_robot.tools.experiment.commands [--loss 0 50 90] [--calls 100] [--timeout 2]
+``python -m drone_lab.experiment.commands [--loss 0 50 90] [--calls 100] [--timeout 2]
 [--transport multicast,unicast] [--monitor]`` (root: it builds the two-namespace veth link of
 netns.py). Per loss level and transport, a server process in the drone namespace serves a command
 service whose handler counts executions per call id; a client process in the GCS namespace calls
@@ -75,7 +75,7 @@ MONITOR_SETTLE_S = 2.0    # a LinkMonitor's short window is 1 s: let it measure 
 def serve(spec: str, monitor: bool = False) -> None:
     """Serve until stdin closes, then print {"executions": {call_id: n}} as JSON."""
     from zenoh_robot import Node
-    from zenoh_robot._wire.feedback import LinkMonitor
+    from zenoh_robot.loss_feedback import LinkMonitor
     runs: Counter[int] = Counter()
     lock = threading.Lock()
 
@@ -105,7 +105,7 @@ def serve(spec: str, monitor: bool = False) -> None:
 def call(spec: str, n: int, timeout: float, monitor: bool = False) -> None:
     """Make ``n`` calls one after the other; print one JSON summary."""
     from zenoh_robot import Node, ServiceCallError
-    from zenoh_robot._wire.feedback import LinkMonitor
+    from zenoh_robot.loss_feedback import LinkMonitor
     from zenoh_robot.services import command_retry
     with Node("cmd_client", config=_session(spec)) as node:
         linked = _wait_transport(node, SESSION_WAIT_S)
@@ -145,7 +145,7 @@ TRANSPORTS = ("multicast", "unicast")
 def _spec(link: Any, side: str, transport: str, workdir: str) -> str:
     if transport == "multicast":
         return f"multicast:{link.dev(side)}"
-    from zenoh_robot.tools.experiment.cell import transport_for
+    from drone_lab.experiment.cell import transport_for
     path = f"{workdir}/{side}.json5"
     with open(path, "w") as f:
         json.dump(transport_for("resilient", link, side, "unicast"), f)
@@ -161,10 +161,10 @@ def run_level(loss_pct: float, calls: int, timeout: float, transport: str = "mul
     """
     import tempfile
 
-    from zenoh_robot.tools.experiment.netns import LossyLink
+    from drone_lab.experiment.netns import LossyLink
     if transport not in TRANSPORTS:
         raise ValueError(f"transport {transport!r}: one of {', '.join(TRANSPORTS)}")
-    me = [sys.executable, "-m", "zenoh_robot.tools.experiment.commands"]
+    me = [sys.executable, "-m", "drone_lab.experiment.commands"]
     flag = ["monitor"] if monitor else []
     if start not in ("startup", "after"):
         raise ValueError(f"start {start!r}: startup or after")
@@ -265,7 +265,7 @@ def main(argv: list[str] | None = None) -> int:
     if argv and argv[0] == "call":
         call(argv[1], int(argv[2]), float(argv[3]), monitor="monitor" in argv[4:])
         return 0
-    p = argparse.ArgumentParser(prog="python -m zenoh_robot.tools.experiment.commands", description=__doc__,
+    p = argparse.ArgumentParser(prog="python -m drone_lab.experiment.commands", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--loss", type=float, nargs="+", default=[0.0, 50.0, 90.0], help="loss %% each way, per level")
     p.add_argument("--calls", type=int, default=100)
@@ -277,7 +277,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="loss from the start (sessions form under it) or only once the caller is linked")
     p.add_argument("--jsonl", help="append one JSON object per level here")
     args = p.parse_args(argv)
-    from zenoh_robot.tools.experiment.netns import unavailable_reason
+    from drone_lab.experiment.netns import unavailable_reason
     reason = unavailable_reason()
     if reason:
         print(f"error: {reason}", file=sys.stderr)

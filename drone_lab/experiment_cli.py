@@ -18,7 +18,7 @@ def _floats(text: str) -> list[float]:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from ..experiment.sweep import LOSSES, PROFILES
+    from drone_lab.experiment.sweep import LOSSES, PROFILES
     p = sub.add_parser("experiment", help="sweep packet loss between two network namespaces (needs root)")
     p.add_argument("--loss", type=_floats, default=list(LOSSES), help="loss %% values (default: the thesis's sweep)")
     p.add_argument("--profiles", default=",".join(PROFILES), help=f"comma-separated (default {','.join(PROFILES)})")
@@ -38,12 +38,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..experiment.cell import CellSpec
-    from ..experiment.netns import unavailable_reason
-    from ..experiment.report import write_report
-    from ..experiment.sweep import load_results, run_sweep
-    from ..stream_profiles import PROFILES as KNOWN
-    from .main import CliError
+    from drone_contract.streams import PROFILES as KNOWN
+    from drone_lab.experiment.cell import CellSpec
+    from drone_lab.experiment.netns import unavailable_reason
+    from drone_lab.experiment.report import write_report
+    from drone_lab.experiment.sweep import load_results, run_sweep
+    from zenoh_robot.tools.cli.main import CliError
 
     console = Console()
     out: Path = args.out
@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
             raise CliError(f"unknown profile(s) {unknown}; profiles: {', '.join(KNOWN)}")
         starts = ["after", "startup"] if args.start == "both" else [args.start]
         transports = [t for t in args.transport.split(",") if t]
-        from ..experiment.cell import TRANSPORTS
+        from drone_lab.experiment.cell import TRANSPORTS
         if any(t not in TRANSPORTS for t in transports):
             raise CliError(f"unknown transport in {transports}; transports: {', '.join(TRANSPORTS)}")
         cells = [CellSpec(p, loss, s, args.duration, args.warmup, t) for s in starts for p in profiles

@@ -14,7 +14,7 @@ the fed-back loss (``apply_repeat_plan``), and the drone's FEC images (a paced b
 of shares per frame). ``ZR_STALL_EXPRESS=1`` forces express on the GCS's setpoints
 (the old setting, past the library's workaround) to see the stall come back.
 
-``python -m zenoh_robot.tools.experiment.stall_runs --runs 50 [--hogs 2] [--parallel 8]``
+``python -m drone_lab.experiment.stall_runs --runs 50 [--hogs 2] [--parallel 8]``
 (root: it builds network namespaces). One pair is one run. Inside a pair the helper
 processes run ``--peer pub|sub IFACE SECONDS``.
 """
@@ -59,14 +59,13 @@ def peer(role: str, iface: str, seconds: float) -> None:
     CLOCK_MONOTONIC, one clock for every namespace of the machine, so the parent can compare them."""
     import numpy as np
 
+    from drone_contract.streams import stream_profile
     from zenoh_robot import Node
-    from zenoh_robot._wire.feedback import LinkMonitor, apply_repeat_plan
     from zenoh_robot.image_fec import FecImagePublisher, FecImageSubscription
+    from zenoh_robot.loss_feedback import LinkMonitor, apply_repeat_plan
     from zenoh_robot.msgs import Header, Setpoint
     from zenoh_robot.qos_mapping import declare_publisher
     from zenoh_robot.session_config import SessionConfig
-
-    from ..stream_profiles import stream_profile
 
     profile = stream_profile("resilient")
     assert profile.loss_feedback and profile.image_mode == "fec"
@@ -204,7 +203,7 @@ def run_pairs(pairs: int, seconds: float = SECONDS) -> list[PairResult]:
     """``pairs`` GCS <-> drone pairs at once, each over its own veth; one result per pair."""
     from .netns import LossyLink
 
-    cmd = [sys.executable, "-m", "zenoh_robot.tools.experiment.stall_runs", "--peer"]
+    cmd = [sys.executable, "-m", "drone_lab.experiment.stall_runs", "--peer"]
     with ExitStack() as stack:
         links = [stack.enter_context(LossyLink(loss_pct=0)) for _ in range(pairs)]
         drones: list[subprocess.Popen[str]] = []
@@ -278,7 +277,7 @@ def summary(results: list[PairResult]) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m zenoh_robot.tools.experiment.stall_runs", description=__doc__,
+    ap = argparse.ArgumentParser(prog="python -m drone_lab.experiment.stall_runs", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", type=int, default=50, help="pairs in all (one pair = one run)")
     ap.add_argument("--parallel", type=int, default=PARALLEL, help="pairs at once")

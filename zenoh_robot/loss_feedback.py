@@ -34,9 +34,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from ..message import Message, array, message, ros_field
-from ..qos import QoSProfile, ReliabilityPolicy
-from .repeater import REPEAT_INTERVAL_S
+from ._wire.repeater import REPEAT_INTERVAL_S
+from .message import Message, array, message, ros_field
+from .qos import QoSProfile, ReliabilityPolicy
 
 log = logging.getLogger("zenoh_robot.feedback")
 

@@ -37,9 +37,16 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..experiment.swarm import SWARM_CAMERA_FPS, SWARM_SENSOR_HZ, SwarmCell, load_results, run_sweep, swarm_launch
-    from ..experiment.swarm_report import write_report
-    from .main import CliError
+    from drone_lab.experiment.swarm import (
+        SWARM_CAMERA_FPS,
+        SWARM_SENSOR_HZ,
+        SwarmCell,
+        load_results,
+        run_sweep,
+        swarm_launch,
+    )
+    from drone_lab.experiment.swarm_report import write_report
+    from zenoh_robot.tools.cli.main import CliError
 
     if args.launch is not None:
         try:

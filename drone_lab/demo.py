@@ -26,7 +26,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
-from ..stream_metrics import StreamRecorder, analyse
+from zenoh_robot.tools.stream_metrics import StreamRecorder, analyse
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -77,7 +77,7 @@ def _wait_until(proc: subprocess.Popen, deadline: float) -> bool:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .main import CliError
+    from zenoh_robot.tools.cli.main import CliError
 
     if not args.duration >= MIN_DURATION_S:
         raise CliError(f"--duration must be at least {MIN_DURATION_S:g} s (take-off and landing alone take "

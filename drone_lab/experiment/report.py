@@ -9,7 +9,7 @@ stream through the whole window) are left out of the tables and listed under the
 with their reason, so a broken cell never reads as a rate. Command success per loss
 comes from the commands experiment's ``--jsonl`` file (``commands.py``), if given.
 
-``python -m zenoh_robot.tools.experiment.report OUT_DIR [--commands FILE.jsonl]`` redraws
+``python -m drone_lab.experiment.report OUT_DIR [--commands FILE.jsonl]`` redraws
 everything from ``OUT_DIR/results.jsonl`` (``zenoh-robot experiment --report-only`` does the
 same without commands).
 """
@@ -284,13 +284,13 @@ def markdown_report(results: list[dict[str, Any]], commands: dict[float, dict[st
            "strip in the picture (sliced images only). kB/s: everything each side put on its veth "
            "(all streams, copies, probes and Zenoh's own packets).", ""]
     if commands is not None:
-        md += ["Commands answered in time: the commands experiment (`python -m zenoh_robot.tools.experiment."
+        md += ["Commands answered in time: the commands experiment (`python -m drone_lab.experiment."
                "commands --jsonl FILE`), its own run over the same kind of link, joined by loss.", ""]
         from .commands import table as commands_table
         md += ["## Commands", "", commands_table([commands[k] for k in sorted(commands)]), ""]
     else:
         md += ["Command success per loss: not in this report (give `--commands FILE.jsonl` from "
-               "`python -m zenoh_robot.tools.experiment.commands --jsonl FILE`; see docs/results/commands.md).", ""]
+               "`python -m drone_lab.experiment.commands --jsonl FILE`; see docs/results/commands.md).", ""]
     return "\n".join(md)
 
 
@@ -306,7 +306,7 @@ def write_report(results: list[dict[str, Any]], out_dir: Path, commands: Path | 
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m zenoh_robot.tools.experiment.report", description=__doc__,
+    ap = argparse.ArgumentParser(prog="python -m drone_lab.experiment.report", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("out", type=Path, help="the experiment's --out directory (holds results.jsonl)")
     ap.add_argument("--commands", type=Path, help="the commands experiment's --jsonl file")

@@ -1,0 +1,69 @@
+"""The command set a GCS may send a drone: one table, read by the companion's command desk and the GCS CLI.
+
+A command is a ``Command`` message (drone_contract.messages) sent to the drone's ``command`` service.
+``CommandName`` is the one list of names; ``COMMAND_SPECS`` says, per command, what its arguments
+mean and whether the sender must hold control. The companion refuses a name that is not here and
+names the ones that are; ``gcs cmd`` offers exactly these (and ``offboard``, an alias the CLI keeps
+for typing comfort, resolved by ``resolve_cli_name``).
+"""
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+
+class CommandName(enum.StrEnum):
+    ARM = "arm"
+    DISARM = "disarm"
+    TAKEOFF = "takeoff"
+    LAND = "land"
+    HOLD = "hold"
+    RTL = "rtl"
+    OFFBOARD_START = "offboard_start"
+    OFFBOARD_STOP = "offboard_stop"
+    SET_PARAM = "set_param"
+    TAKE_CONTROL = "take_control"
+    RELEASE_CONTROL = "release_control"
+
+
+@dataclass(frozen=True)
+class CommandSpec:
+    name: CommandName
+    help: str
+    value: str = ""          # what Command.value carries ("" when unused)
+    text: str = ""           # what Command.text carries
+    force: str = ""          # what Command.force means for this command
+    claims_control: bool = True   # the sender must hold control, or takes it when nobody does
+
+
+COMMAND_SPECS: dict[CommandName, CommandSpec] = {s.name: s for s in (
+    CommandSpec(CommandName.ARM, "arm the motors (never into OFFBOARD)"),
+    CommandSpec(CommandName.DISARM, "disarm", force="disarm in flight (refused unless the companion allows it)"),
+    CommandSpec(CommandName.TAKEOFF, "AUTO.TAKEOFF to an altitude", value="altitude above home, m (0.5..120)"),
+    CommandSpec(CommandName.LAND, "AUTO.LAND"),
+    CommandSpec(CommandName.HOLD, "AUTO.LOITER (hold position)"),
+    CommandSpec(CommandName.RTL, "AUTO.RTL"),
+    CommandSpec(CommandName.OFFBOARD_START, "start an OFFBOARD session from the sender's recent setpoints"),
+    CommandSpec(CommandName.OFFBOARD_STOP, "end the OFFBOARD session: AUTO.LOITER"),
+    CommandSpec(CommandName.SET_PARAM, "set a PX4 parameter on the companion's allow-list",
+                value="parameter value", text="parameter name"),
+    CommandSpec(CommandName.TAKE_CONTROL, "become the GCS in control", force="take over from another GCS"),
+    CommandSpec(CommandName.RELEASE_CONTROL, "give control up", claims_control=False),
+)}
+COMMANDS: tuple[str, ...] = tuple(str(n) for n in CommandName)
+# What `gcs cmd` accepts: the contract's names plus the short alias `offboard`.
+CLI_ALIASES = {"offboard": CommandName.OFFBOARD_START}
+CLI_COMMANDS: tuple[str, ...] = (*COMMANDS[:6], "offboard", *COMMANDS[6:])
+
+
+def command_name(text: str) -> CommandName | None:
+    """The command ``text`` names, or None when it names none."""
+    try:
+        return CommandName(text)
+    except ValueError:
+        return None
+
+
+def resolve_cli_name(text: str) -> CommandName:
+    """A `gcs cmd` word to its command (ValueError for an unknown one)."""
+    return CLI_ALIASES.get(text) or CommandName(text)
