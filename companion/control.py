@@ -21,7 +21,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 
-from .interface import valid_client_id
+from drone_contract.messages import valid_client_id
 
 log = logging.getLogger("companion.control")
 
