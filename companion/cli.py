@@ -13,13 +13,14 @@ from typing import Any
 
 from drone_contract.streams import IMAGE_MODES, PROFILES, STREAMS, StreamProfile, stream_profile
 from px4_link import CommandError, Px4Link
-from zenoh_robot import Node, SessionConfig
+from zenoh_robot import Node
 from zenoh_robot.names import validate_node_name
 from zenoh_robot.parameters import ParameterError, ParameterStore, add_param_argument, params_from_args
 from zenoh_robot.qos import load_qos
-from zenoh_robot.session_config import add_session_arguments, apply_session_arguments
+from zenoh_robot.session_args import add_session_arguments, session_config_from_args
 
-from .app import DEFAULT_PARAM_ALLOW, Companion, CompanionConfig
+from .app import Companion
+from .config import DEFAULT_PARAM_ALLOW, CompanionConfig
 from .params import PX4_STREAMS, QOS_PARAMS, CompanionParameters, known_names
 from .summary import summary_line, write_summary
 
@@ -39,7 +40,6 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--sysid", type=int, default=1, help="system id of the built-in simulator (with --px4 sim)")
     p.add_argument("--profile", choices=sorted(PROFILES), default="resilient")
     p.add_argument("--config", type=Path, help="QoS YAML overriding streams (setpoint, sensor, state, image, events)")
-    p.add_argument("--zenoh", help="Zenoh session config (JSON5)")
     p.add_argument("--iface", help="network interface towards the GCS for the multicast transport "
                    "(profiles resilient, resilient_multicast; required by the latter)")
     add_session_arguments(p)
@@ -137,10 +137,9 @@ def run(args: argparse.Namespace) -> int:
     except ParameterError as exc:
         raise CliError(f"-p: {exc}") from None
     try:   # the profile says unicast or multicast; multicast needs --iface (one-line error otherwise)
-        session = SessionConfig.from_file(args.zenoh) if args.zenoh else profile.session_config(args.iface)
+        session = session_config_from_args(args, lambda: profile.session_config(args.iface), args.id)
     except ValueError as exc:
         raise CliError(str(exc)) from None
-    session = apply_session_arguments(session, args, args.id)
     from zenoh_robot import MultiThreadedExecutor
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
@@ -159,10 +158,10 @@ def run(args: argparse.Namespace) -> int:
             MavlinkTunnel(node, tee, allow_control=args.mavlink_tunnel_allow_control)
         if link.connected:   # else the companion asks on PX4's first heartbeat; px4_link after reconnects
             try:
-                companion.request_rates()
+                companion.telemetry.request_rates()
             except CommandError as exc:   # PX4's default rate applies until it reconnects
                 log.warning("could not set the HIGHRES_IMU rate: %s", exc)
-            companion.request_streams()   # logs what PX4 refused; never raises a CommandError
+            companion.telemetry.request_streams()   # logs what PX4 refused; never raises a CommandError
         spinner = threading.Thread(target=node.spin, name="companion-spin", daemon=True)
         spinner.start()
         try:

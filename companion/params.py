@@ -27,12 +27,12 @@ from drone_contract.streams import STREAMS
 from zenoh_robot.parameters import Parameter, ParameterType, SetParametersResult
 
 if TYPE_CHECKING:
-    from .app import CompanionConfig
+    from .config import CompanionConfig
 
 QOS_PARAMS = ("reliability", "history", "depth")   # the thesis's node parameters, applied to every stream
 QOS_POLICIES = ("reliability", "history", "depth")
 PX4_PARAM_NAME = re.compile(r"^[A-Za-z0-9_]{1,16}$")   # PX4's param_info: at most 16 characters
-PX4_STREAMS = ("lean", "default")   # which telemetry the companion asks PX4 for (app.py LEAN_STREAMS_HZ)
+PX4_STREAMS = ("lean", "default")   # which telemetry the companion asks PX4 for (telemetry_bridge.py LEAN_STREAMS_HZ)
 
 
 def _range(lo: float, hi: float, unit: str) -> Callable[[Any], str]:

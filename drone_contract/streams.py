@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+from zenoh_robot.message import Message
 from zenoh_robot.msgs import SensorCombined
 from zenoh_robot.qos import RESILIENT, HistoryPolicy, Priority, QoSError, QoSProfile, ReliabilityPolicy
 from zenoh_robot.session_config import SessionConfig
@@ -33,7 +34,7 @@ class StreamSpec:
     ``message`` is None where the type follows the profile's image mode (image_transport, image_fec)."""
     name: str
     direction: str
-    message: type[Any] | None
+    message: type[Message] | None
     description: str
 
 
@@ -58,7 +59,7 @@ class StreamProfile:
     image_mode: str = "raw"                 # raw (rgb8 Image), jpeg (one JPEG Image), sliced (ImagePublisher),
                                             # fec (one JPEG in shares + parity: zenoh_robot.image_fec)
     jpeg_quality: int = 70
-    # Each end measures the loss it sees and tells the other (_wire/feedback.LinkMonitor): setpoint
+    # Each end measures the loss it sees and tells the other (_wire/feedback.LossMonitor): setpoint
     # copies and image parity follow it instead of being sized for the worst case.
     loss_feedback: bool = False
     # SessionConfig keyword overrides: what the transport needs to live through loss.
@@ -106,15 +107,17 @@ def _all(q: QoSProfile) -> dict[str, QoSProfile]:
     return {s: q.replace(deadline=SETPOINT_DEADLINE) if s == "setpoint" else q for s in STREAMS}
 
 
-_KEEP_LAST_10 = dict(history=HistoryPolicy.KEEP_LAST, depth=10)
+def _keep_last_10(reliability: ReliabilityPolicy) -> QoSProfile:
+    return QoSProfile(reliability, history=HistoryPolicy.KEEP_LAST, depth=10)
+
 
 PROFILES: dict[str, StreamProfile] = {
     "reliable": StreamProfile(
         "reliable", "the thesis's RELIABLE variant: every stream reliable, keep last 10, raw images",
-        _all(QoSProfile(ReliabilityPolicy.RELIABLE, **_KEEP_LAST_10)), image_mode="raw"),
+        _all(_keep_last_10(ReliabilityPolicy.RELIABLE)), image_mode="raw"),
     "best_effort": StreamProfile(
         "best_effort", "the thesis's BEST_EFFORT variant: every stream best effort, keep last 10, raw images",
-        _all(QoSProfile(ReliabilityPolicy.BEST_EFFORT, **_KEEP_LAST_10)), image_mode="raw"),
+        _all(_keep_last_10(ReliabilityPolicy.BEST_EFFORT)), image_mode="raw"),
     "resilient": StreamProfile(
         "resilient",
         "setpoints carry their last 8 samples and the newest is re-sent over 400 ms, 16 to 64 times as "

@@ -6,6 +6,6 @@ import argparse
 from . import demo, experiment_cli, swarm_cli
 
 
-def register(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     for module in (demo, experiment_cli, swarm_cli):
         module.register(sub)

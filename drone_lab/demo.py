@@ -29,7 +29,7 @@ from rich.table import Table
 from zenoh_robot.tools.stream_metrics import StreamRecorder, analyse
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("demo", help="run simulator + companion + GCS on localhost and fly a square")
     p.add_argument("--duration", type=float, default=60.0,
                    help="seconds for the whole run, take-off and landing included (default 60)")
@@ -42,7 +42,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _free_udp_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+        port: int = s.getsockname()[1]
+        return port
 
 
 # s of a run that are not the pattern: start-up and take-off (~11 s), landing to disarm (~13 s, as
@@ -52,7 +53,7 @@ MIN_DURATION_S = SETUP_S + 10.0
 STOP_TIMEOUT = 15.0    # s a child has to stop after SIGINT (the GCS lands and writes its record)
 
 
-def _stop(proc: subprocess.Popen, name: str, console: Console) -> None:
+def _stop(proc: subprocess.Popen[bytes], name: str, console: Console) -> None:
     if proc.poll() is None:
         proc.send_signal(signal.SIGINT)
         try:
@@ -63,7 +64,7 @@ def _stop(proc: subprocess.Popen, name: str, console: Console) -> None:
             proc.wait()
 
 
-def _wait_until(proc: subprocess.Popen, deadline: float) -> bool:
+def _wait_until(proc: subprocess.Popen[bytes], deadline: float) -> bool:
     """True when ``proc`` ended before ``deadline``."""
     while proc.poll() is None:
         left = deadline - time.monotonic()
@@ -89,13 +90,12 @@ def run(args: argparse.Namespace) -> int:
     py = sys.executable
     logs = {name: open(work / f"{name}.log", "w") for name in ("sim", "companion")}
     console.print(f"demo: simulator, companion and GCS on localhost for {args.duration:g} s; logs in {work}")
-    # Own sessions: a terminal's Ctrl-C reaches this process only, which stops the rest in order.
-    detached = {"start_new_session": True}
+    # Every child in its own session: a terminal's Ctrl-C reaches this process only, which stops the rest in order.
     sim = subprocess.Popen([py, "-m", "px4_link.sim", "--port", "0", "--target-port", str(port)],
-                           stdout=logs["sim"], stderr=subprocess.STDOUT, **detached)
+                           stdout=logs["sim"], stderr=subprocess.STDOUT, start_new_session=True)
     companion = subprocess.Popen([py, "-m", "companion", "--id", args.drone, "--px4", f"udpin:127.0.0.1:{port}",
                                   "--profile", args.profile, "--record", str(work / "companion.json")],
-                                 stdout=logs["companion"], stderr=subprocess.STDOUT, **detached)
+                                 stdout=logs["companion"], stderr=subprocess.STDOUT, start_new_session=True)
     pattern_s = args.duration - SETUP_S   # so the GCS lands and ends by itself before the deadline
     gcs_cmd = [py, "-m", "gcs", "--drones", args.drone, "--mission", "--duration", f"{pattern_s:g}",
                "--pattern", args.pattern, "--profile", args.profile, "--record", str(work / "gcs.json")]
@@ -105,8 +105,8 @@ def run(args: argparse.Namespace) -> int:
     flight_log = work / "flight.mcap"   # every topic, as it flew (zenoh-robot bag info/play; opens in Foxglove)
     logs["bag"] = open(work / "bag.log", "w")
     bag = subprocess.Popen([py, "-m", "zenoh_robot.tools.cli.main", "bag", "record", "-a", "-o", str(flight_log)],
-                           stdout=logs["bag"], stderr=subprocess.STDOUT, **detached)
-    gcs = subprocess.Popen(gcs_cmd, stdin=subprocess.DEVNULL, **detached)
+                           stdout=logs["bag"], stderr=subprocess.STDOUT, start_new_session=True)
+    gcs = subprocess.Popen(gcs_cmd, stdin=subprocess.DEVNULL, start_new_session=True)
     console.print(f"demo: live view: open Foxglove on ws://127.0.0.1:{fox_port}")
     rc = 0
     try:
@@ -131,7 +131,7 @@ def run(args: argparse.Namespace) -> int:
     return 0 if rc in (0, -signal.SIGINT, 130) else rc
 
 
-def _stop_all(procs: list[tuple[subprocess.Popen, str]], console: Console) -> None:
+def _stop_all(procs: list[tuple[subprocess.Popen[bytes], str]], console: Console) -> None:
     """Dependents first: each stops (and records) while what it depends on still runs. A second
     Ctrl-C while waiting moves on to the next one rather than abandoning them all."""
     for proc, name in procs:

@@ -17,7 +17,7 @@ def _floats(text: str) -> list[float]:
     return values
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     from drone_lab.experiment.sweep import LOSSES, PROFILES
     p = sub.add_parser("experiment", help="sweep packet loss between two network namespaces (needs root)")
     p.add_argument("--loss", type=_floats, default=list(LOSSES), help="loss %% values (default: the thesis's sweep)")

@@ -15,7 +15,7 @@ def _ints(text: str) -> list[int]:
     return values
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("swarm", help="scaling sweep: one GCS and N drones with simulators, peer and via a router")
     p.add_argument("--drones", type=_ints, default=[1, 2, 5, 10], help="drone counts (default 1,2,5,10)")
     p.add_argument("--modes", default="peer,router", help="peer, router or both (default peer,router)")

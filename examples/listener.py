@@ -4,13 +4,12 @@ from __future__ import annotations
 import argparse
 import time
 
-from common import add_config_arguments, config_from_args
-
-from zenoh_robot import MessageInfo, Node, qos
+from zenoh_robot import MessageInfo, Node, SessionConfig, qos
 from zenoh_robot.msgs import Setpoint
+from zenoh_robot.session_args import add_session_arguments, session_config_from_args
 
 
-def main(conf: object, ns: str) -> None:
+def main(conf: SessionConfig, ns: str) -> None:
     last: float | None = None
 
     def on_setpoint(msg: Setpoint, info: MessageInfo) -> None:
@@ -20,13 +19,14 @@ def main(conf: object, ns: str) -> None:
         last = now
         print(f"seq {info.seq:5d}  x={msg.x:6.2f}  age {info.age_ms:6.2f} ms  period {period}", flush=True)
 
-    with Node("listener", namespace=ns, config=conf) as node:  # type: ignore[arg-type]
+    with Node("listener", namespace=ns, config=conf) as node:
         node.create_subscription(Setpoint, "setpoint", on_setpoint, qos.SETPOINT)
         node.spin()
 
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(prog="listener", description=__doc__)
-    add_config_arguments(parser)
+    add_session_arguments(parser)
+    parser.add_argument("--ns", default="demo", help="namespace of the example's node")
     args = parser.parse_args()
-    main(config_from_args(args), args.ns)
+    main(session_config_from_args(args), args.ns)

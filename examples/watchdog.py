@@ -8,12 +8,11 @@ from __future__ import annotations
 
 import argparse
 
-from common import add_config_arguments, config_from_args
+from zenoh_robot import Node, SessionConfig, SubscriptionEventCallbacks, TopicStatisticsOptions, qos
+from zenoh_robot.session_args import add_session_arguments, session_config_from_args
 
-from zenoh_robot import Node, SubscriptionEventCallbacks, TopicStatisticsOptions, qos
 
-
-def main(conf: object, ns: str, deadline: float) -> None:
+def main(conf: SessionConfig, ns: str, deadline: float) -> None:
     from zenoh_robot.msgs import Setpoint
 
     events = SubscriptionEventCallbacks(
@@ -23,7 +22,7 @@ def main(conf: object, ns: str, deadline: float) -> None:
         message_lost=lambda s: print(f"lost {s.total_count_change} setpoints ({s.total_count} in all)"),
         matched=lambda s: print(f"matched publishers: {s.current_count}"),
     )
-    with Node("watchdog", namespace=ns, config=conf) as node:  # type: ignore[arg-type]
+    with Node("watchdog", namespace=ns, config=conf) as node:
         requested = qos.SETPOINT.replace(depth=10, deadline=deadline, liveliness_lease_duration=2.0)
         node.create_subscription(Setpoint, "setpoint", lambda msg: None, requested,
                                  event_callbacks=events, topic_statistics=TopicStatisticsOptions(window=1.0))
@@ -32,9 +31,10 @@ def main(conf: object, ns: str, deadline: float) -> None:
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(prog="watchdog", description=__doc__)
-    add_config_arguments(parser)
+    add_session_arguments(parser)
+    parser.add_argument("--ns", default="demo", help="namespace of the example's node")
     parser.add_argument("--deadline", type=float, default=1.0,
                         help="seconds without a setpoint before an event "
                              "(>= the talker's offered 0.5, or incompatible)")
     args = parser.parse_args()
-    main(config_from_args(args), args.ns, args.deadline)
+    main(session_config_from_args(args), args.ns, args.deadline)

@@ -1,8 +1,8 @@
 """The GCS node: streams setpoints to each drone, listens to its telemetry, images and events.
 
-One ``Gcs`` holds one Node (one Zenoh session) and a ``DroneLink`` per drone. Drones
+One ``Gcs`` holds one Node (one Zenoh session) and a ``DroneView`` per drone. Drones
 are given (``--drones uav1,uav2``) or discovered from the ``*/state`` topics they
-publish. Everything a dashboard or a summary shows is read from ``DroneLink``.
+publish. Everything a dashboard or a summary shows is read from ``DroneView``.
 
 Identity: every setpoint and command carries this GCS's ``client_id`` (``user@host`` by
 default), and the session declares the liveliness token ``zr_gcs/<client_id>`` by which
@@ -50,7 +50,7 @@ from drone_contract.streams import StreamProfile, stream_profile
 from zenoh_robot import Node
 from zenoh_robot.image_fec import FecAssembler, ImageShare
 from zenoh_robot.image_transport import MAX_SLICES, FrameInfo, ImageSlice
-from zenoh_robot.loss_feedback import LinkMonitor, apply_repeat_plan
+from zenoh_robot.loss_feedback import LossMonitor, apply_repeat_plan
 from zenoh_robot.msgs import Header, Image, SensorCombined
 from zenoh_robot.services import ServiceCallError, command_retry
 from zenoh_robot.tools.stream_metrics import StreamRecorder
@@ -59,7 +59,7 @@ from zenoh_robot.topic_statistics import with_cpu_budget
 from .downlink import DownlinkRates
 from .formation import lead, slot
 from .frames import FrameKeeper
-from .patterns import Target, make_pattern, path_distance
+from .patterns import PathPoint, make_pattern, path_distance
 
 log = logging.getLogger("gcs")
 _DRONE_ID = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
@@ -110,7 +110,7 @@ class ImageStats:
     last_age_ms: float = float("nan")
 
 
-class DroneLink:
+class DroneView:
     """Everything the GCS sends to and knows about one drone."""
 
     MAX_EVENTS = 20
@@ -140,14 +140,14 @@ class DroneLink:
         self.max_path_error = 0.0
         # Targets: see the module docstring.
         self.fly = gcs.config.auto_fly          # fly the pattern once the session is active
-        self._hover: Target | None = None
-        self._anchor: Target | None = None
+        self._hover: PathPoint | None = None
+        self._anchor: PathPoint | None = None
         self._t0 = 0.0
-        self._frozen: Target | None = None
+        self._frozen: PathPoint | None = None
         # Set once a mission has sent LAND: nothing more to stream, and a stream into a landing drone
         # is only noise (the companion ends its session on LAND and ignores setpoints outside one).
         self.done = False
-        self._led: Target | None = None     # the last formation target (see target())
+        self._led: PathPoint | None = None     # the last formation target (see target())
         ns = f"/{drone_id}"
         self.setpoint_pub = node.create_publisher(DroneSetpoint, f"{ns}/setpoint", q["setpoint"])
         budget = {k: with_cpu_budget(node.enable_topic_statistics, v) for k, v in STREAM_CPU_BUDGET_PCT.items()}
@@ -253,7 +253,7 @@ class DroneLink:
         return None if got is None else got[0]
 
     # -- targets ---------------------------------------------------------------------
-    def target(self) -> Target | None:
+    def target(self) -> PathPoint | None:
         """What to stream now, or None (no position known: nothing safe to send)."""
         if self.done:
             return None
@@ -267,27 +267,27 @@ class DroneLink:
         toward = min(max(alt, z - MAX_LEAD_M), z + MAX_LEAD_M)   # climb (or descend) from where it is
         if not self.session_active:
             self._anchor = self._led = None
-            self._hover = Target(x, y, toward, self._hover.yaw if self._hover else 0.0)
+            self._hover = PathPoint(x, y, toward, self._hover.yaw if self._hover else 0.0)
             return self._hover
         if self._hover is None:
-            self._hover = Target(x, y, toward)
+            self._hover = PathPoint(x, y, toward)
         if not self.fly:   # session active, pattern not started: hold x, y, keep climbing
-            self._hover = Target(self._hover.x, self._hover.y, toward, self._hover.yaw)
+            self._hover = PathPoint(self._hover.x, self._hover.y, toward, self._hover.yaw)
             return self._hover
         if self.gcs.config.formation != "none":
             # One clock for the whole formation; the slot shifts this drone's copy of the path.
-            self._anchor = Target(*self.slot, 0.0)
+            self._anchor = PathPoint(*self.slot, 0.0)
             p0, p = self.pattern(0.0), self.pattern(self.gcs.formation_time())
             tx, ty = lead(x, y, self.slot[0] + p.x - p0.x, self.slot[1] + p.y - p0.y, MAX_LEAD_M)
             # Led from the last target, never faster than MAX_TARGET_SPEED: no jump to refuse.
             prev = self._led or self._hover
             tx, ty = lead(prev.x, prev.y, tx, ty, MAX_TARGET_SPEED / self.gcs.config.rate_hz)
-            self._led = Target(tx, ty, min(max(p.z, z - MAX_LEAD_M), z + MAX_LEAD_M), p.yaw)
+            self._led = PathPoint(tx, ty, min(max(p.z, z - MAX_LEAD_M), z + MAX_LEAD_M), p.yaw)
             return self._led
         if self._anchor is None:
             self._anchor, self._t0 = self._hover, time.monotonic()
         p0, p = self.pattern(0.0), self.pattern(time.monotonic() - self._t0)
-        return Target(self._anchor.x + p.x - p0.x, self._anchor.y + p.y - p0.y,
+        return PathPoint(self._anchor.x + p.x - p0.x, self._anchor.y + p.y - p0.y,
                       min(max(p.z, z - MAX_LEAD_M), z + MAX_LEAD_M), p.yaw)
 
     def start_pattern(self) -> None:
@@ -308,7 +308,7 @@ class DroneLink:
         except ServiceCallError as exc:
             return CommandResult(False, f"{type(exc).__name__}: {exc}", "")
 
-    def send_setpoint(self, t: Target) -> None:
+    def send_setpoint(self, t: PathPoint) -> None:
         sent = self.setpoint_pub.publish(DroneSetpoint(Header.now(seq=self.setpoints_sent), self.gcs.config.client_id,
                                                        t.x, t.y, t.z, t.yaw, False))
         self.sent["setpoint"].record(sent.seq, sent.stamp_ns)
@@ -323,7 +323,7 @@ class Gcs:
     def __init__(self, node: Node, config: GcsConfig) -> None:
         self.node = node
         self.config = config
-        self.drones: dict[str, DroneLink] = {}
+        self.drones: dict[str, DroneView] = {}
         self._lock = threading.Lock()
         self.pattern = make_pattern(config.pattern, config.altitude, config.size, config.speed)
         for name in config.patterns.values():
@@ -338,7 +338,7 @@ class Gcs:
         if self.downlink is not None:
             node.add_on_close(self.downlink.close)
         # The companion knows its controller is alive by this token (dropped when the session ends).
-        self._token = node.session.liveliness().declare_token(f"{CONTROL_TOKEN_PREFIX}/{config.client_id}")
+        self._token = node.declare_liveliness_token(f"{CONTROL_TOKEN_PREFIX}/{config.client_id}")
         for d in config.drones:
             self.add_drone(d)
         if not config.drones:
@@ -346,7 +346,7 @@ class Gcs:
             self._discovery = node.session.declare_subscriber("*/state", self._on_any_state)
         node.create_timer(1.0 / config.rate_hz, self._stream)
         # Loss feedback (loss_feedback.py): setpoint copies follow the loss the drones measure.
-        self.link_monitor = LinkMonitor(node) if config.profile.loss_feedback else None
+        self.link_monitor = LossMonitor(node) if config.profile.loss_feedback else None
         if self.link_monitor is not None:
             self.link_monitor.adapt(self._adapt_copies)
             node.add_on_close(self.link_monitor.close)
@@ -393,13 +393,15 @@ class Gcs:
     def _on_any_state(self, sample: Any) -> None:   # Zenoh thread: hand over to the executor
         drone_id = str(sample.key_expr).split("/")[0]
         if drone_id not in self.drones and _DRONE_ID.match(drone_id):
-            self.node.executor.call_soon(lambda: self.add_drone(drone_id))
+            def add() -> None:
+                self.add_drone(drone_id)
+            self.node.executor.call_soon(add)
 
-    def add_drone(self, drone_id: str) -> DroneLink:
+    def add_drone(self, drone_id: str) -> DroneView:
         with self._lock:
             if drone_id not in self.drones:
                 log.info("drone %s joined", drone_id)
-                self.drones[drone_id] = DroneLink(self, drone_id, index=len(self.drones))
+                self.drones[drone_id] = DroneView(self, drone_id, index=len(self.drones))
             return self.drones[drone_id]
 
     def take_control(self) -> dict[str, CommandResult]:

@@ -18,7 +18,7 @@ from drone_contract.streams import IMAGE_MODES, PROFILES, StreamProfile, stream_
 from zenoh_robot import Node, SessionConfig
 from zenoh_robot.parameters import add_param_argument, params_from_args
 from zenoh_robot.services import command_retry
-from zenoh_robot.session_config import add_session_arguments, apply_session_arguments
+from zenoh_robot.session_args import add_session_arguments, session_config_from_args
 
 from .app import Gcs, GcsConfig
 from .dashboard import RateMeter, plain_lines, render
@@ -27,7 +27,7 @@ from .mission import ON_FAILURE, run_mission, run_swarm_mission
 from .patterns import PATTERNS
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("gcs", help="ground control station: setpoints, telemetry, images, commands")
     add_common(p)
     actions = p.add_subparsers(dest="gcs_action", metavar="ACTION")
@@ -40,7 +40,6 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="disarm: in flight (the companion refuses unless started with --allow-force-disarm); "
                         "take_control: take over from another GCS")
     c.add_argument("--timeout", type=float, default=8.0)
-    c.add_argument("--zenoh", help="Zenoh session config (JSON5)")
     add_session_arguments(c)
     c.add_argument("--gcs-id", default=None, help="this GCS's id (default user@host, shared with `gcs` runs)")
     c.add_argument("--drones", help="with 'all': comma-separated drone ids (default: discover)")
@@ -56,7 +55,6 @@ def add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--size", type=float, default=10.0, help="pattern size, m")
     p.add_argument("--speed", type=float, default=2.0, help="pattern speed, m/s")
     p.add_argument("--profile", choices=sorted(PROFILES), default="resilient", help="stream QoS/transport profile")
-    p.add_argument("--zenoh", help="Zenoh session config (JSON5)")
     p.add_argument("--iface", help="network interface towards the drones for the multicast transport "
                    "(profiles resilient, resilient_multicast; required by the latter)")
     add_session_arguments(p)
@@ -103,13 +101,16 @@ def add_common(p: argparse.ArgumentParser) -> None:
 
 
 def session_config(args: argparse.Namespace, profile: StreamProfile) -> SessionConfig:
-    if args.zenoh:
-        return SessionConfig.from_file(args.zenoh)
+    """The session of ``--zenoh`` (else the profile's) refined by the session flags."""
     from zenoh_robot.tools.cli.main import CliError
-    try:   # the profile says unicast or multicast; multicast needs --iface (one-line error otherwise)
-        return profile.session_config(getattr(args, "iface", None))
-    except ValueError as exc:
-        raise CliError(str(exc)) from None
+
+    def from_profile() -> SessionConfig:
+        try:   # the profile says unicast or multicast; multicast needs --iface (one-line error otherwise)
+            return profile.session_config(getattr(args, "iface", None))
+        except ValueError as exc:
+            raise CliError(str(exc)) from None
+
+    return session_config_from_args(args, from_profile, "gcs")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -150,7 +151,7 @@ def run(args: argparse.Namespace) -> int:
         console.print(f"gcs: --save-image: one file per drone, "
                       f"{args.save_image.with_name(args.save_image.stem + '_<id>' + args.save_image.suffix)} "
                       "(each name is printed when first written)")
-    session = apply_session_arguments(session_config(args, profile), args, "gcs")
+    session = session_config(args, profile)
     with Node("gcs", config=session, parameter_overrides=params,
               enable_topic_statistics=not args.no_topic_statistics) as node:
         gcs = Gcs(node, config)
@@ -332,8 +333,7 @@ def run_command(args: argparse.Namespace) -> int:
     client_id = _client_id(args)
     if client_id is None:
         return 2
-    config = SessionConfig.from_file(args.zenoh) if args.zenoh else SessionConfig()
-    config = apply_session_arguments(config, args, "gcs")
+    config = session_config_from_args(args, name="gcs")
     with Node("gcs_cmd", config=config) as node:
         if args.drone == "all":
             targets = [d for d in (args.drones or "").split(",") if d] or discover_drones(node, args.discover)

@@ -22,7 +22,7 @@ from rich.table import Table
 
 from drone_contract.messages import VehicleState
 
-from .app import DroneLink, Gcs
+from .app import DroneView, Gcs
 
 WINDOW_S = 3.0
 
@@ -52,7 +52,7 @@ def _hz(v: float) -> str:
     return "-" if math.isnan(v) else f"{v:5.1f}"
 
 
-def drone_figures(d: DroneLink, rates: RateMeter) -> dict[str, float]:
+def drone_figures(d: DroneView, rates: RateMeter) -> dict[str, float]:
     """Windowed rates of one drone's streams (what the row and the plain line show)."""
     out = {name: rates.rate(f"{d.id}/{name}", len(rec)) for name, rec in d.streams.items()}
     out["setpoint"] = rates.rate(f"{d.id}/setpoint", d.setpoints_sent)
@@ -61,7 +61,7 @@ def drone_figures(d: DroneLink, rates: RateMeter) -> dict[str, float]:
     return out
 
 
-def image_figures(d: DroneLink, rates: RateMeter) -> dict[str, float]:
+def image_figures(d: DroneView, rates: RateMeter) -> dict[str, float]:
     """whole_fps, fresh_pct (strips that arrived, windowed), oldest_ms (oldest strip of the latest picture)."""
     k = d.frames
     fresh = rates.rate(f"{d.id}/strips_fresh", k.strips_fresh)
@@ -96,7 +96,7 @@ def render(gcs: Gcs, rates: RateMeter, title: str = "zenoh-robot GCS", details: 
     return Group(*parts)
 
 
-def stream_table(d: DroneLink, rates: RateMeter) -> Table:
+def stream_table(d: DroneView, rates: RateMeter) -> Table:
     t = Table(title=f"{d.id}: streams", expand=False)
     for col in ("stream", "rate Hz", "age avg ms", "age p99 ms", "period max ms", "received", "lost %"):
         t.add_column(col, justify="left" if col == "stream" else "right")
@@ -118,7 +118,7 @@ def stream_table(d: DroneLink, rates: RateMeter) -> Table:
     return t
 
 
-def _drone_row(table: Table, d: DroneLink, f: dict[str, float]) -> None:
+def _drone_row(table: Table, d: DroneView, f: dict[str, float]) -> None:
     s = d.state
     if s is None:
         table.add_row(d.id, "?", "", "", "", "waiting", "", "", _hz(f["setpoint"]), "", "", "", "", "", "", "")

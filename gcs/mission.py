@@ -21,7 +21,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from .app import DroneLink, Gcs
+from .app import DroneView, Gcs
 
 ON_FAILURE = ("continue", "hold")
 
@@ -96,7 +96,7 @@ def run_swarm_mission(gcs: Gcs, drone_ids: list[str], duration: float, log: Call
             "failed": failed}
 
 
-def _fly(gcs: Gcs, drone: DroneLink, duration: float, out: dict[str, Any], log: Callable[..., None],
+def _fly(gcs: Gcs, drone: DroneView, duration: float, out: dict[str, Any], log: Callable[..., None],
          abort: threading.Event, why: Callable[[], str]) -> None:
     failures_at_start = len(drone.failures)
     landing = False   # a drone already landing lands: another drone's failure does not hold it in the air

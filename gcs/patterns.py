@@ -13,7 +13,9 @@ PATTERNS = ("thesis", "hover", "square", "circle", "line")
 
 
 @dataclass(frozen=True, slots=True)
-class Target:
+class PathPoint:
+    """A point of a pattern's path (local NED metres, yaw radians) that the GCS turns into a setpoint."""
+
     x: float
     y: float
     z: float
@@ -21,32 +23,32 @@ class Target:
 
 
 def make_pattern(name: str, altitude: float = 5.0, size: float = 10.0, speed: float = 2.0,
-                 ) -> Callable[[float], Target]:
-    """Return f(t) -> Target for pattern ``name``; ``altitude`` is metres above home."""
+                 ) -> Callable[[float], PathPoint]:
+    """Return f(t) -> PathPoint for pattern ``name``; ``altitude`` is metres above home."""
     z = -abs(altitude)
     if name == "thesis":
         # The thesis's advertiser: x increasing at 0.1 per message (10 Hz), y and z constant.
-        return lambda t: Target(t * 1.0, 1.0, z)
+        return lambda t: PathPoint(t * 1.0, 1.0, z)
     if name == "hover":
-        return lambda t: Target(0.0, 0.0, z)
+        return lambda t: PathPoint(0.0, 0.0, z)
     if name == "line":
-        return lambda t: Target(size * _triangle(t * speed / size), 0.0, z)
+        return lambda t: PathPoint(size * _triangle(t * speed / size), 0.0, z)
     if name == "square":
         perimeter = 4 * size
 
-        def square(t: float) -> Target:
+        def square(t: float) -> PathPoint:
             d = (t * speed) % perimeter
             side, along = int(d // size), d % size
             x, y = [(along, 0.0), (size, along), (size - along, size), (0.0, size - along)][side]
-            return Target(x, y, z, yaw=[0.0, math.pi / 2, math.pi, -math.pi / 2][side])
+            return PathPoint(x, y, z, yaw=[0.0, math.pi / 2, math.pi, -math.pi / 2][side])
         return square
     if name == "circle":
         radius = size / 2
         omega = speed / radius
 
-        def circle(t: float) -> Target:
+        def circle(t: float) -> PathPoint:
             a = omega * t
-            return Target(radius * math.sin(a), radius * (1 - math.cos(a)), z, yaw=a)
+            return PathPoint(radius * math.sin(a), radius * (1 - math.cos(a)), z, yaw=a)
         return circle
     raise ValueError(f"unknown pattern {name!r}; choose one of {', '.join(PATTERNS)}")
 

@@ -15,30 +15,20 @@ from .commands import (
 )
 from .link import DEFAULT_CONNECTION, Px4Link
 from .modes import decode_custom_mode, encode_custom_mode, mode_to_main_sub, normalize_mode_name
-from .offboard import Offboard, OffboardError
+from .offboard import Offboard
 from .param import Param, ParamError
-from .setpoints import Geofence, OffboardSetpoint, PositionSetpoint, Setpoint, SetpointRejected, VelocitySetpoint
 from .stats import LinkStats
-from .telemetry import (
-                       Attitude,
-                       Battery,
-                       ExtendedSysState,
-                       GlobalPosition,
-                       Imu,
-                       LocalPosition,
-                       Px4State,
-                       SysStatus,
-                       VehicleState,
-)
+from .targets import Geofence, PositionTarget, Target, TargetRefused, TargetValidator, VehicleMotion, VelocityTarget
+from .telemetry import Attitude, Battery, ExtendedSysState, GlobalPosition, Imu, LocalPosition, Px4State, SysStatus
 from .telemetry_service import Telemetry
 
 __all__ = [
-    "Px4Link", "DEFAULT_CONNECTION", "LinkStats", "Px4State", "VehicleState",
-    "Action", "ActionError", "Offboard", "OffboardError", "Param", "ParamError", "Telemetry",
+    "Px4Link", "DEFAULT_CONNECTION", "LinkStats", "Px4State",
+    "Action", "ActionError", "Offboard", "Param", "ParamError", "Telemetry",
     "Imu", "Attitude", "LocalPosition", "GlobalPosition", "Battery", "SysStatus",
     "ExtendedSysState",
-    "OffboardSetpoint", "Setpoint", "PositionSetpoint", "VelocitySetpoint", "Geofence",
-    "SetpointRejected",
+    "Target", "PositionTarget", "VelocityTarget", "Geofence", "TargetValidator", "TargetRefused",
+    "VehicleMotion",
     "CommandAck", "CommandError", "CommandDenied", "CommandTemporarilyRejected",
     "CommandUnsupported", "CommandFailed", "CommandTimeout", "NotConnected",
     "decode_custom_mode", "encode_custom_mode", "mode_to_main_sub", "normalize_mode_name",

@@ -2,15 +2,12 @@
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 from .commands import CommandAck, CommandError, CommandFailed
 from .modes import mode_to_main_sub, normalize_mode_name
+from .plugin import Core
 from .telemetry import GlobalPosition
 from .wire import mavlink2
-
-if TYPE_CHECKING:
-    from .link import Px4Link
 
 MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
 ARM_FORCE_MAGIC = 21196  # PX4: param2 == 21196 skips arming/disarming checks
@@ -18,53 +15,58 @@ ARM_FORCE_MAGIC = 21196  # PX4: param2 == 21196 skips arming/disarming checks
 ActionError = CommandError   # MAVSDK-style name; every subclass tells which refusal it was
 
 
+def set_mode(core: Core, name: str, confirm_timeout: float = 3.0) -> CommandAck:
+    """MAV_CMD_DO_SET_MODE with PX4 custom main/sub mode, then wait until the heartbeat
+    shows it (an ACK alone does not guarantee the switch stuck). A function, not only a
+    method, because the offboard plugin switches modes too and plugins share only the core."""
+    canonical = normalize_mode_name(name)
+    main, sub = mode_to_main_sub(canonical)
+    ack = core.send_command(mavlink2.MAV_CMD_DO_SET_MODE, MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+                            main, sub)
+    if confirm_timeout > 0 and not core.wait_until(lambda: core.state.mode == canonical,
+                                                   confirm_timeout):
+        raise CommandFailed(mavlink2.MAV_CMD_DO_SET_MODE, ack.result,
+                            f"mode {canonical} accepted but heartbeat still shows "
+                            f"{core.state.mode} after {confirm_timeout:g} s")
+    return ack
+
+
 class Action:
-    def __init__(self, link: "Px4Link") -> None:
-        self._link = link
+    def __init__(self, core: Core) -> None:
+        self._core = core
 
     def arm(self) -> CommandAck:
-        return self._link.send_command(mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+        return self._core.send_command(mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, 1)
 
     def disarm(self, force: bool = False) -> CommandAck:
         """PX4 refuses in the air unless ``force`` (motors stop: the vehicle falls)."""
-        return self._link.send_command(mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, 0,
+        return self._core.send_command(mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, 0,
                                        ARM_FORCE_MAGIC if force else 0)
 
     def set_mode(self, name: str, confirm_timeout: float = 3.0) -> CommandAck:
-        """MAV_CMD_DO_SET_MODE with PX4 custom main/sub mode, then wait until the heartbeat
-        shows it (an ACK alone does not guarantee the switch stuck)."""
-        link = self._link
-        canonical = normalize_mode_name(name)
-        main, sub = mode_to_main_sub(canonical)
-        ack = link.send_command(mavlink2.MAV_CMD_DO_SET_MODE, MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
-                                main, sub)
-        if confirm_timeout > 0 and not link.wait_until(lambda: link.state.mode == canonical,
-                                                       confirm_timeout):
-            raise CommandFailed(mavlink2.MAV_CMD_DO_SET_MODE, ack.result,
-                                f"mode {canonical} accepted but heartbeat still shows "
-                                f"{link.state.mode} after {confirm_timeout:g} s")
-        return ack
+        """See ``set_mode``: the ACK and the heartbeat showing the new mode."""
+        return set_mode(self._core, name, confirm_timeout)
 
     def takeoff(self, altitude: float | None = None) -> CommandAck:
         """MAV_CMD_NAV_TAKEOFF to ``altitude`` m above home (PX4's MIS_TAKEOFF_ALT if None).
         PX4 wants param7 as AMSL, so home's AMSL comes from GLOBAL_POSITION_INT."""
-        link = self._link
+        core = self._core
         amsl = math.nan
         if altitude is not None:
-            gp = link.telemetry.latest(GlobalPosition) or link.telemetry.wait(GlobalPosition, 2.0)
+            gp = core.latest(GlobalPosition) or core.wait_sample(GlobalPosition, 2.0)
             if gp is None:
                 raise CommandFailed(mavlink2.MAV_CMD_NAV_TAKEOFF, None,
                                     "takeoff altitude needs GLOBAL_POSITION_INT to know home AMSL")
             amsl = gp.alt_m - gp.relative_alt_m + altitude
-        return link.send_command(mavlink2.MAV_CMD_NAV_TAKEOFF, -1, 0, 0, math.nan, math.nan,
+        return core.send_command(mavlink2.MAV_CMD_NAV_TAKEOFF, -1, 0, 0, math.nan, math.nan,
                                  math.nan, amsl)
 
     def land(self) -> CommandAck:
-        return self._link.send_command(mavlink2.MAV_CMD_NAV_LAND, 0, 0, 0, math.nan, math.nan,
+        return self._core.send_command(mavlink2.MAV_CMD_NAV_LAND, 0, 0, 0, math.nan, math.nan,
                                        math.nan, math.nan)
 
     def return_to_launch(self) -> CommandAck:
-        return self._link.send_command(mavlink2.MAV_CMD_NAV_RETURN_TO_LAUNCH)
+        return self._core.send_command(mavlink2.MAV_CMD_NAV_RETURN_TO_LAUNCH)
 
     rtl = return_to_launch
 

@@ -1,56 +1,34 @@
-"""Px4Link: the connection to PX4 (transport, threads, dispatch); the MAVSDK-style parts
-hang off it: ``link.action``, ``link.offboard``, ``link.param``, ``link.telemetry``.
+"""Px4Link: the link to PX4 as users see it, a plugin manager in MAVSDK's way.
 
-Threads: a receive thread parses bytes and dispatches telemetry, and a stream thread
-sends our HEARTBEAT (1 Hz), streams the latest offboard setpoint at a fixed rate and runs
-the heartbeat watchdog. Callbacks (telemetry listeners and ``on_event``) are invoked ON
-THOSE THREADS: keep them short and never block in them (no link commands from inside a
-callback: a command waits for an ACK that the receive thread would have to deliver).
-A callback that raises is logged (rate-limited) and counted in ``stats.callback_errors``.
-
-Everything received is untrusted: see ``peer.py`` for the address lock; non-finite
-telemetry never reaches listeners; an ACK only answers the command we are waiting for.
+``LinkCore`` (core.py) owns the connection, threads and dispatch; the plugins
+``link.action``, ``link.offboard``, ``link.param`` and ``link.telemetry`` sit on it through
+the narrow ``plugin.Core`` interface and register their own hooks (the offboard stream is
+a periodic hook of the core's send thread). ``Px4Link`` builds both and forwards the few
+link-wide calls; see core.py for the threading contract.
 """
 from __future__ import annotations
 
-import logging
-import threading
-import time
 from collections.abc import Callable
-from dataclasses import replace
-from typing import Any
 
-from . import commands as cmds
 from .action import Action
-from .commands import CommandAck, CommandSender, NotConnected
-from .legacy import LegacyApi
-from .modes import decode_custom_mode
+from .commands import CommandAck
+from .core import LinkCore
 from .offboard import Offboard
 from .param import Param
-from .peer import PeerLock
-from .ratelimit import RateLimitedLogger
-from .rates import BootWatch
-from .setpoints import Geofence, OffboardSetpoint, mavlink_fields
+from .plugin import EventCallback
 from .stats import LinkStats
-from .telemetry import DECODERS, ExtendedSysState, Px4State, is_finite_sample
+from .targets import Geofence
+from .telemetry import Px4State
 from .telemetry_service import Telemetry
-from .transport import Address, Transport, open_transport
-from .wire import Encoder, Parser, load_signing_key, mavlink2, setup_signing
+from .transport import Address
+from .wire import load_signing_key
 
-log = logging.getLogger(__name__)
-
-EventCallback = Callable[[str, dict[str, Any]], None]
-
-MAV_TYPE_ONBOARD_CONTROLLER = 18
-MAV_AUTOPILOT_INVALID = 8
-MAV_MODE_FLAG_SAFETY_ARMED = 128
-MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
 DEFAULT_CONNECTION = "udpin:127.0.0.1:14540"
 
 _DEFAULT_GEOFENCE = Geofence()
 
 
-class Px4Link(LegacyApi):
+class Px4Link:
     """MAVLink adapter to PX4. Use as a context manager::
 
         with Px4Link("udpin:127.0.0.1:14540") as link:
@@ -63,6 +41,7 @@ class Px4Link(LegacyApi):
 
     Events delivered to ``on_event(name, details)``: connected, disconnected, rebooted,
     mode_changed, armed_changed, landed_changed, offboard_lost, setpoint_rejected, statustext.
+    Callbacks run on the link's threads: keep them short (see core.py).
     """
 
     def __init__(self, connection: str = DEFAULT_CONNECTION, *,
@@ -82,392 +61,88 @@ class Px4Link(LegacyApi):
         if setpoint_rate_hz < 10.0:
             # PX4 needs > 2 Hz; 10 Hz keeps a margin for a lossy serial/UDP hop.
             raise ValueError("setpoint_rate_hz must be >= 10")
-        self.connection = connection
-        self.heartbeat_timeout = heartbeat_timeout
-        self.setpoint_rate_hz = setpoint_rate_hz
-        self.source_system = source_system
-        self.source_component = source_component
-        self._signing_key = signing_key if signing_key is not None else \
+        key = signing_key if signing_key is not None else \
             (load_signing_key(signing_key_file) if signing_key_file else None)
-        self._baud = baud
-        self._event_listeners: list[EventCallback] = [on_event] if on_event else []
-        self.rlog = RateLimitedLogger(log)
-
-        self._lock = threading.RLock()
-        self._cond = threading.Condition(self._lock)
-        self._state = Px4State()
-        self._stats: dict[str, int] = {f: 0 for f in LinkStats.__dataclass_fields__}
-        self._ever_connected = False
-        self._last_statustext: tuple[float, str] | None = None
-        self._peer = PeerLock(target_system)
-        self._boot = BootWatch()
-
-        self._transport: Transport | None = None
-        self._encoder: Encoder | None = None
-        self._parser = Parser()
-        if self._signing_key is not None:
-            setup_signing(self._parser.mav, self._signing_key, sign_outgoing=False)
-        self._stop = threading.Event()
-        self._threads: list[threading.Thread] = []
-        self._t0 = time.monotonic()
-        self._commands = CommandSender(self._send_command_long, command_timeout, command_retries,
-                                       context=self._recent_statustext)
-
-        self.action = Action(self)
-        self.offboard = Offboard(self, geofence, max_speed)
-        self.param = Param(self)
-        self.telemetry = Telemetry(self)
+        # The core's send thread ticks at the setpoint rate: the offboard stream is its hook.
+        self._core = LinkCore(connection, heartbeat_timeout=heartbeat_timeout, tick_hz=setpoint_rate_hz,
+                              source_system=source_system, source_component=source_component,
+                              target_system=target_system, command_timeout=command_timeout,
+                              command_retries=command_retries, signing_key=key, baud=baud)
+        if on_event is not None:   # first, as before: the user's callback sees each event first
+            self._core.add_event_listener(on_event)
+        self.action = Action(self._core)
+        self.offboard = Offboard(self._core, geofence, max_speed)
+        self.param = Param(self._core)
+        self.telemetry = Telemetry(self._core)
 
     # ----------------------------------------------------------------- lifecycle
-    def start(self) -> "Px4Link":
-        if self._threads:
-            return self
-        self._stop.clear()
-        self._transport = open_transport(self.connection, self._baud)
-        self._encoder = Encoder(self._write, self.source_system, self.source_component)
-        if self._signing_key is not None:
-            setup_signing(self._encoder.mav, self._signing_key)
-        self._threads = [threading.Thread(target=self._rx_loop, name="px4link-rx", daemon=True),
-                         threading.Thread(target=self._tx_loop, name="px4link-tx", daemon=True)]
-        for t in self._threads:
-            t.start()
+    def start(self) -> Px4Link:
+        self._core.start()
         return self
 
     def stop(self) -> None:
         """Stop both threads and close the transport; safe to call twice."""
-        self._stop.set()
-        for t in self._threads:
-            if t is not threading.current_thread():
-                t.join(timeout=2.0)
-        self._threads = []
-        if self._transport is not None:
-            self._transport.close()
-            self._transport = None
+        self._core.stop()
 
     close = stop
 
-    def __enter__(self) -> "Px4Link":
+    def __enter__(self) -> Px4Link:
         return self.start()
 
-    def __exit__(self, *exc: Any) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.stop()
+
+    @property
+    def connection(self) -> str:
+        return self._core.connection
 
     @property
     def local_port(self) -> int | None:
         """Port we are bound to (useful with ``udpin:127.0.0.1:0``)."""
-        addr = self._transport.local_address if self._transport else None
-        return addr[1] if addr else None
+        return self._core.local_port
 
     @property
     def vehicle_address(self) -> Address | None:
         """The address the link is locked onto (None before the first autopilot heartbeat)."""
-        return self._peer.address
+        return self._core.vehicle_address
 
     # ----------------------------------------------------------------- state
     @property
     def connected(self) -> bool:
-        return self._state.connected
+        return self._core.connected
 
     @property
     def state(self) -> Px4State:
-        return self._state
+        return self._core.state
 
     @property
     def mode(self) -> str:
-        return self._state.mode
+        return self._core.state.mode
 
     @property
     def armed(self) -> bool:
-        return self._state.armed
+        return self._core.state.armed
 
     @property
     def system_id(self) -> int | None:
-        return self._state.system_id
+        return self._core.state.system_id
 
     @property
     def stats(self) -> LinkStats:
-        with self._lock:
-            s = dict(self._stats)
-        p = self._parser
-        s.update(bytes_received=p.bytes_received, messages_received=p.messages,
-                 garbage_bytes=p.bad_bytes, bad_frames=p.bad_frames, crc_errors=p.crc_errors,
-                 unknown_messages=p.unknown_messages, bad_signatures=p.bad_signatures,
-                 commands_sent=self._commands.sent, command_retries=self._commands.retried)
-        return LinkStats(**s)
+        return self._core.stats
 
     def wait_connected(self, timeout: float = 10.0) -> bool:
         """Block until a vehicle heartbeat is seen; False on timeout."""
-        return self.wait_until(lambda: self._state.connected, timeout)
+        return self._core.wait_until(lambda: self._core.connected, timeout)
 
     def wait_until(self, predicate: Callable[[], bool], timeout: float) -> bool:
         """Poll ``predicate`` (woken by every telemetry/heartbeat) until true or timeout."""
-        deadline = time.monotonic() + timeout
-        with self._cond:
-            while not predicate():
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    return False
-                self._cond.wait(min(left, 0.1))
-        return True
-
-    def notify(self) -> None:
-        with self._cond:
-            self._cond.notify_all()
+        return self._core.wait_until(predicate, timeout)
 
     def add_event_listener(self, callback: EventCallback) -> None:
-        with self._lock:
-            self._event_listeners.append(callback)
+        self._core.add_event_listener(callback)
 
-    # ----------------------------------------------------------------- sending
     def send_command(self, command: int, *params: float, timeout: float | None = None,
                      retries: int | None = None) -> CommandAck:
         """COMMAND_LONG to the vehicle; returns the ACK or raises a CommandError subclass."""
-        if not self._state.connected:
-            raise NotConnected(command, None, f"{cmds.command_name(command)}: no vehicle connected")
-        return self._commands.run(command, params, timeout=timeout, retries=retries)
-
-    def encoder(self) -> Encoder:
-        if self._encoder is None:
-            raise RuntimeError("Px4Link is not started (use it as a context manager)")
-        return self._encoder
-
-    def send_message(self, msg: Any) -> None:
-        self.encoder().send(msg)
-
-    def vehicle_ids(self) -> tuple[int, int]:
-        s = self._state
-        return (s.system_id or self._peer.target_system or 1, s.component_id or 1)
-
-    def send_setpoint(self, sp: OffboardSetpoint) -> None:
-        if self._transport is None or not self._state.connected:
-            return
-        sysid, compid = self.vehicle_ids()
-        boot_ms = int((time.monotonic() - self._t0) * 1000) & 0xFFFFFFFF
-        self.send_message(self.encoder().set_position_target_local_ned_encode(
-            boot_ms, sysid, compid, **mavlink_fields(sp)))
-        self.count("setpoints_sent")
-
-    def _write(self, data: bytes) -> None:
-        t = self._transport
-        if t is None:
-            return
-        t.write(data)
-        with self._lock:
-            self._stats["bytes_sent"] += len(data)
-            self._stats["messages_sent"] += 1
-
-    def _send_command_long(self, command: int, params: Any, confirmation: int) -> None:
-        sysid, compid = self.vehicle_ids()
-        self.send_message(self.encoder().command_long_encode(sysid, compid, command, confirmation, *params))
-
-    def _send_heartbeat(self) -> None:
-        self.send_message(self.encoder().heartbeat_encode(
-            MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID, 0, 0, mavlink2.MAV_STATE_ACTIVE))
-        self.count("heartbeats_sent")
-
-    # ----------------------------------------------------------------- threads
-    def _tx_loop(self) -> None:
-        period = 1.0 / self.setpoint_rate_hz
-        next_tick = time.monotonic()
-        next_hb = next_tick
-        while not self._stop.is_set():
-            now = time.monotonic()
-            try:
-                if now >= next_hb:
-                    self._send_heartbeat()
-                    next_hb = now + 1.0
-                self._check_watchdog(now)
-                sp = self.offboard.setpoint
-                if self.offboard.streaming and sp is not None:
-                    self.send_setpoint(sp)
-            except Exception:  # the stream must survive anything (closed socket, bug)
-                self.rlog.exception("tx", "px4_link stream thread error")
-            next_tick += period
-            if next_tick < now:  # fell behind (suspended?): do not burst to catch up
-                next_tick = now + period
-            self._stop.wait(max(0.0, next_tick - time.monotonic()))
-
-    def _rx_loop(self) -> None:
-        while not self._stop.is_set():
-            t = self._transport
-            if t is None:
-                break
-            try:
-                got = t.recv(0.1)
-            except Exception:
-                if self._stop.is_set():
-                    break
-                self.rlog.exception("recv", "px4_link receive error")
-                self._stop.wait(0.1)
-                continue
-            if got is None:
-                continue
-            data, addr = got
-            try:
-                for m in self._parser.feed(data, datagram=t.datagram):
-                    self._accept(m, addr)
-                if addr is not None and addr == self._peer.address:
-                    t.set_peer(addr)   # answer the locked vehicle address only
-            except Exception:
-                self.rlog.exception("handle", "px4_link error handling received data")
-
-    # ----------------------------------------------------------------- receiving
-    def _accept(self, m: Any, addr: Address | None) -> None:
-        silent = not self._state.connected
-        verdict = self._peer.classify(m, addr, silent)
-        if verdict == "other":
-            self.count("other_system_messages")
-            return
-        if verdict == "spoofed":
-            self.count("spoofed_frames")
-            self.rlog.warning("spoof", "px4_link: frame claiming system %d from %s, vehicle is "
-                                       "at %s: dropped", m.get_srcSystem(), addr, self._peer.address)
-            return
-        self.telemetry.rates.record(m.get_type())
-        self._handle(m)
-
-    def _handle(self, m: Any) -> None:
-        mtype = m.get_type()
-        if mtype == "HEARTBEAT":
-            if m.get_srcComponent() == 1 and m.autopilot != MAV_AUTOPILOT_INVALID:
-                self._on_heartbeat(m)
-            return
-        if mtype == "COMMAND_ACK":
-            self._on_ack(m)
-        elif mtype == "COMMAND_LONG":
-            # PX4's own requests to other components (gimbal manager on LAND): not for us.
-            self.count("vehicle_commands_ignored")
-        elif mtype == "PARAM_VALUE":
-            self.param.handle(m)
-        elif mtype == "STATUSTEXT":
-            text = m.text if isinstance(m.text, str) else bytes(m.text).decode(errors="replace")
-            text = text.rstrip("\x00")
-            with self._lock:
-                self._last_statustext = (time.monotonic(), text)
-            self.emit("statustext", {"severity": m.severity, "text": text})
-        elif mtype in ("ATTITUDE", "SYSTEM_TIME"):
-            if self._boot.rebooted(m.time_boot_ms):
-                self._on_reboot()
-        decoder = DECODERS.get(mtype)
-        if decoder is None:
-            return
-        sample = decoder(m)
-        if not is_finite_sample(sample):
-            self.count("nonfinite_telemetry")
-            self.rlog.warning("nonfinite", "px4_link: dropped %s with non-finite values", mtype)
-            return
-        if isinstance(sample, ExtendedSysState):
-            self._on_landed_state(sample.landed_state)
-        self.telemetry.publish(sample)
-
-    def _on_ack(self, m: Any) -> None:
-        if m.target_system != self.source_system or m.target_component not in (0, self.source_component):
-            self.count("unsolicited_acks")   # an ACK to someone else's command
-            return
-        outcome = self._commands.handle_ack(m.command, m.result, getattr(m, "progress", 0),
-                                            getattr(m, "result_param2", 0))
-        if outcome == "duplicate":
-            self.count("duplicate_acks")
-        elif outcome == "unsolicited":
-            self.count("unsolicited_acks")
-
-    def _on_heartbeat(self, m: Any) -> None:
-        now = time.monotonic()
-        custom = bool(m.base_mode & MAV_MODE_FLAG_CUSTOM_MODE_ENABLED)
-        mode = decode_custom_mode(m.custom_mode) if custom else "UNKNOWN"
-        armed = bool(m.base_mode & MAV_MODE_FLAG_SAFETY_ARMED)
-        events: list[tuple[str, dict[str, Any]]] = []
-        reconnect = False
-        with self._cond:
-            old = self._state
-            self._stats["heartbeats_received"] += 1
-            self._state = replace(old, connected=True, system_id=m.get_srcSystem(),
-                                  component_id=m.get_srcComponent(), mode=mode,
-                                  custom_mode=m.custom_mode, base_mode=m.base_mode, armed=armed,
-                                  system_status=m.system_status, autopilot=m.autopilot,
-                                  vehicle_type=m.type, last_heartbeat=now,
-                                  heartbeats=old.heartbeats + 1)
-            if not old.connected:
-                if self._ever_connected:
-                    self._stats["reconnects"] += 1
-                    reconnect = True
-                self._ever_connected = True
-                events.append(("connected", {"system_id": m.get_srcSystem(),
-                                             "component_id": m.get_srcComponent(),
-                                             "reconnect": reconnect}))
-            if old.mode != mode and old.heartbeats:
-                events.append(("mode_changed", {"old": old.mode, "new": mode}))
-                if old.mode == "OFFBOARD" and self.offboard.on_mode_left():
-                    events.append(("offboard_lost", {"new_mode": mode}))
-            if old.armed != armed and old.heartbeats:
-                events.append(("armed_changed", {"armed": armed}))
-            self._cond.notify_all()
-        for name, details in events:
-            self.emit(name, details)
-        if reconnect:
-            self._reapply_intervals_later()
-
-    def _on_reboot(self) -> None:
-        self.count("reboots")
-        self.emit("rebooted", {"system_id": self._state.system_id})
-        self._reapply_intervals_later()
-
-    def _reapply_intervals_later(self) -> None:
-        # Commands wait for ACKs that this (receive) thread delivers: run them elsewhere.
-        if not self.telemetry.intervals.items():
-            return
-
-        def run() -> None:
-            self.wait_connected(5.0)
-            n = self.telemetry.reapply_intervals()
-            with self._lock:
-                self._stats["interval_rerequests"] += n
-
-        threading.Thread(target=run, name="px4link-intervals", daemon=True).start()
-
-    def _on_landed_state(self, landed_state: int) -> None:
-        with self._cond:
-            old = self._state.landed_state
-            if old == landed_state:
-                return
-            self._state = replace(self._state, landed_state=landed_state)
-            self._cond.notify_all()
-        self.emit("landed_changed", {"old": old, "new": landed_state,
-                                     "name": self._state.landed_state_name})
-
-    def _check_watchdog(self, now: float) -> None:
-        with self._cond:
-            s = self._state
-            if not s.connected or s.last_heartbeat is None:
-                return
-            silent = now - s.last_heartbeat
-            if silent <= self.heartbeat_timeout:
-                return
-            self._state = replace(s, connected=False)
-            self._stats["disconnects"] += 1
-            self._boot.reset()
-            self._cond.notify_all()
-        self.emit("disconnected", {"system_id": s.system_id, "silent_s": silent})
-
-    def _recent_statustext(self) -> str:
-        st = self._last_statustext
-        if st is not None and time.monotonic() - st[0] < 1.0:
-            return f"vehicle says: {st[1]}"
-        return ""
-
-    # ----------------------------------------------------------------- callbacks
-    def count(self, key: str, n: int = 1) -> None:
-        with self._lock:
-            self._stats[key] += n
-
-    def emit(self, name: str, details: dict[str, Any]) -> None:
-        log.debug("px4_link event %s %s", name, details)
-        for cb in list(self._event_listeners):
-            self.safe_call(cb, name, details)
-
-    def safe_call(self, cb: Callable[..., Any], *args: Any) -> None:
-        try:
-            cb(*args)
-        except Exception:
-            self.count("callback_errors")
-            self.rlog.exception(f"cb{id(cb) % 64}", "px4_link callback %r raised", cb)
+        return self._core.send_command(command, *params, timeout=timeout, retries=retries)

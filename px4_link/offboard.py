@@ -1,33 +1,36 @@
-"""``link.offboard``: the validated setpoint stream and OFFBOARD entry/exit."""
+"""``link.offboard``: the validated setpoint stream and OFFBOARD entry/exit.
+
+The plugin owns its stream: a periodic hook on the core's send thread repeats the latest
+setpoint at the link's tick rate (``setpoint_rate_hz``), and a mode hook on the receive
+thread tells a loss of OFFBOARD from our own switch away."""
 from __future__ import annotations
 
 import threading
 import time
-from typing import TYPE_CHECKING
 
+from .action import set_mode
 from .commands import CommandAck
-from .setpoints import Geofence, OffboardSetpoint, SetpointRejected, SetpointValidator
+from .plugin import Core, Event
+from .targets import Geofence, Target, TargetRefused, TargetValidator, mavlink_fields
 from .telemetry import LocalPosition
-
-if TYPE_CHECKING:
-    from .link import Px4Link
-
-OffboardError = SetpointRejected
 
 
 class Offboard:
     """Setpoints are checked (finite, geofence, speed/jump) before anything is sent; the
-    link's stream thread repeats the latest one at ``setpoint_rate_hz``."""
+    core's send thread repeats the latest one at ``setpoint_rate_hz`` through ``_tick``."""
 
-    def __init__(self, link: "Px4Link", geofence: Geofence | None, max_speed: float | None) -> None:
-        self._link = link
-        self._validator = SetpointValidator(geofence, max_speed)
+    def __init__(self, core: Core, geofence: Geofence | None, max_speed: float | None) -> None:
+        self._core = core
+        self._validator = TargetValidator(geofence, max_speed)
         self._lock = threading.Lock()
-        self.setpoint: OffboardSetpoint | None = None
+        self.setpoint: Target | None = None
         self._streaming = False
         self._stream_started: float | None = None
         self._active = False
         self.leaving = False   # set while we switch away ourselves: not an "offboard_lost"
+        self._t0 = time.monotonic()   # time_boot_ms of our setpoints counts from here
+        core.add_periodic(self._tick)
+        core.add_mode_hook(self._on_mode_change)
 
     @property
     def streaming(self) -> bool:
@@ -38,18 +41,18 @@ class Offboard:
         """True between a successful start() and stop() or PX4 leaving OFFBOARD."""
         return self._active
 
-    def set_setpoint(self, sp: OffboardSetpoint) -> None:
+    def set_setpoint(self, sp: Target) -> None:
         """Validate and stream ``sp``; the first one starts the stream. Raises
-        SetpointRejected (nothing is sent)."""
-        link = self._link
+        TargetRefused (nothing is sent)."""
+        core = self._core
         now = time.monotonic()
-        lp = link.telemetry.latest(LocalPosition)
+        lp = core.latest(LocalPosition)
         vehicle_pos = lp.position if lp is not None and now - lp.received_at < 1.0 else None
         try:
             self._validator.check(sp, now, vehicle_pos)
-        except SetpointRejected as e:
-            link.count("setpoints_rejected")
-            link.emit("setpoint_rejected", {"setpoint": sp, "reason": e.reason, "message": str(e)})
+        except TargetRefused as e:
+            core.count("setpoints_rejected")
+            core.emit("setpoint_rejected", {"setpoint": sp, "reason": e.reason, "message": str(e)})
             raise
         self._validator.accept(sp, now)
         with self._lock:
@@ -57,7 +60,7 @@ class Offboard:
             if not self._streaming:
                 self._streaming = True
                 self._stream_started = now
-        link.send_setpoint(sp)   # at once rather than at the next tick: setpoint age matters
+        self._send(sp)   # at once rather than at the next tick: setpoint age matters
 
     def stop_stream(self) -> None:
         """Stop streaming (the setpoint is kept). In OFFBOARD this makes PX4 fail safe
@@ -70,8 +73,8 @@ class Offboard:
         """Stream for ``prestream_s`` (PX4 wants ~1 s at > 2 Hz first), then OFFBOARD."""
         with self._lock:
             if self.setpoint is None:
-                raise SetpointRejected("no_setpoint", "offboard.start needs a setpoint first "
-                                                      "(call set_setpoint)")
+                raise TargetRefused("no_setpoint", "offboard.start needs a setpoint first "
+                                                   "(call set_setpoint)")
             if not self._streaming:
                 self._streaming = True
                 self._stream_started = time.monotonic()
@@ -79,7 +82,7 @@ class Offboard:
         wait = prestream_s - (time.monotonic() - started)
         if wait > 0:
             time.sleep(wait)
-        ack = self._link.action.set_mode("OFFBOARD", confirm_timeout)
+        ack = set_mode(self._core, "OFFBOARD", confirm_timeout)
         self._active = True
         return ack
 
@@ -89,17 +92,36 @@ class Offboard:
         ack = None
         self.leaving = True
         try:
-            if mode is not None and self._link.connected:
-                ack = self._link.action.set_mode(mode)
+            if mode is not None and self._core.connected:
+                ack = set_mode(self._core, mode)
         finally:
             self._active = False
             self.leaving = False
             self.stop_stream()
         return ack
 
-    def on_mode_left(self) -> bool:
-        """PX4 left OFFBOARD (receive thread); True when that is a loss, not our doing."""
+    def _on_mode_change(self, old: str, new: str) -> list[Event]:
+        """Mode hook (receive thread): PX4 leaving OFFBOARD while we did not ask is a loss."""
+        if old != "OFFBOARD":
+            return []
         lost = self._active and not self.leaving
-        if lost:
-            self._active = False
-        return lost
+        if not lost:
+            return []
+        self._active = False
+        return [("offboard_lost", {"new_mode": new})]
+
+    def _tick(self) -> None:
+        """Periodic hook (send thread): repeat the latest setpoint while streaming."""
+        sp = self.setpoint
+        if self._streaming and sp is not None:
+            self._send(sp)
+
+    def _send(self, sp: Target) -> None:
+        core = self._core
+        if not core.can_send:
+            return
+        sysid, compid = core.vehicle_ids()
+        boot_ms = int((time.monotonic() - self._t0) * 1000) & 0xFFFFFFFF
+        core.send_message(core.encoder().set_position_target_local_ned_encode(
+            boot_ms, sysid, compid, **mavlink_fields(sp)))
+        core.count("setpoints_sent")

@@ -1,39 +1,110 @@
-"""Logging that an attacker with a UDP socket cannot turn into a disk-filling flood."""
+"""Rate limiting of reports: an attacker with a UDP socket must not turn our logs into a disk-filling flood.
+
+A twin of ``zenoh_robot.ratelimit`` (same names, same signatures, same behaviour): px4_link never
+imports zenoh_robot (docs/architecture.md), so it keeps this copy. Change both together.
+
+Each key may report at most ``burst`` times per ``interval`` seconds; the table of keys is bounded
+and refuses new keys when full. Thread safe: the receive and stream threads log through one instance.
+"""
 from __future__ import annotations
 
 import logging
 import threading
 import time
+from dataclasses import dataclass
 
 
-class RateLimitedLogger:
-    """At most one record per ``key`` every ``interval`` seconds; the rest are counted and
-    reported with the next record that gets through."""
+@dataclass(slots=True)
+class Admitted:
+    """A report that may go out: ``count`` occurrences of the key so far, ``suppressed`` since the last report."""
 
-    def __init__(self, logger: logging.Logger, interval: float = 5.0) -> None:
-        self._log = logger
+    count: int
+    suppressed: int
+
+
+@dataclass(slots=True)
+class _Window:
+    start: float
+    lines: int = 0
+    suppressed: int = 0
+    count: int = 0
+
+
+class RateLimiter:
+    """At most ``burst`` reports per ``interval`` seconds for each key; the first occurrence reports at once."""
+
+    MAX_KEYS = 256
+
+    def __init__(self, burst: int = 1, interval: float = 2.0) -> None:
+        if burst < 1 or not interval > 0:
+            raise ValueError(f"{type(self).__name__} needs burst >= 1 and interval > 0")
+        self.burst = burst
         self.interval = interval
-        self._last: dict[str, float] = {}
-        self._suppressed: dict[str, int] = {}
+        self.suppressed_total = 0
+        self.overflow = 0    # occurrences whose key found no room (counted, never reported)
+        self._windows: dict[tuple[str, ...], _Window] = {}
         self._lock = threading.Lock()
 
-    def log(self, level: int, key: str, msg: str, *args: object, exc_info: bool = False) -> None:
+    def admit(self, *key: str) -> Admitted | None:
+        """Count one occurrence of ``key``; an :class:`Admitted` if it may be reported, else None."""
         now = time.monotonic()
         with self._lock:
-            last = self._last.get(key)
-            if last is not None and now - last < self.interval:
-                self._suppressed[key] = self._suppressed.get(key, 0) + 1
-                return
-            if len(self._last) > 256:   # keys come from our code, but stay bounded anyway
-                self._last.clear()
-            self._last[key] = now
-            skipped = self._suppressed.pop(key, 0)
-        if skipped:
-            msg += f" ({skipped} similar suppressed)"
-        self._log.log(level, msg, *args, exc_info=exc_info)
+            w = self._windows.get(key)
+            if w is None:
+                if len(self._windows) >= self.MAX_KEYS:
+                    self.overflow += 1
+                    return None
+                w = self._windows[key] = _Window(now)
+            w.count += 1
+            suppressed = 0
+            if now - w.start >= self.interval:
+                suppressed, w.start, w.lines, w.suppressed = w.suppressed, now, 0, 0
+            if w.lines >= self.burst:
+                w.suppressed += 1
+                self.suppressed_total += 1
+                return None
+            w.lines += 1
+            return Admitted(w.count, suppressed)
 
-    def warning(self, key: str, msg: str, *args: object) -> None:
-        self.log(logging.WARNING, key, msg, *args)
+    def hit(self, *key: str) -> int:
+        """Count one occurrence; the key's running count when it may be reported, else 0."""
+        admitted = self.admit(*key)
+        return admitted.count if admitted else 0
 
-    def exception(self, key: str, msg: str, *args: object) -> None:
-        self.log(logging.ERROR, key, msg, *args, exc_info=True)
+
+class RateLimitedLog:
+    """``log(key, level, msg, *args, exc_info=False)``: logs unless ``key`` spent its budget."""
+
+    def __init__(self, logger: logging.Logger, burst: int = 5, interval: float = 10.0) -> None:
+        self.logger = logger
+        self._limiter = RateLimiter(burst, interval)
+
+    @property
+    def interval(self) -> float:
+        return self._limiter.interval
+
+    @property
+    def suppressed_total(self) -> int:
+        return self._limiter.suppressed_total
+
+    def log(self, key: str, level: int, msg: str, *args: object, exc_info: bool = False) -> bool:
+        """Log (True) or count as suppressed (False)."""
+        admitted = self._limiter.admit(key)
+        if admitted is None:
+            return False
+        if admitted.suppressed:
+            msg = f"{msg} [{admitted.suppressed} similar message(s) suppressed in the last {self.interval:g} s]"
+        if not self.logger.isEnabledFor(level):
+            return True
+        self.logger.log(level, msg, *args, exc_info=exc_info)
+        return True
+
+    def warning(self, key: str, msg: str, *args: object, exc_info: bool = False) -> bool:
+        return self.log(key, logging.WARNING, msg, *args, exc_info=exc_info)
+
+    def error(self, key: str, msg: str, *args: object, exc_info: bool = False) -> bool:
+        return self.log(key, logging.ERROR, msg, *args, exc_info=exc_info)
+
+    def exception(self, key: str, msg: str, *args: object) -> bool:
+        """``error`` with the current exception's traceback."""
+        return self.log(key, logging.ERROR, msg, *args, exc_info=True)

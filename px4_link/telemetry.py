@@ -221,8 +221,6 @@ class Px4State:
         return SYSTEM_STATUS_NAMES.get(self.system_status, f"UNKNOWN({self.system_status})")
 
 
-VehicleState = Px4State  # deprecated alias: collides with the companion's Zenoh VehicleState
-
 Telemetry = Imu | Attitude | LocalPosition | GlobalPosition | Battery | SysStatus | ExtendedSysState
 
 # MAVLink message name -> decoder. The link dispatches on this table only.

@@ -1,68 +1,50 @@
-"""``link.telemetry``: vehicle state, latest samples, listeners, stream rates."""
+"""``link.telemetry``: vehicle state, latest samples, listeners, stream rates.
+
+The samples and listeners live in the core's telemetry cache (other plugins read it too);
+this plugin measures delivered rates and keeps the requested message intervals, asking for
+them again after PX4 reconnects or reboots."""
 from __future__ import annotations
 
 import threading
-import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import Any, TypeVar
 
 from .commands import CommandAck
+from .plugin import Core, Listener
 from .rates import RateMeter, RequestedIntervals
 from .telemetry import Px4State
 from .wire import mavlink2, message_id
 
-if TYPE_CHECKING:
-    from .link import Px4Link
-
 T = TypeVar("T")
-Listener = Callable[[Any], None]
 
 
 class Telemetry:
-    def __init__(self, link: "Px4Link") -> None:
-        self._link = link
-        self._latest: dict[type, Any] = {}
-        self._listeners: list[tuple[type | None, Listener]] = []
-        self._lock = threading.Lock()
+    def __init__(self, core: Core) -> None:
+        self._core = core
         self.rates = RateMeter()
         self.intervals = RequestedIntervals()
+        core.add_message_handler(None, lambda m: self.rates.record(m.get_type()))
+        core.add_event_listener(self._on_event)
 
     @property
     def state(self) -> Px4State:
-        return self._link.state
+        return self._core.state
 
     def latest(self, kind: type[T]) -> T | None:
         """Most recent sample of that type (e.g. ``link.telemetry.latest(Imu)``)."""
-        return self._latest.get(kind)
+        return self._core.latest(kind)
 
     def wait(self, kind: type[T], timeout: float = 5.0,
              predicate: Callable[[T], bool] | None = None) -> T | None:
         """Wait for a sample of ``kind`` newer than now (matching ``predicate``)."""
-        since = time.monotonic()
-
-        def fresh() -> bool:
-            v = self._latest.get(kind)
-            return v is not None and v.received_at >= since and (predicate is None or predicate(v))
-
-        return self._latest.get(kind) if self._link.wait_until(fresh, timeout) else None
+        return self._core.wait_sample(kind, timeout, predicate)
 
     def add_listener(self, callback: Listener, kind: type | None = None) -> Listener:
         """``callback(sample)`` for each sample (of ``kind`` only); runs on the receive thread."""
-        with self._lock:
-            self._listeners.append((kind, callback))
-        return callback
+        return self._core.add_sample_listener(callback, kind)
 
     def remove_listener(self, callback: Listener) -> None:
-        with self._lock:
-            self._listeners = [(k, c) for k, c in self._listeners if c is not callback]
-
-    def publish(self, sample: Any) -> None:
-        """Receive thread: store the (already validated) sample and call listeners."""
-        self._latest[type(sample)] = sample
-        self._link.notify()
-        for kind, cb in list(self._listeners):
-            if kind is None or isinstance(sample, kind):
-                self._link.safe_call(cb, sample)
+        self._core.remove_sample_listener(callback)
 
     def rate_hz(self, message: str, window: float = 2.0) -> float:
         """Delivered rate of a MAVLink message from the vehicle, measured over ``window`` s."""
@@ -77,7 +59,7 @@ class Telemetry:
 
     def _send_interval(self, mid: int, hz: float) -> CommandAck:
         interval_us = 1e6 / hz if hz > 0 else -1
-        return self._link.send_command(mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, mid, interval_us)
+        return self._core.send_command(mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL, mid, interval_us)
 
     def reapply_intervals(self) -> int:
         """Ask again for every remembered interval; returns how many were accepted."""
@@ -87,6 +69,23 @@ class Telemetry:
                 self._send_interval(mid, hz)
                 ok += 1
             except Exception as e:  # noqa: BLE001 - reported, retried on the next reconnect
-                self._link.rlog.warning("reinterval", "px4_link: re-requesting message %d at "
+                self._core.rlog.warning("reinterval", "px4_link: re-requesting message %d at "
                                         "%g Hz failed: %s", mid, hz, e)
         return ok
+
+    def _on_event(self, name: str, details: dict[str, Any]) -> None:
+        # PX4 forgets requested intervals when it reboots (and we cannot tell a reconnect from one).
+        if name == "rebooted" or (name == "connected" and details.get("reconnect")):
+            self._reapply_intervals_later()
+
+    def _reapply_intervals_later(self) -> None:
+        # Commands wait for ACKs that the receive thread (ours, now) delivers: run them elsewhere.
+        if not self.intervals.items():
+            return
+
+        def run() -> None:
+            core = self._core
+            core.wait_until(lambda: core.connected, 5.0)
+            core.count("interval_rerequests", self.reapply_intervals())
+
+        threading.Thread(target=run, name="px4link-intervals", daemon=True).start()

@@ -42,7 +42,8 @@ class UdpServerTransport:
 
     @property
     def local_address(self) -> Address:
-        return self.sock.getsockname()
+        host, port = self.sock.getsockname()
+        return host, port
 
     def recv(self, timeout: float) -> tuple[bytes, Address | None] | None:
         try:

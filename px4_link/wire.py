@@ -11,8 +11,11 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-from pymavlink.dialects.v20 import common as mavlink2
+from pymavlink.dialects.v20 import common
 
+# pymavlink has no type information: its classes are Any to mypy, so annotations say Any
+# where a MAVLink object or message goes.
+mavlink2 = common   # the MAVLink 2 "common" dialect: message classes, enums, mavlink_map
 MAVLink = mavlink2.MAVLink
 MAVLinkMessage = mavlink2.MAVLink_message
 
@@ -33,7 +36,7 @@ class Encoder:
         self.mav = MAVLink(_Sink(write), srcSystem=system_id, srcComponent=component_id)
         self._lock = threading.Lock()
 
-    def send(self, msg: MAVLinkMessage) -> None:
+    def send(self, msg: Any) -> None:
         with self._lock:
             self.mav.send(msg)
 
@@ -64,14 +67,14 @@ class Parser:
         self.bad_signatures = 0
 
     @property
-    def mav(self) -> MAVLink:
+    def mav(self) -> Any:
         return self._mav
 
-    def feed(self, data: bytes, datagram: bool = False) -> list[MAVLinkMessage]:
+    def feed(self, data: bytes, datagram: bool = False) -> list[Any]:
         if not data:
             return []
         self.bytes_received += len(data)
-        out: list[MAVLinkMessage] = []
+        out: list[Any] = []
         try:
             msgs = self._mav.parse_buffer(data) or []
         except Exception:  # robust parsing should not raise; never let it kill a thread
@@ -126,11 +129,13 @@ def message_name(msg_id: int) -> str | None:
 
 def int_to_float_bits(v: int) -> float:
     """PX4 sends INT32 params bytewise in PARAM_VALUE's float (PARAM_ENCODE_BYTEWISE)."""
-    return struct.unpack("<f", struct.pack("<i", v))[0]
+    f: float = struct.unpack("<f", struct.pack("<i", v))[0]
+    return f
 
 
 def float_bits_to_int(f: float) -> int:
-    return struct.unpack("<i", struct.pack("<f", f))[0]
+    i: int = struct.unpack("<i", struct.pack("<f", f))[0]
+    return i
 
 
 SIGNING_EPOCH = 1420070400  # 2015-01-01, MAVLink 2 signing timestamps count from here

@@ -64,10 +64,9 @@ def test_user_errors_are_one_line(args, needle):
     one_line_error(cli(*args), needle)
 
 
-def test_deprecated_config_flag_still_works_with_a_warning():
+def test_the_session_config_flag_is_zenoh_only():
     r = cli("topic", "list", "--config", "/nonexistent.json5")
-    assert r.returncode == 1
-    assert "--config is deprecated" in r.stderr and "use --zenoh" in r.stderr
+    assert r.returncode != 0 and "unrecognized arguments: --config" in r.stderr
 
 
 def test_zenoh_log_stays_off_the_terminal():

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from companion.control import ControlArbiter
-from companion.reporting import RateLimiter
+from zenoh_robot.ratelimit import RateLimiter
 
 
 def test_first_claim_wins_others_refused_with_the_holder_named() -> None:
@@ -53,7 +53,7 @@ def test_release_only_by_the_holder() -> None:
 
 
 def test_rate_limiter_reports_first_then_once_per_interval_with_count() -> None:
-    r = RateLimiter(interval_s=60.0)
+    r = RateLimiter(interval=60.0)
     counts = [r.hit("setpoint_rejected", "x", "jump") for _ in range(100)]
     assert counts[0] == 1 and not any(counts[1:])
     assert r.hit("setpoint_rejected", "y", "jump") == 1   # another key reports on its own

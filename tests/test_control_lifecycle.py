@@ -12,7 +12,8 @@ from dataclasses import dataclass, field
 import pytest
 from conftest import linked_configs, wait_for
 
-from companion.app import Companion, CompanionConfig
+from companion.app import Companion
+from companion.config import CompanionConfig
 from drone_contract.messages import Command, CommandResult, DroneSetpoint, FailsafeEvent, VehicleState
 from drone_contract.streams import SETPOINT_DEADLINE, stream_profile
 from gcs.app import Gcs, GcsConfig
@@ -116,7 +117,7 @@ def test_arm_after_a_mission_stays_on_the_ground_and_nothing_streams_after_landi
         time.sleep(1.5)
         assert r.sim.setpoints_received == received, "setpoints still reach PX4 after landing"
         assert r.sim.setpoints_since_landed == 0
-        assert not r.link.streaming and r.op.state is not None
+        assert not r.link.offboard.streaming and r.op.state is not None
         res = r.op.command("arm")
         assert res.success, res.message
         time.sleep(3.0)
@@ -132,7 +133,7 @@ def test_deadline_missed_holds_then_stops_streaming_and_resumes_only_when_asked(
         _take_off(r)
         r.op.target = None   # the GCS dies
         assert wait_for(lambda: r.sim.mode == "AUTO.LOITER", 5), r.sim.mode
-        assert wait_for(lambda: not r.link.streaming, 2)
+        assert wait_for(lambda: not r.link.offboard.streaming, 2)
         assert wait_for(lambda: "setpoint_deadline_missed" in r.op.kinds(), 5)
         assert r.sim.armed and not r.sim.landed
         assert not r.sim.failsafe_log, "PX4's own failsafe fired: our HOLD came too late"
@@ -237,7 +238,7 @@ def test_command_policy_force_disarm_and_param_allow_list(ns: str) -> None:
 
 def test_sensor_rate_is_measured_and_a_shortfall_is_reported(ns: str) -> None:
     with rig(ns, sensor_rate_hz=400.0) as r:
-        r.companion.request_rates()
+        r.companion.telemetry.request_rates()
         assert wait_for(lambda: r.op.state is not None and r.op.state.sensor_rate_hz > 0, 10)
         delivered = r.sim.delivered_rates["HIGHRES_IMU"]
         assert r.op.state.sensor_rate_requested_hz == 400.0

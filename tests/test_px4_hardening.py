@@ -12,9 +12,9 @@ from hypothesis import strategies as st
 from px4_helpers import sim_and_link
 from pymavlink.dialects.v20 import common as mavlink2
 
-from px4_link import CommandTemporarilyRejected, Imu, PositionSetpoint, SetpointRejected
-from px4_link.setpoints import Geofence, SetpointValidator
+from px4_link import CommandTemporarilyRejected, Imu, PositionTarget, TargetRefused
 from px4_link.sim import Simulator
+from px4_link.targets import Geofence, TargetValidator
 
 
 def _spoofer(sysid: int = 1, compid: int = 1) -> tuple[socket.socket, mavlink2.MAVLink]:
@@ -56,7 +56,7 @@ def test_nonfinite_telemetry_from_the_vehicle_is_dropped() -> None:
         m = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
         msg = m.highres_imu_encode(0, math.nan, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0xFFFF, 0)
         msg.pack(m)
-        link._handle(mavlink2.MAVLink(None).parse_char(msg.get_msgbuf()))   # as if from the vehicle
+        link._core._handle(mavlink2.MAVLink(None).parse_char(msg.get_msgbuf()))   # as if from the vehicle
         assert link.stats.nonfinite_telemetry == before + 1
         assert all(math.isfinite(i.accelerometer_m_s2[0]) for i in got)
 
@@ -87,10 +87,10 @@ def test_duplicate_ack_from_px4_is_counted_not_trusted() -> None:
 
 
 def test_nan_vehicle_position_cannot_disable_the_jump_check() -> None:
-    v = SetpointValidator(Geofence(), max_speed=5.0)
+    v = TargetValidator(Geofence(), max_speed=5.0)
     for _ in range(5):
-        with pytest.raises(SetpointRejected):
-            v.check(PositionSetpoint(60, 0, -3), 0.0, (math.nan, 0.0, -3.0))
+        with pytest.raises(TargetRefused):
+            v.check(PositionTarget(60, 0, -3), 0.0, (math.nan, 0.0, -3.0))
     assert Geofence().violation(math.nan, 0, 0) is not None
 
 

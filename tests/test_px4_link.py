@@ -21,11 +21,11 @@ from px4_link import (
     GlobalPosition,
     Imu,
     LocalPosition,
-    PositionSetpoint,
+    PositionTarget,
     Px4Link,
-    SetpointRejected,
     SysStatus,
-    VelocitySetpoint,
+    TargetRefused,
+    VelocityTarget,
 )
 from px4_link.sim import Simulator
 
@@ -33,7 +33,7 @@ from px4_link.sim import Simulator
 def _airborne_offboard(sim, link, z: float = -3.0) -> None:
     """Arm on the ground and climb in OFFBOARD (PX4 takes off towards a setpoint above it)."""
     link.action.arm()
-    link.offboard.set_setpoint(PositionSetpoint(0, 0, z, yaw=0.0))
+    link.offboard.set_setpoint(PositionTarget(0, 0, z, yaw=0.0))
     link.offboard.start()
     assert sim.wait_for(lambda s: s.altitude > -z - 0.3, 8), sim.position
 
@@ -102,7 +102,7 @@ def test_offboard_refused_without_stream_accepted_with_one() -> None:
         assert "offboard" in str(e.value).lower()
         assert sim.mode == "AUTO.LOITER"
         # A single setpoint is not a stream: PX4 wants ~1 s of > 2 Hz first.
-        link.offboard.set_setpoint(PositionSetpoint(0, 0, -2.0, yaw=0.0))
+        link.offboard.set_setpoint(PositionTarget(0, 0, -2.0, yaw=0.0))
         with pytest.raises(CommandTemporarilyRejected):
             link.action.set_mode("OFFBOARD")
         link.offboard.start()
@@ -121,14 +121,14 @@ def test_vehicle_reaches_position_and_velocity_setpoints() -> None:
         target = (4.0, -3.0, -5.0)
         # Walk the setpoint there (a single 6 m jump would fail the jump check).
         for i in range(1, 21):
-            link.offboard.set_setpoint(PositionSetpoint(*(c * i / 20 for c in target[:2]),
+            link.offboard.set_setpoint(PositionTarget(*(c * i / 20 for c in target[:2]),
                                                -3.0 + (target[2] + 3.0) * i / 20, yaw=1.0))
             time.sleep(0.05)
         assert sim.wait_for(lambda s: math.dist(s.position, target) < 0.2, 10), sim.position
         assert sim.wait_for(lambda s: abs(s.vehicle.yaw - 1.0) < 0.05, 5)
         lp = link.telemetry.wait(LocalPosition, 2)
         assert math.dist(lp.position, target) < 0.3
-        link.offboard.set_setpoint(VelocitySetpoint(1.0, 0.0, 0.0, yaw=1.0))
+        link.offboard.set_setpoint(VelocityTarget(1.0, 0.0, 0.0, yaw=1.0))
         assert sim.last_setpoint is not None
         assert wait_for(lambda: sim.last_setpoint.type_mask == 0x9C7, 1)
         assert sim.wait_for(lambda s: s.velocity[0] > 0.9, 5), sim.velocity
@@ -171,22 +171,22 @@ def test_failsafe_action_follows_com_obl_rc_act_set_over_mavlink() -> None:
 def test_invalid_setpoints_rejected_and_never_reach_vehicle() -> None:
     with sim_and_link(link_kwargs={"geofence": Geofence(max_distance_m=20, max_altitude_m=10),
                                    "max_speed": 5.0}) as (sim, link, events):
-        bad = [PositionSetpoint(math.nan, 0, -2), PositionSetpoint(0, 0, -2, yaw=math.inf),
-               PositionSetpoint(30, 0, -2), PositionSetpoint(0, 0, -15),
-               VelocitySetpoint(0, 8, 0)]
+        bad = [PositionTarget(math.nan, 0, -2), PositionTarget(0, 0, -2, yaw=math.inf),
+               PositionTarget(30, 0, -2), PositionTarget(0, 0, -15),
+               VelocityTarget(0, 8, 0)]
         for sp in bad:
-            with pytest.raises(SetpointRejected):
+            with pytest.raises(TargetRefused):
                 link.offboard.set_setpoint(sp)
         time.sleep(0.3)
-        assert sim.setpoints_received == 0 and link.setpoint is None
-        link.offboard.set_setpoint(PositionSetpoint(0, 0, -2))
+        assert sim.setpoints_received == 0 and link.offboard.setpoint is None
+        link.offboard.set_setpoint(PositionTarget(0, 0, -2))
         assert wait_for(lambda: sim.setpoints_received > 0, 2)
-        with pytest.raises(SetpointRejected) as e:
-            link.offboard.set_setpoint(PositionSetpoint(10, 0, -2))      # 10 m in 1 tick at 5 m/s
+        with pytest.raises(TargetRefused) as e:
+            link.offboard.set_setpoint(PositionTarget(10, 0, -2))      # 10 m in 1 tick at 5 m/s
         assert e.value.reason == "too_fast"
         time.sleep(0.3)
         assert sim.last_setpoint.position == (0.0, 0.0, -2.0)
-        assert link.setpoint == PositionSetpoint(0, 0, -2)
+        assert link.offboard.setpoint == PositionTarget(0, 0, -2)
         assert link.stats.setpoints_rejected == len(bad) + 1
         assert events.count("setpoint_rejected") == len(bad) + 1
 

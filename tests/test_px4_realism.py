@@ -11,7 +11,7 @@ import pytest
 from px4_helpers import assert_no_px4_failsafe, sim_and_link, trace_messages
 from pymavlink.dialects.v20 import common as mavlink2
 
-from px4_link import PositionSetpoint
+from px4_link import PositionTarget
 from px4_link.sim import Simulator
 from px4_link.sim.commander import Commander, ReceivedSetpoint
 from px4_link.sim.params import ParamStore
@@ -130,7 +130,7 @@ def test_offboard_flight_climb_land_disarm_mode_and_gimbal_like_px4() -> None:
         or len(gimbal) == 6
 
     with sim_and_link(params=PX4_DEFAULTS) as (sim, link, events):
-        link.offboard.set_setpoint(PositionSetpoint(0, 0, -5))
+        link.offboard.set_setpoint(PositionTarget(0, 0, -5))
         link.offboard.start()
         t_arm = time.monotonic()
         link.action.arm()
@@ -156,7 +156,7 @@ def test_offboard_flight_climb_land_disarm_mode_and_gimbal_like_px4() -> None:
 
 def test_offboard_loss_failsafe_is_rtl_after_1_4_s_and_helper_sees_it() -> None:
     with sim_and_link() as (sim, link, events):
-        link.offboard.set_setpoint(PositionSetpoint(0, 0, -2))
+        link.offboard.set_setpoint(PositionTarget(0, 0, -2))
         link.offboard.start()
         link.action.arm()
         assert sim.wait_for(lambda s: s.altitude > 1.5, 10)
@@ -173,7 +173,7 @@ def test_offboard_loss_failsafe_is_rtl_after_1_4_s_and_helper_sees_it() -> None:
 @pytest.mark.parametrize("action,mode", [(4, "AUTO.LAND"), (5, "AUTO.LOITER"), (1, "AUTO.RTL")])
 def test_failsafe_helper_catches_every_failsafe_mode(action: int, mode: str) -> None:
     with sim_and_link(params={"COM_OBL_RC_ACT": action, "COM_OF_LOSS_T": 0.3}) as (sim, link, _):
-        link.offboard.set_setpoint(PositionSetpoint(0, 0, -2))
+        link.offboard.set_setpoint(PositionTarget(0, 0, -2))
         link.offboard.start()
         link.action.arm()
         assert sim.wait_for(lambda s: s.altitude > 1.0, 10)

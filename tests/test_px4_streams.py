@@ -16,7 +16,7 @@ import pytest
 from conftest import free_port, python_proc
 from px4_helpers import sim_and_link
 
-from companion.app import LEAN_STREAMS_HZ, ask_streams
+from companion.telemetry_bridge import LEAN_STREAMS_HZ, ask_streams
 from px4_link import CommandFailed
 from px4_link.sim import Simulator
 from px4_link.wire import mavlink2, message_id

@@ -15,12 +15,13 @@ from px4_link.modes import (
     mode_to_main_sub,
     normalize_mode_name,
 )
-from px4_link.setpoints import (
+from px4_link.targets import (
     Geofence,
-    PositionSetpoint,
-    SetpointRejected,
-    SetpointValidator,
-    VelocitySetpoint,
+    PositionTarget,
+    TargetRefused,
+    TargetValidator,
+    VehicleMotion,
+    VelocityTarget,
     mavlink_fields,
 )
 from px4_link.telemetry import Imu
@@ -54,45 +55,90 @@ def test_mode_aliases_and_unknowns() -> None:
 
 
 def test_setpoint_type_masks() -> None:
-    assert PositionSetpoint(1, 2, -3, yaw=0.5).type_mask == 0x9F8
-    assert VelocitySetpoint(1, 0, 0, yaw=0.0).type_mask == 0x9C7
-    assert PositionSetpoint(1, 2, -3).type_mask & 0x400  # no yaw -> yaw ignored
-    f = mavlink_fields(PositionSetpoint(1, 2, -3, yaw=0.5))
+    assert PositionTarget(1, 2, -3, yaw=0.5).type_mask == 0x9F8
+    assert VelocityTarget(1, 0, 0, yaw=0.0).type_mask == 0x9C7
+    assert PositionTarget(1, 2, -3).type_mask & 0x400  # no yaw -> yaw ignored
+    f = mavlink_fields(PositionTarget(1, 2, -3, yaw=0.5))
     assert (f["coordinate_frame"], f["x"], f["y"], f["z"], f["yaw"]) == (1, 1, 2, -3, 0.5)
 
 
 @pytest.mark.parametrize("sp,reason", [
-    (PositionSetpoint(math.nan, 0, -2), "non_finite"),
-    (PositionSetpoint(0, math.inf, -2), "non_finite"),
-    (VelocitySetpoint(0, 0, math.nan), "non_finite"),
-    (PositionSetpoint(0, 0, -2, yaw=math.nan), "non_finite"),
-    (PositionSetpoint(200, 0, -2), "geofence"),
-    (PositionSetpoint(0, 0, -80), "geofence"),
-    (VelocitySetpoint(20, 0, 0), "too_fast"),
+    (PositionTarget(math.nan, 0, -2), "non_finite"),
+    (PositionTarget(0, math.inf, -2), "non_finite"),
+    (VelocityTarget(0, 0, math.nan), "non_finite"),
+    (PositionTarget(0, 0, -2, yaw=math.nan), "non_finite"),
+    (PositionTarget(200, 0, -2), "geofence"),
+    (PositionTarget(0, 0, -80), "geofence"),
+    (VelocityTarget(20, 0, 0), "too_fast"),
 ])
 def test_validator_rejects(sp, reason: str) -> None:
-    v = SetpointValidator(Geofence(max_distance_m=100, max_altitude_m=50), max_speed=10)
-    with pytest.raises(SetpointRejected) as e:
+    v = TargetValidator(Geofence(max_distance_m=100, max_altitude_m=50), max_speed=10)
+    with pytest.raises(TargetRefused) as e:
         v.check(sp, now=0.0)
     assert e.value.reason == reason
     assert isinstance(e.value, ValueError) and str(e.value)
 
 
 def test_validator_box_and_jump_rules() -> None:
-    v = SetpointValidator(Geofence(x_range=(-5, 5), y_range=(-5, 5)), max_speed=10)
-    with pytest.raises(SetpointRejected):
-        v.check(PositionSetpoint(6, 0, -2), now=0.0)
-    v.check(PositionSetpoint(0, 0, -2), now=0.0, vehicle_position=(0, 0, 0))
-    v.accept(PositionSetpoint(0, 0, -2), now=0.0)
+    v = TargetValidator(Geofence(x_range=(-5, 5), y_range=(-5, 5)), max_speed=10)
+    with pytest.raises(TargetRefused):
+        v.check(PositionTarget(6, 0, -2), now=0.0)
+    v.check(PositionTarget(0, 0, -2), now=0.0, vehicle_position=(0, 0, 0))
+    v.accept(PositionTarget(0, 0, -2), now=0.0)
     # 0.1 s later: 1 m is fine at 10 m/s, 3 m is not.
-    v.check(PositionSetpoint(1, 0, -2), now=0.1)
-    with pytest.raises(SetpointRejected) as e:
-        v.check(PositionSetpoint(3, 0, -2), now=0.1)
+    v.check(PositionTarget(1, 0, -2), now=0.1)
+    with pytest.raises(TargetRefused) as e:
+        v.check(PositionTarget(3, 0, -2), now=0.1)
     assert e.value.reason == "too_fast"
     # A stale reference: the vehicle's position is used with a 1 s window.
-    with pytest.raises(SetpointRejected):
-        v.check(PositionSetpoint(4, 4, -2), now=5.0, vehicle_position=(-5, -5, 0))
-    v.check(PositionSetpoint(4, 4, -2), now=5.0, vehicle_position=(0, 0, -2))
+    with pytest.raises(TargetRefused):
+        v.check(PositionTarget(4, 4, -2), now=5.0, vehicle_position=(-5, -5, 0))
+    v.check(PositionTarget(4, 4, -2), now=5.0, vehicle_position=(0, 0, -2))
+
+
+def _refusal(fn) -> TargetRefused:
+    with pytest.raises(TargetRefused) as e:
+        fn()
+    return e.value
+
+
+@pytest.mark.parametrize("reason,refuse,words", [
+    ("type", lambda v: v.check("up", now=0.0), ["str", "PositionTarget or VelocityTarget"]),
+    ("non_finite", lambda v: v.check(PositionTarget(math.nan, 0, -2), now=0.0), ["non-finite", "x=nan"]),
+    ("too_fast", lambda v: v.check(VelocityTarget(20, 0, 0), now=0.0), ["velocity 20.0 m/s", "max_speed 10 m/s"]),
+    ("geofence", lambda v: v.check(PositionTarget(200, 0, -2), now=0.0),
+     ["PositionTarget(x=200", "200.0 m from origin", "radius 100 m"]),
+    ("geofence", lambda v: v.check(PositionTarget(0, 0, -80), now=0.0), ["altitude 80.0 m", "ceiling 50 m"]),
+    ("no_reference", lambda v: v.check(PositionTarget(1, 0, -2), now=0.0, vehicle_position=(math.nan, 0.0, -2.0)),
+     ["reference position (nan", "not finite"]),
+    ("too_fast", lambda v: (v.accept(PositionTarget(0, 0, -2), now=0.0), v.check(PositionTarget(3, 0, -2), now=0.1)),
+     ["jumps 3.0 m in 0.10 s", "30.0 m/s > max_speed 10 m/s"]),
+    ("no_position", lambda v: v.check_against_vehicle(PositionTarget(1, 2, -3), None, max_offset_m=10),
+     ["vehicle position unknown", "(1.0, 2.0, -3.0)", "LOCAL_POSITION_NED"]),
+    ("jump", lambda v: v.check_against_vehicle(PositionTarget(12, 0, -3),
+                                               VehicleMotion((0, 0, -3), (1, 0, 0)), max_offset_m=10),
+     ["jump 12.0 m from vehicle position > 11 m", "max_offset_m 10 + 1 s at 1.0 m/s", "target (12.0, 0.0, -3.0)",
+      "vehicle at (0.0, 0.0, -3.0)"]),
+    ("too_fast", lambda v: v.check_against_vehicle(VelocityTarget(0, 6, 0), None, max_offset_m=10, max_speed=5),
+     ["velocity 6.0 m/s", "max_speed 5 m/s"]),
+    ("non_finite", lambda v: v.check_against_vehicle(VelocityTarget(0, 0, 1, yaw=math.inf), None, max_offset_m=10),
+     ["non-finite", "yaw=inf"]),
+])
+def test_each_refusal_names_what_and_why(reason: str, refuse, words: list[str]) -> None:
+    """One validator, one refusal type: the reason is the machine-readable code, the message
+    (what the sender is told) names the target or value and the limit it broke."""
+    v = TargetValidator(Geofence(max_distance_m=100, max_altitude_m=50), max_speed=10)
+    e = _refusal(lambda: refuse(v))
+    assert e.reason == reason
+    for w in words:
+        assert w in str(e), (w, str(e))
+
+
+def test_check_against_vehicle_accepts_a_target_near_a_moving_vehicle() -> None:
+    v = TargetValidator(max_speed=10)
+    moving = VehicleMotion((0, 0, -3), (4, 0, 0))
+    v.check_against_vehicle(PositionTarget(13.5, 0, -3), moving, max_offset_m=10)   # 10 m + 1 s at 4 m/s
+    v.check_against_vehicle(VelocityTarget(9, 0, 0), None, max_offset_m=10)         # no position needed
 
 
 def _sender(acks: list[int | None]):

@@ -156,14 +156,14 @@ def test_repeat_plan_follows_loss_and_bounds_cost() -> None:
 def test_link_monitor_measures_silence_and_adapts_a_publisher(ns: str) -> None:
     """Two nodes probe each other: no loss measured; when one goes silent the other sees ~100 %,
     and the adapter re-sizes a real deadline publisher's copies from it."""
-    from zenoh_robot.loss_feedback import LinkMonitor, apply_repeat_plan
+    from zenoh_robot.loss_feedback import LossMonitor, apply_repeat_plan
     from zenoh_robot.msgs import Header
     from zenoh_robot.qos import RESILIENT
 
     listen, connect = linked_configs()
     with Node("a", namespace=ns, config=listen) as a, Node("b", namespace=ns, config=connect) as b:
         pub = a.create_publisher(Header, "sp", RESILIENT.replace(deadline=0.5, repeat=64))
-        ma, mb = LinkMonitor(a, topic=f"/{ns}/link"), LinkMonitor(b, topic=f"/{ns}/link")
+        ma, mb = LossMonitor(a, topic=f"/{ns}/link"), LossMonitor(b, topic=f"/{ns}/link")
         seen: list[float] = []
         ma.adapt(lambda p: (seen.append(p), apply_repeat_plan(pub, p)))
         try:
@@ -198,8 +198,8 @@ def test_link_monitor_running_counts_measure_the_same_loss_as_a_rescan(monkeypat
     import threading
     from collections import OrderedDict
 
-    from zenoh_robot._wire import feedback
-    from zenoh_robot.loss_feedback import LinkMonitor, LinkProbe
+    from zenoh_robot import loss_feedback as feedback
+    from zenoh_robot.loss_feedback import LinkProbe, LossMonitor
 
     clock = [1000.0]
 
@@ -209,7 +209,7 @@ def test_link_monitor_running_counts_measure_the_same_loss_as_a_rescan(monkeypat
             return clock[0]
     monkeypatch.setattr(feedback, "time", FakeTime)
     # The estimator alone: no session, no probe thread (the clock is driven by the test).
-    m = LinkMonitor.__new__(LinkMonitor)
+    m = LossMonitor.__new__(LossMonitor)
     m.id, m.window_s, m.long_window_s, m.forget_s, m.max_peers = 1, 1.0, 5.0, 10.0, 32
     m._peers, m._lock = OrderedDict(), threading.Lock()
     m.probes_received = m.bad_probes = 0

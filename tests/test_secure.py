@@ -256,15 +256,15 @@ def test_secure_flags_make_plain_profiles_secure_twins(keys_dir: Path) -> None:
     """--secure turns tcp into tls and unicast udp into QUIC with datagrams for best effort; multicast goes."""
     import argparse
 
-    from zenoh_robot.session_config import apply_session_arguments
+    from zenoh_robot.session_args import session_config_from_args
     port = free_port()
     profile = SessionConfig(listen=[f"udp/127.0.0.1:{port}", "udp/239.255.74.71:7460#iface=lo"],
                             multicast_scouting=False)
-    args = argparse.Namespace(secure=str(keys_dir), cert_name=None, domain=None, session_connect=[])
-    drone = apply_session_arguments(profile, args, "uav1")
+    args = argparse.Namespace(secure=str(keys_dir))
+    drone = session_config_from_args(args, profile, "uav1")
     assert drone.listen == [f"quic/127.0.0.1:{port}?mixed_rel=auto"] and drone.name == "uav1"
-    args.session_connect = [f"udp/127.0.0.1:{port}", "tcp/127.0.0.1:7447"]
-    gcs = apply_session_arguments(SessionConfig(listen=[], multicast_scouting=False), args, "gcs")
+    args.connect = [f"udp/127.0.0.1:{port}", "tcp/127.0.0.1:7447"]
+    gcs = session_config_from_args(args, SessionConfig(listen=[], multicast_scouting=False), "gcs")
     assert gcs.connect == [f"quic/127.0.0.1:{port}?mixed_rel=auto", "tls/127.0.0.1:7447"]
     gcs.connect = gcs.connect[:1]
     sessions = [_open(drone), _open(gcs)]

@@ -1,4 +1,4 @@
-"""At-least-once delivery, at-most-once execution of service calls (services.py), on real Zenoh sessions.
+"""At-least-once delivery, at-most-once execution of service calls (zenoh_robot.services), on real Zenoh sessions.
 
 A handler counts its executions; requests are duplicated on the wire (the same bytes sent
 again, as a retry does), replies are lost at the client, and the server's cache stays bounded.
@@ -18,6 +18,7 @@ from zenoh_robot import services as services_mod
 from zenoh_robot._wire import envelope
 from zenoh_robot.message import type_support
 from zenoh_robot.services import IdempotencyCache, ServiceError, ServiceTimeout, ServiceUnavailable
+from zenoh_robot.services import client as services_client
 
 
 @message(name="test_services_reliable/Bump")
@@ -106,14 +107,14 @@ def test_retried_call_with_lost_replies_executes_once_and_succeeds(ns, monkeypat
     cached answer, the handler ran once."""
     handler = Counting()
     lost: list[int] = []
-    real_on_reply = services_mod._Call.on_reply
+    real_on_reply = services_client._Call.on_reply
 
     def lossy_on_reply(self, reply):
         if reply.ok is not None and len(lost) < 2:
             lost.append(self.seq)      # the reply reached this host and was dropped: a lost reply
             return
         real_on_reply(self, reply)
-    monkeypatch.setattr(services_mod._Call, "on_reply", lossy_on_reply)
+    monkeypatch.setattr(services_client._Call, "on_reply", lossy_on_reply)
     with linked_nodes(ns) as (cli, srv):
         service = srv.create_service("bump", Bump, Count, handler)
         _spin(srv)
@@ -127,7 +128,7 @@ def test_retried_call_with_lost_replies_executes_once_and_succeeds(ns, monkeypat
 
 def test_without_retry_a_lost_reply_is_a_timeout(ns, monkeypatch):
     """The control: the same loss without retries fails, so the previous test measures the retries."""
-    monkeypatch.setattr(services_mod._Call, "on_reply", lambda self, reply: None)
+    monkeypatch.setattr(services_client._Call, "on_reply", lambda self, reply: None)
     with linked_nodes(ns) as (cli, srv):
         srv.create_service("bump", Bump, Count, Counting())
         _spin(srv)
@@ -217,7 +218,7 @@ def test_put_carried_call_sends_the_asked_reply_copies_once_per_burst(ns, monkey
     and the joined duplicates are answered by one burst of 4 spread copies, not 4 per duplicate."""
     from zenoh_robot._wire import call_plan as cp
 
-    monkeypatch.setattr(services_mod, "is_multicast_session", lambda session: True)
+    monkeypatch.setattr(services_client, "is_multicast_session", lambda session: True)
     handler = Counting()
     with linked_nodes(ns) as (cli, srv):
         service = srv.create_service("bump", Bump, Count, handler)

@@ -8,7 +8,7 @@ under two busy-looping CPU hogs, and asserts that every stream delivered to the 
 
 The pair runner is ``drone_lab.experiment.stall_runs`` (which also runs 50 consecutive
 runs from the command line: docs/results/stall_runs.md). Each pair runs what the ``resilient``
-profile runs on one session: LinkMonitor probes from their own thread, the GCS's setpoint copies
+profile runs on one session: LossMonitor probes from their own thread, the GCS's setpoint copies
 following the fed-back loss, the drone's paced FEC image bursts; three threads put concurrently
 on each multicast session. With ``ZR_STALL_EXPRESS=1`` the GCS's setpoints go out with express
 (the old setting, forced past the library's workaround): then the test fails in most runs.

@@ -8,9 +8,6 @@ only on purpose. The layers are described in docs/architecture.md.
 """
 from __future__ import annotations
 
-import warnings
-from typing import Any
-
 from . import msgs, qos
 from .events import (
     IncompatibleTypeInfo,
@@ -59,7 +56,7 @@ from .session_config import SessionConfig, SessionConfigError
 from .subscription import MessageInfo, Subscription
 from .topic_statistics import TopicStatisticsOptions
 
-__version__ = "0.2.0"
+__version__ = "0.3.0"
 
 __all__ = [
     # nodes, entities, executors
@@ -81,20 +78,3 @@ __all__ = [
     "Parameter", "ParameterType", "ParameterDescriptor", "SetParametersResult", "parse_param_args",
     "qos_from_parameters", "SessionConfig", "SessionConfigError", "InvalidNameError", "TopicStatisticsOptions",
 ]
-
-# Tools once exported here; they load subprocess/csv, so they now live in zenoh_robot.tools and
-# are reached through this shim, with a warning, for one release.
-_MOVED = {
-    "LaunchRunner": "zenoh_robot.tools.launch",
-    "LaunchError": "zenoh_robot.tools.launch",
-    "StatisticsRecorder": "zenoh_robot.tools.recorder",
-}
-
-
-def __getattr__(name: str) -> Any:
-    where = _MOVED.get(name)
-    if where is None:
-        raise AttributeError(f"module 'zenoh_robot' has no attribute {name!r}")
-    warnings.warn(f"zenoh_robot.{name} moved to {where}.{name}", DeprecationWarning, stacklevel=2)
-    import importlib
-    return getattr(importlib.import_module(where), name)

@@ -3,9 +3,10 @@
 Publishers, subscriptions, services, clients and their QoS-event state take an
 :class:`EntityContext`, never the Node itself, so none of them reaches into the
 node's private state and the node can change inside without breaking them. The
-context holds the session, the executor, the logger, the node's names, the graph
-hook that announces an endpoint, and the two per-node helper threads (made on first
-use: most nodes never need them).
+context holds the session, the executor, the logger, the node's names, its wire format
+(``zenoh_robot.wire``: how samples become bytes and keys), the graph hook that announces
+an endpoint, and the two per-node helper threads (made on first use: most nodes never
+need them).
 """
 from __future__ import annotations
 
@@ -23,7 +24,8 @@ from .qos import QoSProfile
 from .qos_monitor import QoSMonitor
 
 if TYPE_CHECKING:
-    from .graph import TopicEndpointInfo
+    from .graph import EndpointType, TopicEndpointInfo
+    from .wire.format import WireFormat
 
 
 class Endpoint(Protocol):
@@ -56,8 +58,9 @@ class EntityContext:
 
     def __init__(self, session: zenoh.Session, executor: Executor, logger: logging.Logger,
                  namespace: str, node_name: str,
-                 declare_endpoint: Callable[[str, Endpoint], Any]) -> None:
+                 declare_endpoint: Callable[[EndpointType, Endpoint], Any], wire: WireFormat) -> None:
         self.session = session
+        self.wire = wire
         self.executor = executor
         self.logger = logger
         self.namespace = namespace
@@ -91,7 +94,7 @@ class EntityContext:
             return True
 
     # -- graph --------------------------------------------------------------------------------
-    def declare_endpoint(self, kind: str, entity: Endpoint) -> Any:
+    def declare_endpoint(self, kind: EndpointType, entity: Endpoint) -> Any:
         """Announce ``entity`` in the graph; returns the token to undeclare when it goes."""
         return self._declare_endpoint(kind, entity)
 

@@ -10,6 +10,10 @@ all about it (rmw_zenoh does the same)::
 when its session closes or its process dies (the transport closes or its lease
 expires), so every node's view follows processes coming and going with no
 heartbeat of ours. ``@zr`` is a verbatim chunk: ``**`` on data keys never sees it.
+
+That token scheme is the envelope format's (``ZR_GRAPH``); the graph machinery here
+(:class:`GraphCache`, :class:`Graph`, :func:`ensure_unique_node`) works with any
+:class:`~zenoh_robot.wire.GraphFormat`, the one of the node's wire format.
 """
 from __future__ import annotations
 
@@ -18,12 +22,15 @@ import logging
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import zenoh
 
 from .context import Endpoint
 from .qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, Priority, QoSProfile, ReliabilityPolicy
+
+if TYPE_CHECKING:
+    from .wire.format import GraphFormat
 
 log = logging.getLogger("zenoh_robot.graph")
 
@@ -121,6 +128,29 @@ def parse_token(key: str) -> NodeInfo | TopicEndpointInfo:
                              int(gid), decode_qos(qos), zid)
 
 
+class ZrGraphFormat:
+    """The envelope format's tokens (the module doc) as a :class:`~zenoh_robot.wire.GraphFormat`:
+    use the instance ``ZR_GRAPH``."""
+
+    selector = f"{GRAPH_PREFIX}/**"
+
+    def node_token(self, info: NodeInfo) -> str:
+        return node_token_key(info.zid, info.namespace.strip("/"), info.name)
+
+    def node_selector(self, namespace: str, node_name: str) -> str:
+        return "/".join([GRAPH_PREFIX, NODE, "*", "*", _mangle(namespace), node_name])
+
+    def endpoint_token(self, info: TopicEndpointInfo) -> str:
+        kind = PUBLISHER if info.endpoint_type is EndpointType.PUBLISHER else SUBSCRIPTION
+        return endpoint_token_key(kind, info.zid, info.endpoint_gid, info.node_namespace.strip("/"), info.node_name,
+                                  info.key, info.topic_type, info.topic_type_hash, info.qos_profile)
+
+    def parse_token(self, key: str) -> NodeInfo | TopicEndpointInfo:
+        return parse_token(key)
+
+
+ZR_GRAPH = ZrGraphFormat()
+
 GraphListener = Callable[[bool, TopicEndpointInfo], None]
 
 
@@ -130,14 +160,15 @@ class GraphCache:
     Listeners run on Zenoh's thread with ``(appeared, info)``: they must only hand work on.
     """
 
-    def __init__(self, session: zenoh.Session) -> None:
+    def __init__(self, session: zenoh.Session, graph_format: GraphFormat) -> None:
         self._session = session
+        self._format = graph_format
         self._lock = threading.Lock()
         self._entries: dict[str, NodeInfo | TopicEndpointInfo] = {}
         self.listeners: list[GraphListener] = []
         self.changes = 0
         self._changed = threading.Condition(self._lock)
-        self._sub = session.liveliness().declare_subscriber(f"{GRAPH_PREFIX}/**", self._on_token, history=True)
+        self._sub = session.liveliness().declare_subscriber(graph_format.selector, self._on_token, history=True)
 
     def _on_token(self, sample: Any) -> None:
         key = str(sample.key_expr)
@@ -146,7 +177,7 @@ class GraphCache:
 
     def _apply(self, key: str, appeared: bool) -> None:
         try:
-            info = parse_token(key)
+            info = self._format.parse_token(key)
         except (ValueError, KeyError) as exc:
             log.debug("ignoring graph token %r: %s", key, exc)
             return
@@ -170,7 +201,7 @@ class GraphCache:
 
     def refresh(self, timeout: float = 1.0) -> None:
         """Ask the network for every live token now (a late start need not wait for history)."""
-        replies = self._session.liveliness().get(f"{GRAPH_PREFIX}/**", timeout=timeout)
+        replies = self._session.liveliness().get(self._format.selector, timeout=timeout)
         for reply in replies:
             if reply.ok is not None:
                 self._apply(str(reply.ok.key_expr), True)
@@ -203,29 +234,32 @@ class Graph:
     hand work on).
     """
 
-    def __init__(self, session: zenoh.Session, namespace: str, node_name: str) -> None:
+    def __init__(self, session: zenoh.Session, namespace: str, node_name: str, graph_format: GraphFormat) -> None:
         self._session = session
         self._namespace = namespace
         self._node_name = node_name
+        self._format = graph_format
         self._lock = threading.Lock()
         self._local: list[tuple[EndpointType, Endpoint]] = []
         self.zid = str(session.info.zid())
-        self.cache = GraphCache(session)
+        self.cache = GraphCache(session, graph_format)
         self.cache.listeners.append(self._on_graph_change)
         self._node_token: Any = None
         try:
-            self._node_token = session.liveliness().declare_token(node_token_key(self.zid, namespace, node_name))
+            self._node_token = session.liveliness().declare_token(
+                graph_format.node_token(NodeInfo(node_name, "/" + namespace, self.zid)))
         except BaseException:
             self.cache.close()
             raise
 
     # -- local endpoints ---------------------------------------------------------------
-    def declare_endpoint(self, kind: str, entity: Endpoint) -> Any:
+    def declare_endpoint(self, kind: EndpointType, entity: Endpoint) -> Any:
         """Announce ``entity`` (a token) and tell it about the peers already known."""
-        key = endpoint_token_key(kind, self.zid, entity.gid, self._namespace, self._node_name, entity.key,
-                                 entity.type_name, entity.type_hash, entity.qos)
+        key = self._format.endpoint_token(TopicEndpointInfo(
+            self._node_name, "/" + self._namespace, "/" + entity.key, entity.type_name, entity.type_hash, kind,
+            entity.gid, entity.qos, self.zid))
         token = self._session.liveliness().declare_token(key)
-        peers = EndpointType.SUBSCRIPTION if kind == PUBLISHER else EndpointType.PUBLISHER
+        peers = EndpointType.SUBSCRIPTION if kind is EndpointType.PUBLISHER else EndpointType.PUBLISHER
         entry = (peers, entity)
         with self._lock:    # listen first, then read what is known: a peer may be reported twice, never missed
             self._local.append(entry)
@@ -292,26 +326,30 @@ class DuplicateNodeError(RuntimeError):
     """A node with this fully qualified name is already alive in this domain."""
 
 
-def live_node_owners(session: zenoh.Session, namespace: str, node_name: str, timeout: float = 0.5) -> list[str]:
+def live_node_owners(session: zenoh.Session, namespace: str, node_name: str, graph_format: GraphFormat,
+                     timeout: float = 0.5) -> list[str]:
     """Zenoh ids of *other* sessions holding a live node token for ``namespace``/``node_name``."""
-    key = "/".join([GRAPH_PREFIX, "NN", "*", "*", _mangle(namespace), node_name])
     own = str(session.info.zid())
     owners = []
-    for reply in session.liveliness().get(key, timeout=timeout):
+    for reply in session.liveliness().get(graph_format.node_selector(namespace, node_name), timeout=timeout):
         if reply.ok is not None:
-            parts = str(reply.ok.key_expr).split("/")
-            if len(parts) > 3 and parts[3] != own and parts[3] not in owners:
-                owners.append(parts[3])
+            try:
+                zid = graph_format.parse_token(str(reply.ok.key_expr)).zid
+            except (ValueError, KeyError):
+                continue
+            if zid and zid != own and zid not in owners:
+                owners.append(zid)
     return owners
 
 
-def ensure_unique_node(session: zenoh.Session, namespace: str, node_name: str, timeout: float = 0.5) -> None:
+def ensure_unique_node(session: zenoh.Session, namespace: str, node_name: str, graph_format: GraphFormat,
+                       timeout: float = 0.5) -> None:
     """Refuse a second node of the same name: two ``--id uav1`` companions would merge silently.
 
     Best effort: it sees the nodes this session can reach when it starts (two processes starting
     in the same instant both pass).
     """
-    owners = live_node_owners(session, namespace, node_name, timeout)
+    owners = live_node_owners(session, namespace, node_name, graph_format, timeout)
     if not owners:
         return
     where = {str(link.zid): str(link.dst) for link in session.info.links()}

@@ -1,13 +1,13 @@
 """Loss feedback: each node measures the packet loss it sees and tells its peers.
 
-A publisher cannot see its own losses; its receivers can. A :class:`LinkMonitor` per node
+A publisher cannot see its own losses; its receivers can. A :class:`LossMonitor` per node
 sends a tiny best-effort probe (``LinkProbe``, ~100 bytes) every ``period_s`` on one
 absolute topic; each probe carries a sequence number, and the loss the sender measures on
 the probes of each peer it hears. So every node knows (a) the loss on its incoming
 direction, from the gaps in its peers' probes, and (b) the loss its peers see from it,
-from their reports. :meth:`LinkMonitor.outgoing_loss` is the worst of both over the peers
+from their reports. :meth:`LossMonitor.outgoing_loss` is the worst of both over the peers
 heard recently (loss is usually symmetric, and (a) needs no round trip, so it answers a
-sudden burst in about one short window). Adapters (:meth:`LinkMonitor.adapt`) are called
+sudden burst in about one short window). Adapters (:meth:`LossMonitor.adapt`) are called
 with it at every probe: e.g. ``monitor.adapt(lambda p: apply_repeat_plan(setpoint_pub, p))``
 or ``monitor.adapt(image_pub.set_loss)``.
 
@@ -117,7 +117,7 @@ def apply_repeat_plan(publisher: Any, loss: float) -> None:
     publisher.set_repeats(copies, window)
 
 
-class LinkMonitor:
+class LossMonitor:
     def __init__(self, node: Any, topic: str = LINK_TOPIC, period_s: float = 0.05, window_s: float = 1.0,
                  long_window_s: float = 5.0, forget_s: float = 10.0, max_peers: int = MAX_PEERS) -> None:
         self.id = secrets.randbits(63)

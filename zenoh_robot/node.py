@@ -22,6 +22,7 @@ from ._wire.repeater import Repeater
 from .context import Endpoint, EntityContext
 from .executor import Executor, Timer
 from .graph import EndpointType, Graph, GraphCache, TopicEndpointInfo, ensure_unique_node
+from .liveliness import LivelinessCallback, LivelinessToken, LivelinessWatch
 from .message import Message
 from .parameters import (
     Parameter,
@@ -35,10 +36,11 @@ from .parameters import (
 from .publisher import Publisher
 from .qos import SYSTEM_DEFAULT, QoSProfile
 from .qos_monitor import QoSMonitor
-from .services import _DEFAULT as _DEFAULT_RETRY
 from .services import Client, Service, Services
+from .services.retry import _DEFAULT as _DEFAULT_RETRY
 from .session_config import SessionConfig, open_session
 from .subscription import RawMessage, Subscription
+from .wire import ENVELOPE, WireFormat
 
 M = TypeVar("M", bound=Message)
 Req = TypeVar("Req", bound=Message)
@@ -68,7 +70,10 @@ class Node:
                  config: SessionConfig | str | Path | None = None, *,
                  executor: Executor | None = None,
                  parameter_overrides: dict[str, Any] | None = None,
-                 enable_topic_statistics: Any = False) -> None:
+                 enable_topic_statistics: Any = False,
+                 wire: WireFormat = ENVELOPE) -> None:
+        """``wire``: how this node's samples become bytes and keys, and how it announces itself in
+        the graph (``zenoh_robot.wire``); nodes of other formats neither hear it nor see it."""
         self.name = names.validate_node_name(name)
         self.namespace = names.normalize_namespace(namespace)
         self.executor = executor or Executor()
@@ -81,14 +86,15 @@ class Node:
         self.timers: list[Timer] = []
         self._on_close: list[Callable[[], None]] = []
         self.enable_topic_statistics = enable_topic_statistics
+        self.wire = wire
         self._graph: Graph | None = None
         self._context = EntityContext(self.session, self.executor, self._logger, self.namespace, self.name,
-                                      self._declare_endpoint)
+                                      self._declare_endpoint, wire)
         self._services = Services(self._context)
         self._parameters = ParameterStore(parameter_overrides)
         try:
-            ensure_unique_node(self.session, self.namespace, self.name)
-            self._graph = Graph(self.session, self.namespace, self.name)
+            ensure_unique_node(self.session, self.namespace, self.name, wire.graph)
+            self._graph = Graph(self.session, self.namespace, self.name, wire.graph)
             self._parameter_service = ParameterService(self._parameters, self._services.create_service)
         except BaseException:
             self.close()
@@ -151,7 +157,7 @@ class Node:
 
         ``raw=True`` (rclpy's name): deliver each sample undecoded, as a
         :class:`~zenoh_robot.subscription.RawMessage` (type name and hash, the body's
-        field values, the envelope's bytes); ``msg_type`` None then takes every type.
+        field values, the payload's bytes); ``msg_type`` None then takes every type.
         See the subscription module's doc.
         """
         self._context.check_open()
@@ -211,7 +217,7 @@ class Node:
         self._on_close.append(fn)
 
     # -- graph (rclpy's names; they see every process on the network) -----------------
-    def _declare_endpoint(self, kind: str, entity: Endpoint) -> Any:
+    def _declare_endpoint(self, kind: EndpointType, entity: Endpoint) -> Any:
         return self._the_graph.declare_endpoint(kind, entity)
 
     @property
@@ -408,6 +414,18 @@ class Node:
                 self.close()
         except Exception:
             pass
+
+    # -- liveliness (zenoh_robot.liveliness) ---------------------------------------------
+    def declare_liveliness_token(self, key: str) -> LivelinessToken:
+        """Announce ``key`` alive until the handle's ``undeclare()`` (or collection) or the session's end."""
+        return LivelinessToken(self.session, key)
+
+    def watch_liveliness(self, key_expr: str, callback: LivelinessCallback, *,
+                         history: bool = True) -> LivelinessWatch:
+        """``callback(key, alive)`` on this node's executor for tokens matching ``key_expr``; undeclared on close."""
+        watch = LivelinessWatch(self.session, key_expr, callback, self.executor, history=history)
+        self.add_on_close(watch.undeclare)
+        return watch
 
 
 _SUBSCRIPTION_HOOKS: list[SubscriptionHook] = []

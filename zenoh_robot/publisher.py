@@ -1,4 +1,5 @@
-"""Publisher: typed message -> envelope -> Zenoh put, with QoS-derived options."""
+"""Publisher: typed message -> the node's wire format (the envelope by default) -> Zenoh put, with
+QoS-derived options."""
 from __future__ import annotations
 
 import secrets
@@ -7,10 +8,9 @@ import time
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
-from ._wire import envelope
 from ._wire.redundancy import MAX_HISTORY, REPEAT_KEY, RedundantHistory
 from .context import EntityContext
-from .graph import PUBLISHER, TopicEndpointInfo
+from .graph import EndpointType, TopicEndpointInfo
 from .message import Message, require_message_type, type_support
 from .qos import QoSProfile
 from .qos_events import PublisherEvents
@@ -23,7 +23,7 @@ REPEAT_WINDOW_FRACTION = 0.8
 
 @dataclass(frozen=True, slots=True)
 class PublishInfo:
-    """What ``publish()`` sent: the sample's sequence number and source stamp (its envelope's)."""
+    """What ``publish()`` sent: the sample's sequence number and source stamp (its header's)."""
     seq: int
     stamp_ns: int
 
@@ -35,11 +35,15 @@ class PublisherClosed(RuntimeError):
 class Publisher(Generic[M]):
     """Publishes one message type on one topic; made by ``Node.create_publisher``."""
 
-    endpoint_kind = PUBLISHER
+    endpoint_kind = EndpointType.PUBLISHER
 
     def __init__(self, context: EntityContext, msg_type: type[M], topic: str, key: str, qos: QoSProfile,
                  event_callbacks: Any = None) -> None:
         require_message_type(msg_type, "create_publisher")
+        wire = context.wire
+        if (qos.redundancy or qos.repeat) and not wire.carries_extra:
+            raise ValueError(f"create_publisher: the {wire.name} wire format cannot carry redundancy or repeats "
+                             f"(QoS redundancy={qos.redundancy}, repeat={qos.repeat}) on {topic!r}")
         self.context = context
         self.msg_type = msg_type
         self.type_support = ts = type_support(msg_type)
@@ -54,7 +58,11 @@ class Publisher(Generic[M]):
         self._seq = 0
         self._lock = threading.Lock()
         self._encode = ts.encode
-        self._pack = envelope.EnvelopePacker(ts.name, ts.hash, self.publisher_id).pack   # under self._lock
+        encoder = wire.encoder(ts, self.publisher_id)
+        self._pack = encoder.pack   # under self._lock
+        # Looked at per sample only by formats with an attachment (None: the envelope's fast path).
+        self._attachment = encoder.attachment if wire.uses_attachment else None
+        self.data_key = wire.data_key(key, ts)      # where samples go (self.key: the topic, for the graph)
         self.published = 0
         self.last_publish_mono: float | None = None
         self.last_stamp_ns = 0      # source stamp of the last sample (its seq is `sequence`)
@@ -70,9 +78,9 @@ class Publisher(Generic[M]):
         # cost is a batch flush of at most ~1 ms. The graph still shows the QoS asked for.
         wire_qos = qos.replace(express=False) if qos.express and is_multicast_session(context.session) else qos
         self.express_on_wire = wire_qos.express
-        self._zpub = declare_publisher(context.session, key, wire_qos)
+        self._zpub = declare_publisher(context.session, self.data_key, wire_qos)
         try:
-            self._token = context.declare_endpoint(PUBLISHER, self)
+            self._token = context.declare_endpoint(EndpointType.PUBLISHER, self)
         except BaseException:
             self.events.close()
             self._zpub.undeclare()
@@ -95,7 +103,8 @@ class Publisher(Generic[M]):
         return self.publish_raw_body(body)
 
     def publish_raw_body(self, body: Any, extra: dict[str, Any] | None = None) -> PublishInfo:
-        """Send an already wire-encoded body; returns its sequence number and source stamp."""
+        """Send an already encoded body (``TypeSupport.encode``'s field values); returns its sequence
+        number and source stamp. ``extra`` needs a wire format that ``carries_extra``."""
         with self._lock:
             if self._closed:
                 raise PublisherClosed(f"publisher on {self.topic!r} is closed")
@@ -110,7 +119,10 @@ class Publisher(Generic[M]):
                 # Tells every subscriber, whatever its own QoS, that copies follow: deduplicate.
                 extra = {**(extra or {}), REPEAT_KEY: self._repeats}
             payload = self._pack(seq, stamp, body, extra)
-            self._zpub.put(payload)
+            if self._attachment is None:
+                self._zpub.put(payload)
+            else:   # never with repeats: only formats that carry extra fields repeat (see __init__)
+                self._zpub.put(payload, attachment=self._attachment(seq, stamp))
             if self._repeats and self._repeat_window is not None:
                 self.context.repeater.schedule_latest(self.publisher_id, self._zpub.put, payload, self._repeats,
                                                       self._repeat_window)

@@ -12,12 +12,10 @@ Two options keep systems apart (docs/security.md):
   nor reach it. Domain 0 keeps the historic keys.
 - ``secure`` (a keys directory made by ``zenoh-robot keys``) with ``name``: TLS/QUIC only, mutual
   authentication against the directory's CA, this node's certificate, and an access-control
-  list generated from the directory's ``roles.yaml`` (:mod:`zenoh_robot._acl`), deny by default.
+  list generated from the directory's ``roles.yaml`` (:mod:`zenoh_robot.acl`), deny by default.
 """
 from __future__ import annotations
 
-import argparse
-import dataclasses
 import ipaddress
 import json
 import os
@@ -28,7 +26,7 @@ from typing import Any
 
 import zenoh
 
-from zenoh_robot import _acl
+from zenoh_robot import acl
 
 MODES = ("peer", "client", "router")
 PROTOCOLS = ("tcp", "udp", "quic", "tls", "ws", "unixsock-stream", "serial", "unixpipe", "vsock")
@@ -173,8 +171,8 @@ class SessionConfig:
         if plain:
             raise SessionConfigError(f"secure session: {plain} not tls/ or quic/ (plain links are refused)")
         try:
-            nodes = _acl.load_roles(keys)
-        except (_acl.KeysError, OSError) as exc:
+            nodes = acl.load_roles(keys)
+        except (acl.KeysError, OSError) as exc:
             raise SessionConfigError(f"secure: {exc}") from None
         if self.name not in nodes:
             raise SessionConfigError(f"secure: {self.name!r} has no role in {keys / 'roles.yaml'}")
@@ -285,7 +283,7 @@ class SessionConfig:
             tls + "connect_certificate": cert, tls + "connect_private_key": key,
             tls + "enable_mtls": True,
             tls + "verify_name_on_connect": self.verify_name,
-            "access_control": _acl.acl_config(_acl.load_roles(keys), self.domain or 0),
+            "access_control": acl.acl_config(acl.load_roles(keys), self.domain or 0),
         }
 
     @classmethod
@@ -332,55 +330,6 @@ class SessionConfig:
             source=str(path),
             extra={"connect/endpoints": raw_connect} if groups else {},
         )
-
-
-def add_session_arguments(parser: argparse.ArgumentParser) -> None:
-    """The flags that put an application on a secure and/or separate network (``--secure``, ``--domain``)."""
-    group = parser.add_argument_group("secure and isolated sessions (docs/security.md)")
-    group.add_argument("--secure", metavar="DIR", default=None,
-                       help="keys directory from `zenoh-robot keys`: TLS/QUIC only, mutual auth, ACL by role")
-    group.add_argument("--cert-name", metavar="NAME", default=None,
-                       help="this node's certificate in --secure DIR (default: the node's id)")
-    group.add_argument("--domain", metavar="N", default=None,
-                       help=f"domain id 0..{MAX_DOMAIN} (env ZR_DOMAIN): systems in other domains never meet")
-    group.add_argument("--connect", dest="session_connect", action="append", default=[], metavar="ENDPOINT",
-                       help="also connect to ENDPOINT (e.g. tls/10.0.0.1:7447, a router); repeatable")
-
-
-def apply_session_arguments(config: SessionConfig, args: argparse.Namespace, name: str) -> SessionConfig:
-    """``config`` with the flags of :func:`add_session_arguments` applied; ``name`` is the default cert name.
-
-    Under ``--secure`` a profile's plain endpoints become their secure twins (tcp -> tls, unicast
-    udp -> quic); a UDP multicast endpoint has no secure twin and is dropped (docs/security.md).
-    """
-    changes: dict[str, Any] = {"domain": resolve_domain(getattr(args, "domain", None))}
-    connect = list(config.connect) + list(getattr(args, "session_connect", None) or [])
-    listen = list(config.listen)
-    secure = getattr(args, "secure", None)
-    if secure:
-        listen = [e for e in (_secure_twin(x) for x in listen) if e] or ["tls/0.0.0.0:0"]
-        connect = [e for e in (_secure_twin(x) for x in connect) if e]
-        changes.update(secure=secure, name=getattr(args, "cert_name", None) or name, shared_memory=False)
-    changes.update(listen=listen, connect=connect)
-    return dataclasses.replace(config, **changes)
-
-
-def _secure_twin(endpoint: str) -> str | None:
-    proto, _, rest = endpoint.partition("/")
-    if proto in SECURE_PROTOCOLS:
-        return endpoint
-    host = rest.split("#", 1)[0].rpartition(":")[0].strip("[]")
-    if proto == "udp":
-        try:
-            if ipaddress.ip_address(host).is_multicast:
-                return None
-        except ValueError:
-            pass
-        # Best-effort samples as QUIC datagrams (as on UDP), reliable ones on a stream: on one
-        # stream every sample waits behind each retransmission (docs/security.md, measured).
-        # "auto" falls back to the stream alone against a peer that does not offer it.
-        return "quic/" + rest.split("#", 1)[0].split("?", 1)[0] + "?mixed_rel=auto"
-    return "tls/" + rest if proto == "tcp" else None
 
 
 def resolve_domain(domain: int | str | None) -> int:

@@ -8,10 +8,10 @@ oldest is dropped and counted when a new one arrives.
 Hostile input: nothing a peer sends can stop, blind or fool a subscription. A sample
 over ``max_sample_bytes`` is dropped before it is copied (``oversize``); the queue is
 bounded by bytes (``max_queued_bytes``) as well as by count. Every step of a sample
-(envelope, type check, deduplication, schema validation of every field, lifespan,
+(the wire format's decoder, type check, deduplication, schema validation of every field, lifespan,
 statistics hooks, the callback) is guarded: a failure is counted by kind (``malformed``,
 ``type_mismatch``, ``hook_errors``, ``callback_errors``, ``internal_errors``), logged at
-a bounded rate (``_ratelimit``), and the subscription keeps draining. Per-publisher
+a bounded rate (``ratelimit``), and the subscription keeps draining. Per-publisher
 tables are LRU-bounded; a forged sequence number cannot silence the real publisher
 (``_wire/redundancy.py`` says why).
 
@@ -22,9 +22,9 @@ Python type::
     node.create_subscription(VehicleState, "/uav1/state", cb, qos, raw=True)  # that type only
 
 ``cb(raw)`` or ``cb(raw, info)`` gets a :class:`RawMessage`: ``type_name``, ``type_hash``,
-``fields`` (the msgpack body as Python values: a list of field values in declaration
-order, nested messages as lists) and ``data`` (the bytes of the envelope that carried
-it); ``info`` (:class:`MessageInfo`) has the publisher id, sequence number and source and
+``fields`` (the body as Python values: a list of field values in declaration
+order, nested messages as lists) and ``data`` (the payload that carried it: with the
+envelope, the whole envelope); ``info`` (:class:`MessageInfo`) has the publisher id, sequence number and source and
 receive stamps. Everything else is as for a typed subscription: QoS, queue bound,
 deduplication of redundant/repeated publishers, lost/expired counters, QoS events,
 the graph (a raw subscription of any type announces the type hash ``any``, which
@@ -42,18 +42,17 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Generic, TypeVar
 
-from ._ratelimit import RateLimitedLog
-from ._wire import envelope
 from ._wire.redundancy import AHEAD, WINDOW, Deduplicator, check_extra
 from .context import EntityContext
-from .graph import ANY_TYPE_HASH, SUBSCRIPTION, TopicEndpointInfo
+from .graph import ANY_TYPE_HASH, EndpointType, TopicEndpointInfo
 from .message import require_message_type, type_support
 from .qos import HistoryPolicy, QoSProfile
 from .qos_events import SubscriptionEvents
 from .qos_mapping import declare_subscriber
+from .ratelimit import RateLimitedLog
+from .wire import MalformedSample
 
 M = TypeVar("M")
-_unpack_fields = envelope.unpack_fields
 _time_ns = time.time_ns
 _monotonic = time.monotonic
 _perf_ns = time.perf_counter_ns
@@ -67,7 +66,7 @@ MAX_TRACKED_PUBLISHERS = 1024   # per-publisher tables (sequence, reported misma
 
 @dataclass(slots=True)
 class MessageInfo:
-    """Per-sample metadata from the envelope (passed to 2-argument callbacks)."""
+    """Per-sample metadata from the sample's header (passed to 2-argument callbacks)."""
     publisher_id: int
     seq: int
     source_stamp_ns: int
@@ -84,8 +83,8 @@ class RawMessage:
     """A sample of a raw subscription, not decoded into a message type (see the module doc)."""
     type_name: str
     type_hash: str
-    fields: Any              # the body as msgpack decoded it: field values in declaration order
-    data: bytes              # the whole envelope this sample arrived in
+    fields: Any              # the body as the wire format decoded it: field values in declaration order
+    data: bytes              # the payload this sample arrived in (with the envelope: the whole envelope)
     extra: dict[str, Any] = field(default_factory=dict)
 
 
@@ -94,8 +93,8 @@ class SubscriptionCounters:
     received: int = 0          # samples that reached this process
     delivered: int = 0         # callbacks run
     dropped: int = 0           # queue overflow (KEEP_LAST / KEEP_ALL bound)
-    malformed: int = 0         # bytes that are no envelope, or a body that does not decode
-    type_mismatch: int = 0     # envelope of another type
+    malformed: int = 0         # bytes the wire format does not accept, or a body that does not decode
+    type_mismatch: int = 0     # a sample of another type
     lost: int = 0              # gaps in a publisher's sequence numbers
     expired: int = 0           # older than the lifespan when delivered
     incompatible: int = 0      # from a publisher whose QoS this subscription cannot accept
@@ -111,7 +110,7 @@ class SubscriptionCounters:
 class Subscription(Generic[M]):
     """Delivers one topic's samples to a callback on the executor; made by ``Node.create_subscription``."""
 
-    endpoint_kind = SUBSCRIPTION
+    endpoint_kind = EndpointType.SUBSCRIPTION
 
     def __init__(self, context: EntityContext, msg_type: type[M] | None, topic: str, key: str,
                  callback: Callable[..., Any], qos: QoSProfile, event_callbacks: Any = None,
@@ -134,7 +133,12 @@ class Subscription(Generic[M]):
         self.counters = SubscriptionCounters()
         self.log = context.logger.getChild(topic.replace("/", "."))
         self._with_info = _takes_two_args(callback)
-        self._queue: deque[tuple[bytes, int]] = deque()
+        wire = context.wire
+        self._decode = wire.decoder(ts)     # raises for a format that cannot take any type
+        self._attachments = wire.uses_attachment
+        self.data_key = wire.data_key(key, ts)      # what is subscribed to (self.key: the topic, for the graph)
+        # (payload, receive stamp, attachment: None unless the wire format uses attachments)
+        self._queue: deque[tuple[bytes, int, bytes | None]] = deque()
         self._dropped_unseen = 0
         self._limit = qos.queue_limit
         self._take_batch = qos.history is HistoryPolicy.KEEP_ALL
@@ -152,7 +156,7 @@ class Subscription(Generic[M]):
         self._hash = self.type_hash
         self._any_type = ts is None
         self._from_wire: Callable[[Any], Any] = self._raw_sample if raw else ts.decode  # type: ignore[union-attr]
-        # The envelope being handled in raw mode: (type_name, type_hash, extra, data).
+        # The sample being handled in raw mode: (type_name, type_hash, extra, data).
         self._raw_env: tuple[str, str, dict[str, Any], bytes] | None = None
         self._executor = context.executor
         self._drain_work = self._drain     # one bound method, not a new one per scheduling
@@ -164,9 +168,9 @@ class Subscription(Generic[M]):
         self.gid = secrets.randbits(63)
         self.last_sample_mono: float | None = None
         self.events = SubscriptionEvents(context, self, event_callbacks)
-        self._zsub = declare_subscriber(context.session, key, qos, self._on_sample)
+        self._zsub = declare_subscriber(context.session, self.data_key, qos, self._on_sample)
         try:
-            self._token = context.declare_endpoint(SUBSCRIPTION, self)
+            self._token = context.declare_endpoint(EndpointType.SUBSCRIPTION, self)
         except BaseException:
             self.events.close()
             self._zsub.undeclare()
@@ -186,6 +190,10 @@ class Subscription(Generic[M]):
                                    "(Subscription.max_sample_bytes)", size, self.topic, self.max_sample_bytes)
                 return
             data = payload.to_bytes()
+            attachment = None
+            if self._attachments:
+                zattachment = sample.attachment
+                attachment = None if zattachment is None else zattachment.to_bytes()
         except Exception as exc:
             self._internal_error("receive", exc)
             return
@@ -196,7 +204,7 @@ class Subscription(Generic[M]):
             # Bounded by count (depth, or the KEEP_ALL limit) and by bytes: the oldest goes first.
             if queue and (len(queue) >= self._limit or self._queued_bytes + size > self.max_queued_bytes):
                 self._make_room(size)
-            queue.append((data, now))
+            queue.append((data, now, attachment))
             self._queued_bytes += size
             if self._scheduled:
                 return      # the drain already queued picks this one up: one executor wake-up per drain
@@ -207,7 +215,7 @@ class Subscription(Generic[M]):
         # Under self._lock (the rare path of _on_sample: the queue is full).
         queue = self._queue
         while queue and (len(queue) >= self._limit or self._queued_bytes + size > self.max_queued_bytes):
-            old, _ = queue.popleft()
+            old = queue.popleft()[0]
             self._queued_bytes -= len(old)
             self.counters.dropped += 1
             self._dropped_unseen += 1   # will show as a sequence gap: not a network loss
@@ -251,12 +259,12 @@ class Subscription(Generic[M]):
                         return False
                     batch = [queue.popleft() for _ in range(min(len(queue), DRAIN_BATCH))]
                     size = 0
-                    for data, _ in batch:
+                    for data, _, _ in batch:
                         size += len(data)
                     self._queued_bytes -= size
-                for data, received in batch:
+                for data, received, attachment in batch:
                     try:
-                        handle(data, received)
+                        handle(data, received, attachment)
                     except Exception as exc:   # a bug or a hostile sample: count it, keep the others coming
                         self._internal_error("handle", exc)
                 handled += len(batch)
@@ -268,20 +276,24 @@ class Subscription(Generic[M]):
                 if not queue:
                     self._scheduled = False
                     return False
-                data, received = queue.popleft()
+                data, received, attachment = queue.popleft()
                 self._queued_bytes -= len(data)
             try:
-                handle(data, received)
+                handle(data, received, attachment)
             except Exception as exc:
                 self._internal_error("handle", exc)
         return True
 
-    def _handle(self, data: bytes, received_ns: int) -> None:
-        # The hot path: the envelope stays in locals (no object per sample), the common case (no
-        # redundancy, the next sequence number, no lifespan) takes no extra call.
+    def _handle(self, data: bytes, received_ns: int, attachment: bytes | None = None) -> None:
+        # The hot path: the header stays in locals (no object per sample), the common case (no
+        # redundancy, the next sequence number, no lifespan) takes no extra call. With the envelope,
+        # self._decode is envelope.unpack_fields itself.
+        # A local, then the call: Python 3.11 cannot specialise a call of a function kept on the
+        # instance (self._decode(...)), and this saves that lookup on every sample.
+        decode = self._decode
         try:
-            type_name, type_hash, pub_id, seq, stamp_ns, body, extra = _unpack_fields(data)
-        except envelope.MalformedSample as exc:
+            type_name, type_hash, pub_id, seq, stamp_ns, body, extra = decode(data, attachment)
+        except MalformedSample as exc:
             self._malformed(f"{exc} ({len(data)} bytes)")
             return
         if extra:   # almost always empty: only redundant/repeating publishers fill it
@@ -321,8 +333,9 @@ class Subscription(Generic[M]):
 
     def _deliver_sample(self, type_name: str, pub_id: int, seq: int, stamp_ns: int, body: Any,
                         received_ns: int) -> None:
+        from_wire = self._from_wire     # a local first, as decode in _handle
         try:
-            msg = self._from_wire(body)
+            msg = from_wire(body)
         except Exception as exc:    # ValidationError names the field; anything else is malformed too
             self._malformed(f"body does not decode as {self.type_name}: {exc}")
             return
@@ -365,9 +378,9 @@ class Subscription(Generic[M]):
             self._callback_error()
 
     def _raw_sample(self, body: Any) -> RawMessage:
-        # Raw mode's decoder: the envelope being handled names the type (set in _handle, same turn).
+        # Raw mode's decoder: the sample being handled names the type (set in _handle, same turn).
         if self._raw_env is None:
-            raise ValueError("raw sample without its envelope")
+            raise ValueError("raw sample without its header")
         type_name, type_hash, extra, data = self._raw_env
         return RawMessage(type_name, type_hash, body, data, extra)
 

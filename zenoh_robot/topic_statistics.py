@@ -46,10 +46,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
-from ._ratelimit import RateLimitedLog
 from .msgs import StatisticsEntry, TopicStatistics
 from .node import register_subscription_hook
 from .qos import QoSProfile, ReliabilityPolicy
+from .ratelimit import RateLimitedLog
 
 if TYPE_CHECKING:
     from .message import Message

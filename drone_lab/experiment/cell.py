@@ -15,7 +15,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 from drone_contract.streams import stream_profile
 from zenoh_robot.session_config import RESILIENT_GROUP, SessionConfig, fast_open
@@ -52,7 +52,27 @@ TRANSPORTS = ("default", "unicast", "router", "router-udp", "router-shim")
 # a client holds one link, the first endpoint that opens, and a TCP connect under loss waits on the
 # kernel's SYN back-off (1, 2, 4 s) while a UDP try is one datagram each way (docs/results/transports.md).
 FAST_OPEN = fast_open()
-LOSSY_TX = dict(batch_size=1300, lease_s=10.0, keep_alive=100)
+
+
+class LossyTx(TypedDict):
+    """``SessionConfig`` keywords of the transport under loss (typed, so that ``**`` checks them)."""
+    batch_size: int
+    lease_s: float
+    keep_alive: int
+
+
+class _Tuning(TypedDict, total=False):
+    """``SessionConfig`` keywords a cell's config shares between its two sides."""
+    multicast_scouting: bool
+    shared_memory: bool
+    accept_timeout_s: float
+    extra: dict[str, Any]
+    batch_size: int
+    lease_s: float
+    keep_alive: int
+
+
+LOSSY_TX: LossyTx = {"batch_size": 1300, "lease_s": 10.0, "keep_alive": 100}
 ROUTER_LOCAL = f"tcp/127.0.0.1:{PORT}"     # the GCS reaches its ground router over loopback
 
 
@@ -85,24 +105,24 @@ def transport_for(profile: str, link: LossyLink, side: str, transport: str = "de
                 connect = connect[:1]
         return SessionConfig(mode="client", listen=[], connect=connect, multicast_scouting=False,
                              shared_memory=False, accept_timeout_s=1.0, extra=extra,
-                             **LOSSY_TX).to_json5()   # type: ignore[arg-type]
+                             **LOSSY_TX).to_json5()
     if profile == "resilient" and transport == "unicast":
         endpoints = [f"udp/{link.addr('gcs')}:{PORT}", f"tcp/{link.addr('gcs')}:{PORT}"]
-        tuned = dict(multicast_scouting=False, shared_memory=False, accept_timeout_s=1.0, extra=dict(FAST_OPEN),
-                     **LOSSY_TX)
+        tuned: _Tuning = {"multicast_scouting": False, "shared_memory": False, "accept_timeout_s": 1.0,
+                         "extra": dict(FAST_OPEN), **LOSSY_TX}
         if side == "gcs":
-            return SessionConfig(listen=endpoints, **tuned).to_json5()   # type: ignore[arg-type]
+            return SessionConfig(listen=endpoints, **tuned).to_json5()
         # The companion's open waits for both links (each retried until it opens), as a client's does: it
         # starts streaming on a formed session, and until then sends nothing (PX4 is never armed).
         tuned["extra"] = {**FAST_OPEN, "connect/timeout_ms": -1, "connect/exit_on_failure": True}
-        return SessionConfig(listen=[], connect=endpoints, **tuned).to_json5()   # type: ignore[arg-type]
+        return SessionConfig(listen=[], connect=endpoints, **tuned).to_json5()
     if profile == "resilient":
         return SessionConfig.resilient(link.dev(side), MCAST).to_json5()
     # The thesis's variants as a plain deployment would run them: TCP for reliable, UDP for best
     # effort, Zenoh's default lease, batch size and accept timeout; no shared memory (loss must
     # touch every byte).
     endpoints = [f"tcp/{link.addr('gcs')}:{PORT}", f"udp/{link.addr('gcs')}:{PORT}"]
-    plain = dict(multicast_scouting=False, shared_memory=False, accept_timeout_s=10.0)
+    plain: _Tuning = {"multicast_scouting": False, "shared_memory": False, "accept_timeout_s": 10.0}
     if side == "gcs":
         cfg = SessionConfig(listen=endpoints, **plain)
     else:
@@ -317,7 +337,8 @@ def formation(workdir: Path, launch_ns: int) -> dict[str, Any]:
 
 def _load(path: Path) -> dict[str, Any] | None:
     try:
-        return json.loads(path.read_text())
+        data: dict[str, Any] = json.loads(path.read_text())
+        return data
     except (OSError, ValueError):
         return None
 

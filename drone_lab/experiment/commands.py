@@ -9,7 +9,7 @@ _wire/call_plan.py) and the given deadline. Transports: ``multicast`` is the res
 session (``SessionConfig.resilient(iface)``, calls ride puts); ``unicast`` is the resilient
 peer-to-peer UDP/TCP session the experiment cells build (cell.transport_for, calls ride queries).
 ``--start after`` switches the loss on only once the caller is linked (a unicast session does
-not form from scratch at 90 % loss). ``--monitor`` runs a LinkMonitor on both sides feeding
+not form from scratch at 90 % loss). ``--monitor`` runs a LossMonitor on both sides feeding
 ``client.set_loss`` / ``service.set_loss``
 (otherwise the plan assumes 50 % loss). Prints a markdown table and, with ``--jsonl FILE``, one
 JSON object per level. Bytes per call are payload bytes (requests + reply copies) before Zenoh,
@@ -29,9 +29,14 @@ import sys
 import threading
 import time
 from collections import Counter
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from zenoh_robot import Message, message
+
+if TYPE_CHECKING:
+    from zenoh_robot import Node, SessionConfig
+
+    from .netns import LossyLink
 
 NAMES = ("arm", "takeoff", "hold", "land")
 SESSION_WAIT_S = 20.0     # a multicast session forms from Join messages: at 90 % loss that can take a while
@@ -49,7 +54,7 @@ class ExpResult(Message):
     executions: int = 0
 
 
-def _wait_transport(node: Any, timeout: float) -> bool:
+def _wait_transport(node: Node, timeout: float) -> bool:
     end = time.monotonic() + timeout
     while time.monotonic() < end:
         if any(True for _ in node.session.info.transports()):
@@ -58,7 +63,7 @@ def _wait_transport(node: Any, timeout: float) -> bool:
     return False
 
 
-def _session(spec: str) -> Any:
+def _session(spec: str) -> SessionConfig | str:
     """``multicast:IFACE`` -> the resilient multicast session; ``unicast:FILE`` -> that config file."""
     from zenoh_robot import SessionConfig
     kind, _, arg = spec.partition(":")
@@ -69,13 +74,13 @@ def _session(spec: str) -> Any:
     raise ValueError(f"session spec {spec!r}: want multicast:IFACE or unicast:CONFIG_FILE")
 
 
-MONITOR_SETTLE_S = 2.0    # a LinkMonitor's short window is 1 s: let it measure before the first call
+MONITOR_SETTLE_S = 2.0    # a LossMonitor's short window is 1 s: let it measure before the first call
 
 
 def serve(spec: str, monitor: bool = False) -> None:
     """Serve until stdin closes, then print {"executions": {call_id: n}} as JSON."""
     from zenoh_robot import Node
-    from zenoh_robot.loss_feedback import LinkMonitor
+    from zenoh_robot.loss_feedback import LossMonitor
     runs: Counter[int] = Counter()
     lock = threading.Lock()
 
@@ -85,7 +90,7 @@ def serve(spec: str, monitor: bool = False) -> None:
             return ExpResult(True, runs[cmd.call_id])
     with Node("cmd_server", config=_session(spec)) as node:
         srv = node.create_service("exp/command", ExpCommand, ExpResult, handle)
-        mon = LinkMonitor(node) if monitor else None
+        mon = LossMonitor(node) if monitor else None
         if mon is not None:
             mon.adapt(srv.set_loss)
         spinner = threading.Thread(target=node.spin, daemon=True)
@@ -105,7 +110,7 @@ def serve(spec: str, monitor: bool = False) -> None:
 def call(spec: str, n: int, timeout: float, monitor: bool = False) -> None:
     """Make ``n`` calls one after the other; print one JSON summary."""
     from zenoh_robot import Node, ServiceCallError
-    from zenoh_robot.loss_feedback import LinkMonitor
+    from zenoh_robot.loss_feedback import LossMonitor
     from zenoh_robot.services import command_retry
     with Node("cmd_client", config=_session(spec)) as node:
         linked = _wait_transport(node, SESSION_WAIT_S)
@@ -115,7 +120,7 @@ def call(spec: str, n: int, timeout: float, monitor: bool = False) -> None:
             linked = linked and client.wait_for_service(SESSION_WAIT_S)
         print("LINKED", flush=True)
         sys.stdin.readline()         # START: the loss is on (run_level may set it only now)
-        mon = LinkMonitor(node) if monitor else None
+        mon = LossMonitor(node) if monitor else None
         if mon is not None:
             mon.adapt(client.set_loss)
             # The probes' callbacks run on the node's executor (the calls do not need it).
@@ -142,7 +147,7 @@ def call(spec: str, n: int, timeout: float, monitor: bool = False) -> None:
 TRANSPORTS = ("multicast", "unicast")
 
 
-def _spec(link: Any, side: str, transport: str, workdir: str) -> str:
+def _spec(link: LossyLink, side: str, transport: str, workdir: str) -> str:
     if transport == "multicast":
         return f"multicast:{link.dev(side)}"
     from drone_lab.experiment.cell import transport_for
@@ -272,7 +277,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--timeout", type=float, default=2.0, help="each call's deadline (s)")
     p.add_argument("--transport", default="multicast",
                    help="comma-separated, of: " + ", ".join(TRANSPORTS) + " (default multicast)")
-    p.add_argument("--monitor", action="store_true", help="size copies from a LinkMonitor's measured loss")
+    p.add_argument("--monitor", action="store_true", help="size copies from a LossMonitor's measured loss")
     p.add_argument("--start", choices=("startup", "after"), default="startup",
                    help="loss from the start (sessions form under it) or only once the caller is linked")
     p.add_argument("--jsonl", help="append one JSON object per level here")

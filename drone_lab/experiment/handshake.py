@@ -102,7 +102,7 @@ def _router_main(addr: str, timeout: float) -> None:
     got = threading.Event()
     first: list[float] = []
 
-    def on(sample: Any) -> None:
+    def on(sample: zenoh.Sample) -> None:
         if not first:
             first.append(time.time())
             first.append(float(sample.payload.to_bytes().decode()))
@@ -130,7 +130,8 @@ def _node_main(variant: str, router_addr: str, timeout: float) -> None:
 def measure(variant: str, loss: float, tries: int, timeout: float) -> list[float | None]:
     """Formation seconds per try (None: not within ``timeout``)."""
     links = [LossyLink(loss_pct=loss) for _ in range(tries)]
-    procs: list[tuple[subprocess.Popen[str], subprocess.Popen[str]]] = []
+    routers: list[subprocess.Popen[str]] = []
+    nodes: list[subprocess.Popen[str]] = []
     shims: list[subprocess.Popen[str]] = []
     try:
         for link in links:
@@ -139,23 +140,20 @@ def measure(variant: str, loss: float, tries: int, timeout: float) -> list[float
             shims.extend(p for link in links for p in start_shims(link))
         for link in links:
             me = [sys.executable, "-m", MODULE]
-            r = subprocess.Popen(link.exec_in("gcs") + me + ["router", link.addr("gcs"), str(timeout)],
-                                 stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-            procs.append((r, None))  # type: ignore[arg-type]
-        for i, link in enumerate(links):
-            r = procs[i][0]
+            routers.append(subprocess.Popen(link.exec_in("gcs") + me + ["router", link.addr("gcs"), str(timeout)],
+                                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True))
+        for r, link in zip(routers, links, strict=True):
             while r.stdout is not None and (line := r.stdout.readline()) and line.strip() != "READY":
                 pass
-            n = subprocess.Popen(link.exec_in("drone") + [sys.executable, "-m", MODULE, "node", variant,
-                                 link.addr("gcs"), str(timeout + 5)],
-                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, text=True)
-            procs[i] = (r, n)
+            nodes.append(subprocess.Popen(link.exec_in("drone") + [sys.executable, "-m", MODULE, "node", variant,
+                                          link.addr("gcs"), str(timeout + 5)],
+                                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, text=True))
         out: list[float | None] = []
-        for r, n in procs:
+        for r, n in zip(routers, nodes, strict=True):
             text, _ = r.communicate(timeout=timeout + 30)
             n.kill()
             n.wait()
-            formed = None
+            formed: float | None = None
             for line in text.splitlines():
                 if line.startswith("{"):
                     formed = json.loads(line).get("formed_s")
@@ -169,11 +167,10 @@ def measure(variant: str, loss: float, tries: int, timeout: float) -> list[float
             except subprocess.TimeoutExpired:
                 shim.kill()
                 shim.wait()
-        for pair in procs:
-            for p in pair:
-                if p is not None and p.poll() is None:
-                    p.kill()
-                    p.wait()
+        for p in (*routers, *nodes):
+            if p.poll() is None:
+                p.kill()
+                p.wait()
         for link in links:
             link.down()
 

@@ -49,7 +49,7 @@ def write_csv(results: list[dict[str, Any]], path: Path) -> None:
                             r.get("error", "")])
 
 
-def _nan(v: Any) -> bool:
+def _nan(v: object) -> bool:
     return v is None or (isinstance(v, float) and math.isnan(v))
 
 

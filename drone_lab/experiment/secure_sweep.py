@@ -122,7 +122,7 @@ def endpoint(side: str, config_kw: dict[str, Any], duration: float, out: Path, d
              setpoint_repeat: int | None = None) -> None:
     """Publish for ``duration`` s from now, listen ``drain`` s more; write the records and first-sample times."""
     from drone_contract.streams import stream_profile
-    from zenoh_robot import Node
+    from zenoh_robot import Message, MessageInfo, Node
     from zenoh_robot.msgs import Header, SensorCombined, Setpoint
 
     qos = dict(stream_profile("resilient").qos)
@@ -131,8 +131,8 @@ def endpoint(side: str, config_kw: dict[str, Any], duration: float, out: Path, d
     end = time.monotonic() + duration
     sent, received = StreamRecorder(), StreamRecorder()
     first: dict[str, int] = {}
-    out_type: type[Any]
-    in_type: type[Any]
+    out_type: type[SensorCombined] | type[Setpoint]
+    in_type: type[SensorCombined] | type[Setpoint]
     if side == "drone":
         name, ns, out_type, out_topic, out_qos, rate = "companion", "uav1", SensorCombined, "/uav1/sensor", \
             qos["sensor"], SENSOR_HZ
@@ -143,7 +143,7 @@ def endpoint(side: str, config_kw: dict[str, Any], duration: float, out: Path, d
         in_type, in_topic, in_qos = SensorCombined, "/uav1/sensor", qos["sensor"]
     opened = time.time_ns()
 
-    def on_sample(msg: Any, info: Any) -> None:
+    def on_sample(msg: Message, info: MessageInfo) -> None:
         first.setdefault("rx", info.received_stamp_ns)
         received.record(info.seq, info.source_stamp_ns, info.received_stamp_ns)
 
@@ -153,9 +153,8 @@ def endpoint(side: str, config_kw: dict[str, Any], duration: float, out: Path, d
         pub = node.create_publisher(out_type, out_topic, out_qos)
         threading.Thread(target=node.spin, daemon=True).start()
         period, next_t = 1.0 / rate, time.monotonic()
-        make: Any = out_type   # every field but the header keeps its default
         while next_t < end:
-            info = pub.publish(make(header=Header.now()))
+            info = pub.publish(out_type(header=Header.now()))   # every field but the header keeps its default
             sent.record(info.seq, info.stamp_ns)
             next_t += period
             time.sleep(max(0.0, next_t - time.monotonic()))
@@ -234,7 +233,7 @@ def run_sweep(out_dir: Path, cells: list[SecureCell], log: Any = print) -> list[
     return results
 
 
-def _num(v: Any, fmt: str, unit: str = "") -> str:
+def _num(v: object, fmt: str, unit: str = "") -> str:
     return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:{fmt}}{unit}"
 
 
@@ -258,7 +257,7 @@ def markdown(results: list[dict[str, Any]]) -> str:
             continue
         sp, se = r["topics"]["setpoint"], r["topics"]["sensor"]
 
-        def ms(v: Any) -> str:
+        def ms(v: float | None) -> str:
             return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else (
                 f"{v / 1000:.1f} s" if v >= 1000 else f"{v:.0f} ms")
         rows.append(f"| {r['start']} | {r['profile']} | {r['loss']:g} | {_num(sp['delivered_pct'], '.1f', ' %')} "

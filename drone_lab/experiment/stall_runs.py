@@ -8,7 +8,7 @@ reports for each: whether the setpoint or the FEC image stream stalled, and the
 longest time the drone went without a new setpoint (first send -> last send, both
 ends of the window included, so a stall shows as a long gap).
 
-Each pair runs what the ``resilient`` profile runs on one session: a LinkMonitor on
+Each pair runs what the ``resilient`` profile runs on one session: a LossMonitor on
 both nodes (20 Hz probes from its own thread), the GCS's setpoint copies following
 the fed-back loss (``apply_repeat_plan``), and the drone's FEC images (a paced burst
 of shares per frame). ``ZR_STALL_EXPRESS=1`` forces express on the GCS's setpoints
@@ -62,7 +62,7 @@ def peer(role: str, iface: str, seconds: float) -> None:
     from drone_contract.streams import stream_profile
     from zenoh_robot import Node
     from zenoh_robot.image_fec import FecImagePublisher, FecImageSubscription
-    from zenoh_robot.loss_feedback import LinkMonitor, apply_repeat_plan
+    from zenoh_robot.loss_feedback import LossMonitor, apply_repeat_plan
     from zenoh_robot.msgs import Header, Setpoint
     from zenoh_robot.qos_mapping import declare_publisher
     from zenoh_robot.session_config import SessionConfig
@@ -71,7 +71,7 @@ def peer(role: str, iface: str, seconds: float) -> None:
     assert profile.loss_feedback and profile.image_mode == "fec"
     qos = profile.qos["setpoint"]
     with Node(f"stall_{role}", config=SessionConfig.resilient(iface)) as node:
-        monitor = LinkMonitor(node)
+        monitor = LossMonitor(node)
         node.add_on_close(monitor.close)
         spinner = threading.Thread(target=node.spin, daemon=True)
         spinner.start()

@@ -155,9 +155,15 @@ def run_cell(cell: SwarmCell, workdir: Path) -> dict[str, Any]:
             if p.poll() is None:
                 p.kill()
                 p.wait()
-    cpu = {n: (100.0 * (ticks1[n] - ticks0[n]) / CLK_TCK / elapsed)
-           if ticks0.get(n) is not None and ticks1.get(n) is not None else float("nan") for n in procs}
+    cpu = {n: _cpu_pct(ticks0.get(n), ticks1.get(n), elapsed) for n in procs}
     return analyse_cell(cell, workdir, ids, t0, t1, cpu, rss, {n: p.returncode for n, p in procs.items()})
+
+
+def _cpu_pct(ticks0: int | None, ticks1: int | None, elapsed: float) -> float:
+    """% of one core over ``elapsed`` s; nan when a reading failed (the process had gone)."""
+    if ticks0 is None or ticks1 is None:
+        return float("nan")
+    return 100.0 * (ticks1 - ticks0) / CLK_TCK / elapsed
 
 
 def _load(path: Path) -> dict[str, Any] | None:
@@ -186,7 +192,7 @@ def analyse_cell(cell: SwarmCell, workdir: Path, ids: list[str], t0: int, t1: in
             "sensor": analyse(rec(gl["received"]["sensor"]), rec(dl["sent"]["sensor"]), t0, t1),
             "state": analyse(rec(gl["received"]["state"]), rec(dl["sent"]["state"]), t0, t1),
         }
-        figures = {k: v.as_dict() for k, v in topics.items()}
+        figures: dict[str, object] = {k: v.as_dict() for k, v in topics.items()}
         image = analyse(rec(gl["received"]["image"]), None, t0, t1)
         sent_frames = analyse(rec(dl["sent"]["image"]), None, t0, t1)
         figures["image"] = {**image.as_dict(), "fps": image.unique / window if window else float("nan"),

@@ -39,7 +39,7 @@ def with_marginal(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
-def _fmt(fmt: str, v: Any) -> str:
+def _fmt(fmt: str, v: object) -> str:
     if isinstance(v, float) and math.isnan(v):
         return "-"
     try:

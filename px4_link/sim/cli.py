@@ -54,7 +54,7 @@ def build_parser(p: argparse.ArgumentParser | None = None) -> argparse.ArgumentP
     return p
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """``zenoh-robot sim``: the same options (a plugin hook; this module imports no Zenoh)."""
     p = build_parser(sub.add_parser("sim", help="the built-in PX4-faithful MAVLink simulator",
                                     description=DESCRIPTION))

@@ -358,12 +358,15 @@ class SimProtocol:
 
     def build(self, what: str | int, now: float) -> Any:
         """Encode one message from the current state (by name or id); None if unknown."""
+        name: str
         if isinstance(what, int):
             cls = mavlink2.mavlink_map.get(what)
             if cls is None:
                 return None
-            what = cls.msgname
-        fn = getattr(self, f"_build_{what.lower()}", None)
+            name = cls.msgname
+        else:
+            name = what
+        fn = getattr(self, f"_build_{name.lower()}", None)
         return fn(now) if fn is not None else None
 
     def _latlon(self) -> tuple[float, float, float]:

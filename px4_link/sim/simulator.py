@@ -144,7 +144,8 @@ class Simulator:
         """The UDP port we send from / listen on."""
         if self._sock is None:
             return self._bind[1]
-        return self._sock.getsockname()[1]
+        port: int = self._sock.getsockname()[1]
+        return port
 
     @property
     def mode(self) -> str:

@@ -27,7 +27,7 @@ import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 
-ASSUMED_LOSS = 0.5       # no measurement (no LinkMonitor adapting the node): size for 50 % each way
+ASSUMED_LOSS = 0.5       # no measurement (no LossMonitor adapting the node): size for 50 % each way
 MARGIN = 0.05            # the measured loss is noisy: plan for a little worse
 MAX_LOSS = 0.97
 MISS = 1e-3              # target: a call unanswered within its deadline at most this often

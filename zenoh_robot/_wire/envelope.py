@@ -17,7 +17,7 @@ MAGIC = "zr1"
 
 
 class MalformedSample(ValueError):
-    """Bytes on a topic that are not a zenoh-robot envelope."""
+    """Bytes on a topic that are no sample of its wire format (public as ``zenoh_robot.wire.MalformedSample``)."""
 
 
 @dataclass(slots=True)
@@ -69,6 +69,9 @@ class EnvelopePacker:
         return self._pack((MAGIC, self._type_name, self._type_hash, self._publisher_id, seq, stamp_ns,
                            body, extra or {}))
 
+    def attachment(self, seq: int, stamp_ns: int) -> None:
+        return None     # the envelope carries everything in the payload
+
 
 MAX_NAME_LEN = 256      # type names and hashes: bounded, they end up in logs
 _U64 = 1 << 64
@@ -78,9 +81,10 @@ Header = tuple[str, str, int, int, int, Any, dict[str, Any]]   # type_name, type
 _unpackb = msgpack.unpackb
 
 
-def unpack_fields(data: bytes | memoryview) -> Header:
+def unpack_fields(data: bytes | memoryview, attachment: bytes | None = None) -> Header:
     """The envelope of ``data`` as a tuple (no object per sample: the subscription's hot path);
-    MalformedSample for anything else (never another exception). Same checks as :func:`unpack`."""
+    MalformedSample for anything else (never another exception). Same checks as :func:`unpack`.
+    ``attachment`` is ignored (the envelope has none): this is the envelope format's decoder."""
     try:
         obj = _unpackb(data, raw=False, strict_map_key=False)
     except Exception as exc:  # msgpack raises several unrelated types on garbage

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from zenoh_robot._acl import ROLES, KeysError, NodeEntry, _check_name, acl_config, domain_prefix, load_roles, save_roles  # noqa: F401 - re-exported for the CLI
+from zenoh_robot.acl import ROLES, KeysError, NodeEntry, acl_config, check_name, domain_prefix, load_roles, save_roles  # noqa: F401 - re-exported for the CLI
 
 try:
     from cryptography import x509
@@ -100,10 +100,10 @@ def issue(keys_dir: str | Path, name: str, role: str, drones: list[str] | None =
     addresses others dial to reach it, needed where names are verified on connect).
     """
     d = Path(keys_dir)
-    _check_name(name)
+    check_name(name)
     if role not in ROLES:
         raise KeysError(f"role {role!r}: choose one of {', '.join(ROLES)}")
-    drones = [_check_name(x, "drone name") for x in (drones or [])]
+    drones = [check_name(x, "drone name") for x in (drones or [])]
     if drones and role != "gcs":
         raise KeysError("--drones is for a gcs: the drones it may command")
     ca_cert, ca_key = _load_ca(d)

@@ -37,6 +37,8 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from zenoh_robot.ratelimit import RateLimitedLog
+
 log = logging.getLogger("zenoh_robot.linkshim")
 
 MAGIC = b"ZS"
@@ -187,22 +189,6 @@ class Flow:
     hold_until: float = 0.0
 
 
-class RateLimitedLog:
-    def __init__(self, every_s: float) -> None:
-        self.every_s = every_s
-        self.last: dict[str, float] = {}
-        self.suppressed: dict[str, int] = {}
-
-    def warn(self, key: str, msg: str, *args: object) -> None:
-        now = time.monotonic()
-        if now - self.last.get(key, -1e9) >= self.every_s:
-            n = self.suppressed.pop(key, 0)
-            log.warning(msg + (f" (+{n} more)" if n else ""), *args)
-            self.last[key] = now
-        else:
-            self.suppressed[key] = self.suppressed.get(key, 0) + 1
-
-
 class LinkShim:
     """One end of the tunnel. ``role`` "drone": ``listen`` is local (Zenoh connects to it), datagrams go
     to ``peer`` (the ground end). ``role`` "ground": ``listen`` is on the lossy link, datagrams go to
@@ -243,7 +229,7 @@ class LinkShim:
             "rx_local", "rx_wire", "forwarded", "duplicates", "stale", "garbage", "unknown_flow", "tx_first",
             "tx_copies", "tx_bytes", "copies_over_budget", "copies_queue_full", "flows_opened",
             "flows_evicted", "send_errors", "held", "gaps_skipped", "late")}
-        self.rlog = RateLimitedLog(self.cfg.log_every_s)
+        self.rlog = RateLimitedLog(log, burst=1, interval=self.cfg.log_every_s)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -296,7 +282,7 @@ class LinkShim:
                 break
             except OSError as exc:       # ICMP unreachable surfaces here on Linux: the target is not up yet
                 self.counters["send_errors"] += 1
-                self.rlog.warn("recv", "linkshim %s: receive error: %s", self.role, exc)
+                self.rlog.warning("recv", "linkshim %s: receive error: %s", self.role, exc)
                 continue
             out.append((data, addr))
         return out
@@ -319,7 +305,7 @@ class LinkShim:
             parsed = parse(packet)
             if parsed is None:
                 self.counters["garbage"] += 1
-                self.rlog.warn("garbage", "linkshim %s: dropped a malformed datagram from %s", self.role, addr)
+                self.rlog.warning("garbage", "linkshim %s: dropped a malformed datagram from %s", self.role, addr)
                 continue
             head, payload = parsed
             flow = self._wire_flow(head.flow, addr, now)
@@ -383,7 +369,7 @@ class LinkShim:
                 flow.sock.send(payload)
         except OSError as exc:
             self.counters["send_errors"] += 1
-            self.rlog.warn("fwd", "linkshim %s: forward failed: %s", self.role, exc)
+            self.rlog.warning("fwd", "linkshim %s: forward failed: %s", self.role, exc)
 
     def _on_target(self, sock: socket.socket) -> None:
         """Ground end: the router answers a flow."""
@@ -432,7 +418,7 @@ class LinkShim:
         except OSError as exc:
             s.close()
             self.counters["send_errors"] += 1
-            self.rlog.warn("connect", "linkshim ground: cannot reach target %s: %s", self.target, exc)
+            self.rlog.warning("connect", "linkshim ground: cannot reach target %s: %s", self.target, exc)
             return None
         flow = Flow(fid, addr, None, sock=s, created=now, last_active=now)
         self.by_remote[key] = flow
@@ -508,7 +494,7 @@ class LinkShim:
             self.counters["tx_bytes"] += len(packet)
         except OSError as exc:          # a full socket buffer, or the route is gone: counted, never fatal
             self.counters["send_errors"] += 1
-            self.rlog.warn("send", "linkshim %s: send failed: %s", self.role, exc)
+            self.rlog.warning("send", "linkshim %s: send failed: %s", self.role, exc)
 
     def _flush_due(self, now: float) -> None:
         while self.pending and self.pending[0][0] <= now:

@@ -8,6 +8,10 @@ original publisher in the graph (same type, hash, QoS and publisher id): typed
 subscriptions match and decode as if the flight were live. ``restamp`` rewrites the
 source stamp to now (for consumers that check age or lifespan); sequence numbers are kept.
 
+The raw channels hold envelope bytes (``schemas.RAW_ENCODING``), so replay speaks the
+envelope format (``zenoh_robot.wire.ENVELOPE``: its keys and graph tokens) whatever the
+node's own format.
+
 ``loop``: every pass after the first speaks as new publishers (an id derived from the
 original and the pass number, announced afresh), since subscriptions deliver a
 publisher's sequence number once: the same ids again would be dropped as duplicates.
@@ -22,10 +26,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from zenoh_robot._wire import envelope
-from zenoh_robot.graph import PUBLISHER, decode_qos, endpoint_token_key
+from zenoh_robot.graph import EndpointType, TopicEndpointInfo, decode_qos
 from zenoh_robot.qos import SYSTEM_DEFAULT, QoSProfile
 from zenoh_robot.qos_mapping import declare_publisher
+from zenoh_robot.wire import ENVELOPE, MalformedSample
 
 from . import schemas
 from .info import Record, iter_records
@@ -92,7 +96,7 @@ class BagPlayer:
                 qos = decode_qos(meta["zr.qos"]) if "zr.qos" in meta else SYSTEM_DEFAULT
             except (ValueError, KeyError):
                 qos = SYSTEM_DEFAULT
-            zpub = declare_publisher(self.node.session, topic[1:], qos)
+            zpub = declare_publisher(self.node.session, ENVELOPE.data_key(topic[1:], None), qos)
             entry = self._pubs[key] = (zpub, qos, meta.get("zr.hash", ""))
         return entry
 
@@ -101,8 +105,8 @@ class BagPlayer:
         if tkey in self._tokens or len(self._tokens) >= MAX_PUBLISHERS:
             return
         n = self.node
-        self._tokens[tkey] = n.session.liveliness().declare_token(endpoint_token_key(
-            PUBLISHER, n.zid, publisher_id, n.namespace, n.name, topic[1:], type_name, type_hash, qos))
+        self._tokens[tkey] = n.session.liveliness().declare_token(ENVELOPE.graph.endpoint_token(TopicEndpointInfo(
+            n.name, n.get_namespace(), topic, type_name, type_hash, EndpointType.PUBLISHER, publisher_id, qos, n.zid)))
 
     def play(self, duration: float | None = None) -> PlayCounters:
         """Publish until the file ends (or forever with ``loop``); returns the counters."""
@@ -138,8 +142,8 @@ class BagPlayer:
                 continue
             data = rec.message.data
             try:
-                env = envelope.unpack(data)
-            except envelope.MalformedSample:
+                env = ENVELOPE.unpack(data)
+            except MalformedSample:
                 self.counters.malformed += 1
                 continue
             entry = self._publisher(rec, env.publisher_id)
@@ -159,8 +163,8 @@ class BagPlayer:
             if wait > 0 and self._stop.wait(wait):
                 return
             if self.restamp or pid != env.publisher_id:
-                data = envelope.pack(env.type_name, env.type_hash, pid, env.seq,
-                                     time.time_ns() if self.restamp else env.stamp_ns, env.body, env.extra)
+                data = ENVELOPE.pack(env._replace(publisher_id=pid,
+                                                  stamp_ns=time.time_ns() if self.restamp else env.stamp_ns))
             zpub.put(data)
             self.counters.published += 1
             self.counters.per_topic[topic] = self.counters.per_topic.get(topic, 0) + 1

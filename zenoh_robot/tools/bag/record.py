@@ -93,7 +93,7 @@ class BagRecorder(Tap):
         self.close()
 
     def tick(self) -> None:
-        self._writer.flush()      # close the chunk: a recorder killed mid-flight loses at most this period
+        self._writer.flush()  # type: ignore[no-untyped-call]  # close the chunk: a recorder killed mid-flight loses at most this period
 
     def finish(self) -> None:
         """Summary metadata, index and footer (on the worker thread, after the last sample)."""
@@ -104,7 +104,7 @@ class BagRecorder(Tap):
         self._writer.add_metadata(SUMMARY_NAME, summary)
         for name, values in self.metadata.items():
             self._writer.add_metadata(name, {str(k): str(v) for k, v in values.items()})
-        self._writer.finish()
+        self._writer.finish()  # type: ignore[no-untyped-call]  # mcap leaves it unannotated
         self._file.close()
 
     def _schema_id(self, name: str, encoding: str, data: bytes) -> int:

@@ -185,7 +185,8 @@ def setpoint_views(topic: str, data: dict[str, Any], stamp_ns: int) -> list[View
     if xyz is None:
         return []
     x, y, z = ned_to_enu(*xyz)
-    yaw = data.get("yaw") if isinstance(data.get("yaw"), (int, float)) else 0.0
+    raw_yaw = data.get("yaw")
+    yaw = float(raw_yaw) if isinstance(raw_yaw, (int, float)) else 0.0
     return [View(f"{topic}/pose", PoseInFrame(timestamp=_stamp(stamp_ns), frame_id="map", pose=Pose(
         position=Vector3(x=x, y=y, z=z), orientation=_quat(0.0, 0.0, math.pi / 2 - float(yaw)))))]
 

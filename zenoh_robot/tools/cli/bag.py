@@ -2,32 +2,30 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import re
-import secrets
 import signal
 import sys
 import threading
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .common import HIDDEN_PREFIX, _close_uninterrupted, add_zenoh_arg, cli_node, quiet_exit, zenoh_config
+from zenoh_robot.session_args import add_session_arguments
+
+from .common import cli_node, quiet_exit
 from .main import CliError
 
 if TYPE_CHECKING:
-    from zenoh_robot.node import Node
+    pass
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bag", help="record, inspect and replay flight logs (MCAP, opens in Foxglove)")
-    add_zenoh_arg(p)
+    add_session_arguments(p)
     ops = p.add_subparsers(dest="op", metavar="OP", required=True)
 
     r = ops.add_parser("record", help="record topics to an MCAP file")
-    add_zenoh_arg(r)
+    add_session_arguments(r)
     r.add_argument("topics", nargs="*", metavar="TOPIC", help="topics to record (absolute names)")
     r.add_argument("-a", "--all", action="store_true", help="every topic, including ones that appear later")
     r.add_argument("-o", "--output", required=True, help="the .mcap file to write")
@@ -39,7 +37,6 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "shows the reassembled <topic>/image and replay uses the raw bytes")
     r.add_argument("-x", "--exclude", metavar="REGEX",
                    help="leave out topics this regular expression matches (searched in the name)")
-    _add_domain_arg(r)
     r.set_defaults(func=_record)
 
     i = ops.add_parser("info", help="topics, types, counts and rates of a recording")
@@ -49,7 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     i.set_defaults(func=_info)
 
     pl = ops.add_parser("play", help="republish a recording with its timing, types and QoS")
-    add_zenoh_arg(pl)
+    add_session_arguments(pl)
     pl.add_argument("file")
     pl.add_argument("topics", nargs="*", metavar="TOPIC", help="only these topics")
     pl.add_argument("--rate", type=float, default=1.0, help="speed factor (2 = twice as fast)")
@@ -59,36 +56,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     pl.add_argument("--restamp", action="store_true",
                     help="source stamps = now (for consumers checking age/lifespan); default: bit-exact")
     pl.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
-    _add_domain_arg(pl)
     pl.set_defaults(func=_play)
-
-
-def _add_domain_arg(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--domain", metavar="N", default=None,
-                   help="the session's domain 0..232 (env ZR_DOMAIN): only that system's topics are seen")
-
-
-@contextmanager
-def _bag_node(kind: str, args: argparse.Namespace) -> Iterator["Node"]:
-    """``cli_node`` with ``--domain`` applied to the session config."""
-    if getattr(args, "domain", None) is None:
-        with cli_node(kind, args) as node:
-            yield node
-        return
-    from zenoh_robot.node import Node
-    from zenoh_robot.session_config import SessionConfig, SessionConfigError, resolve_domain
-
-    path = zenoh_config(args)
-    try:
-        cfg = SessionConfig.from_file(path) if path else SessionConfig()
-        cfg = dataclasses.replace(cfg, domain=resolve_domain(args.domain))
-        node = Node(f"{HIDDEN_PREFIX}{kind}_{secrets.token_hex(3)}", config=cfg)
-    except SessionConfigError as exc:
-        raise CliError(str(exc).splitlines()[0]) from None
-    try:
-        yield node
-    finally:
-        _close_uninterrupted(node)
 
 
 def _need_logs_extra() -> None:
@@ -122,7 +90,7 @@ def _record(args: argparse.Namespace) -> int:
             raise CliError(f"--exclude {args.exclude!r}: {exc}") from None
     stop = threading.Event()
     _stop_on_sigterm(stop)
-    with _bag_node("bag", args) as node:
+    with cli_node("bag", args) as node:
         rec = BagRecorder(node, args.output, None if args.all else args.topics, views=not args.no_views,
                           raw=not args.no_raw, slice_json=args.slice_json, exclude=args.exclude)
         try:
@@ -170,7 +138,7 @@ def _play(args: argparse.Namespace) -> int:
 
     if not args.rate > 0:
         raise CliError(f"--rate must be > 0, got {args.rate:g}")
-    with _bag_node("bag_play", args) as node:
+    with cli_node("bag_play", args) as node:
         try:
             player = BagPlayer(node, args.file, args.topics or None, rate=args.rate, loop=args.loop,
                                restamp=args.restamp, passes=args.passes)

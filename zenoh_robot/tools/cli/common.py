@@ -1,4 +1,4 @@
-"""What every network command shares: the ``--zenoh`` flag, a hidden node, Ctrl-C, names, types."""
+"""What every network command shares: the session flags' config, a hidden node, Ctrl-C, names, types."""
 from __future__ import annotations
 
 import argparse
@@ -19,31 +19,24 @@ from .main import CliError
 
 if TYPE_CHECKING:
     from zenoh_robot.node import Node
+    from zenoh_robot.session_config import SessionConfig
 
 HIDDEN_PREFIX = "_zr_"        # the CLI's own nodes: left out of list/info unless --all
 
 
-# -- the session flag: --zenoh FILE everywhere ------------------------------------------------
-def add_zenoh_arg(parser: argparse.ArgumentParser) -> None:
-    # SUPPRESS: given before or after the operation, a missing one never overwrites the other.
-    parser.add_argument("--zenoh", default=argparse.SUPPRESS, metavar="FILE",
-                        help="Zenoh session config (JSON5/YAML) to reach the network")
-    parser.add_argument("--config", dest="zenoh_deprecated", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+# -- the session: the library's flags (zenoh_robot.session_args), read once here ---------------
+def session_config(args: argparse.Namespace) -> "SessionConfig":
+    """The session the flags of ``add_session_arguments`` ask for; a bad one is a one-line CliError."""
+    from zenoh_robot.session_args import session_config_from_args
+    from zenoh_robot.session_config import SessionConfigError
 
-
-add_config_arg = add_zenoh_arg   # the old name, for callers not yet renamed
-
-
-def zenoh_config(args: argparse.Namespace) -> str | None:
-    """The --zenoh file; --config still works for these commands, with a warning."""
-    old = getattr(args, "zenoh_deprecated", None)
-    if old is not None:
-        print("zenoh-robot: --config is deprecated for the Zenoh session config: use --zenoh FILE",
-              file=sys.stderr, flush=True)
-    path = getattr(args, "zenoh", None) or old
+    path = getattr(args, "zenoh", None)
     if path is not None and not Path(path).is_file():
         raise CliError(f"--zenoh: no such file {path!r}")
-    return path
+    try:
+        return session_config_from_args(args)
+    except SessionConfigError as exc:
+        raise CliError(one_line(str(exc))) from None
 
 
 def add_duration_arg(parser: argparse.ArgumentParser) -> None:
@@ -79,8 +72,9 @@ def cli_node(kind: str, args: argparse.Namespace) -> Iterator["Node"]:
     from zenoh_robot.node import Node  # imported late so `zenoh-robot --help` stays fast
     from zenoh_robot.session_config import SessionConfigError
 
+    config = session_config(args)
     try:
-        node = Node(f"{HIDDEN_PREFIX}{kind}_{secrets.token_hex(3)}", config=zenoh_config(args))
+        node = Node(f"{HIDDEN_PREFIX}{kind}_{secrets.token_hex(3)}", config=config)
     except SessionConfigError as exc:
         raise CliError(one_line(str(exc))) from None
     try:

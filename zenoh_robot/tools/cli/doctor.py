@@ -19,7 +19,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from .common import HIDDEN_PREFIX, add_zenoh_arg, cli_node, quiet_exit, zenoh_config
+from zenoh_robot.session_args import add_session_arguments
+
+from .common import HIDDEN_PREFIX, cli_node, quiet_exit, session_config
 from .main import CliError
 
 if TYPE_CHECKING:
@@ -46,7 +48,7 @@ class Check:
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("doctor", help="check the Zenoh session, peers, clocks, MTU, shared memory and domain")
-    add_zenoh_arg(p)
+    add_session_arguments(p)
     p.add_argument("--report", "-r", action="store_true", help="also print platform, session config and graph")
     p.add_argument("--timeout", type=float, default=2.0, help="seconds to learn the graph (default 2)")
     p.add_argument("--no-clock", action="store_true", help="skip sampling topics for the clock offset")
@@ -55,12 +57,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 @quiet_exit
 def run(args: argparse.Namespace) -> int:
-    from zenoh_robot.session_config import SessionConfig, SessionConfigError
-
-    path = zenoh_config(args)
+    path = getattr(args, "zenoh", None)
     try:
-        config = SessionConfig.from_file(path) if path else SessionConfig()
-    except SessionConfigError as exc:
+        config = session_config(args)
+    except CliError as exc:
         print(Check("session", "fail", f"config: {exc}").line())
         return 1
     checks: list[Check] = []

@@ -7,13 +7,15 @@ import sys
 import threading
 import time
 
-from .common import add_zenoh_arg, cli_node, quiet_exit
+from zenoh_robot.session_args import add_session_arguments
+
+from .common import cli_node, quiet_exit
 from .main import CliError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("foxglove", help="serve every topic live to Foxglove (WebSocket protocol)")
-    add_zenoh_arg(p)
+    add_session_arguments(p)
     p.add_argument("topics", nargs="*", metavar="TOPIC", help="only these topics (default: all, as they appear)")
     p.add_argument("--port", type=int, default=8765, help="WebSocket port (0: any free one)")
     p.add_argument("--host", default="127.0.0.1",

@@ -18,8 +18,8 @@ import logging
 import os
 import sys
 from collections.abc import Callable, Sequence
-from importlib.metadata import PackageNotFoundError, entry_points, version
-from typing import Any
+from importlib.metadata import entry_points
+from typing import TYPE_CHECKING, Any, TypeAlias, cast
 
 # Others (security: keys, router) append theirs; a module that does not exist yet is skipped.
 SUBCOMMANDS = ["topic", "node", "interface", "stats", "param", "service", "launch", "doctor", "completion",
@@ -32,9 +32,16 @@ class CliError(Exception):
     """An error to print as one line, exiting non-zero."""
 
 
-class _SubParsers(argparse._SubParsersAction):
+if TYPE_CHECKING:   # the stubs' generic is not subscriptable at run time
+    _SubParsersBase = argparse._SubParsersAction[argparse.ArgumentParser]
+else:
+    _SubParsersBase = argparse._SubParsersAction
+SubParsers: TypeAlias = "argparse._SubParsersAction[argparse.ArgumentParser]"   # what a plugin's register() gets
+
+
+class _SubParsers(_SubParsersBase):
     def add_parser(self, name: str, **kwargs: Any) -> argparse.ArgumentParser:
-        parser = super().add_parser(name, **kwargs)
+        parser: argparse.ArgumentParser = super().add_parser(name, **kwargs)
         if isinstance(parser, Parser):
             parser.is_subcommand = True
         return parser
@@ -70,10 +77,11 @@ class Parser(argparse.ArgumentParser):
 
 
 def package_version() -> str:
-    try:
-        return version("zenoh-robot")
-    except PackageNotFoundError:
-        return "unknown"
+    # The package's own __version__ is the one source (pyproject reads it); installed metadata
+    # lags behind an editable checkout until it is reinstalled.
+    from zenoh_robot import __version__
+
+    return __version__
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -171,11 +179,12 @@ if __name__ == "__main__":
     sys.exit(_main())
 
 
-def run_single(register: Callable[[argparse._SubParsersAction], None], command: str, prog: str,
+def run_single(register: Callable[[SubParsers], None], command: str, prog: str,
                argv: list[str] | None = None) -> int:
     """Run one plugin subcommand as its own program (``python -m gcs`` == ``zenoh-robot gcs``)."""
     parser = Parser(prog=prog)
     _common_flags(parser)
-    sub = parser.add_subparsers(dest="command", required=True)
+    # Parser subclasses ArgumentParser; the stubs make the action invariant in it.
+    sub = cast(SubParsers, parser.add_subparsers(dest="command", required=True))
     register(sub)
     return main([command, *(sys.argv[1:] if argv is None else argv)], parser=parser)

@@ -10,7 +10,9 @@ from __future__ import annotations
 import argparse
 from typing import TYPE_CHECKING
 
-from .common import HIDDEN_PREFIX, add_zenoh_arg, cli_node, did_you_mean, quiet_exit
+from zenoh_robot.session_args import add_session_arguments
+
+from .common import HIDDEN_PREFIX, cli_node, did_you_mean, quiet_exit
 from .main import CliError
 from .reader import shown_type
 from .topic import discover_graph
@@ -22,14 +24,14 @@ if TYPE_CHECKING:
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("node", help="list nodes and show what a node publishes, subscribes and serves")
-    add_zenoh_arg(p)
+    add_session_arguments(p)
     ops = p.add_subparsers(dest="op", metavar="OP", required=True)
     o = ops.add_parser("list", help="nodes on the network (fully qualified names)")
-    add_zenoh_arg(o)
+    add_session_arguments(o)
     _graph_args(o)
     o.add_argument("-c", "--count-nodes", action="store_true", help="print only the number of nodes")
     o = ops.add_parser("info", help="a node's publishers, subscriptions, services and parameter count")
-    add_zenoh_arg(o)
+    add_session_arguments(o)
     o.add_argument("node", help="fully qualified node name, e.g. /uav1/companion")
     _graph_args(o)
     o.add_argument("--no-params", action="store_true", help="skip asking the node for its parameters")

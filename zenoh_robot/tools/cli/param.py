@@ -18,8 +18,9 @@ from zenoh_robot.parameters import (
     parse_param_value,
 )
 from zenoh_robot.services import ServiceCallError, ServiceTimeout
+from zenoh_robot.session_args import add_session_arguments
 
-from .common import add_zenoh_arg, zenoh_config
+from .common import session_config
 from .main import CliError
 
 _LABEL = {ParameterType.BOOL: "Boolean", ParameterType.INTEGER: "Integer", ParameterType.DOUBLE: "Double",
@@ -30,7 +31,7 @@ _LABEL = {ParameterType.BOOL: "Boolean", ParameterType.INTEGER: "Integer", Param
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("param", help="list, get and set a running node's parameters")
-    add_zenoh_arg(p)
+    add_session_arguments(p)
     p.add_argument("--timeout", type=float, default=3.0, help="seconds to find and wait for the node (default 3)")
     ops = p.add_subparsers(dest="op", metavar="OP", required=True)
     o = ops.add_parser("list", help="names of the node's parameters")
@@ -68,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
     from zenoh_robot.node import Node  # imported late so `zenoh-robot --help` stays fast
 
     target = _node_name(args.node)
-    with Node(f"_zr_param_{secrets.token_hex(3)}", config=zenoh_config(args)) as node:
+    with Node(f"_zr_param_{secrets.token_hex(3)}", config=session_config(args)) as node:
         try:
             client = ParameterClient(node, target, timeout=args.timeout)
         except ValueError as exc:

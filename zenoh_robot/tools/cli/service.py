@@ -11,15 +11,16 @@ import time
 from typing import Any
 
 from zenoh_robot.services import SERVICE_PREFIX, ServiceCallError, call_dict, describe_services, service_key
+from zenoh_robot.session_args import add_session_arguments
 
-from .common import add_zenoh_arg, did_you_mean, lookup_type, zenoh_config
+from .common import did_you_mean, lookup_type, session_config
 from .main import CliError
 from .values import build_message, parse_values, render_data
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("service", help="list and call services")
-    add_zenoh_arg(p)
+    add_session_arguments(p)
     ops = p.add_subparsers(dest="op", metavar="OP", required=True)
     o = ops.add_parser("list", help="services on the network, with their types")
     o.add_argument("prefix", nargs="?", default="", help="only services under this name, e.g. /uav1")
@@ -41,7 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from zenoh_robot.node import Node
 
-    with Node(f"_zr_service_{secrets.token_hex(3)}", config=zenoh_config(args)) as node:
+    with Node(f"_zr_service_{secrets.token_hex(3)}", config=session_config(args)) as node:
         return _OPS[args.op](node, args)
 
 

@@ -23,9 +23,9 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from zenoh_robot.message import type_support
+from zenoh_robot.session_args import add_session_arguments
 
 from .common import add_duration_arg, cli_node, deadline_of, quiet_exit
-from .common import add_zenoh_arg as add_config_arg
 from .main import CliError
 
 if TYPE_CHECKING:
@@ -49,7 +49,7 @@ LEGEND = ("lost: samples that never arrived (gaps in the publisher's sequence nu
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("stats", help="live table of topic statistics (age, period, rate, lost, cpu %)")
     p.add_argument("topic", nargs="?", help="only statistics of this measured topic, e.g. /uav1/setpoint")
-    add_config_arg(p)
+    add_session_arguments(p)
     add_duration_arg(p)
     p.add_argument("--plain", action="store_true",
                    help="print one line per statistics message instead of the live table "
@@ -75,12 +75,12 @@ class StatsRow:
 
 def decode(data: bytes) -> "TopicStatistics | None":
     """The TopicStatistics in a sample, None for anything else on a statistics key."""
-    from zenoh_robot._wire import envelope
     from zenoh_robot.msgs import TopicStatistics
+    from zenoh_robot.wire import ENVELOPE, MalformedSample
 
     try:
-        env = envelope.unpack(data)
-    except envelope.MalformedSample:
+        env = ENVELOPE.unpack(data)
+    except MalformedSample:
         return None
     if env.type_hash != type_support(TopicStatistics).hash:
         return None

@@ -17,12 +17,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from .common import (  # noqa: F401
+from zenoh_robot.session_args import add_session_arguments
+
+from .common import (
     HIDDEN_PREFIX,
     CallbackOutput,
-    add_config_arg,
     add_duration_arg,
-    add_zenoh_arg,
     cli_node,
     deadline_of,
     did_you_mean,
@@ -50,7 +50,7 @@ GRAPH_QUIET = 0.5             # seconds without a new graph entry: discovery has
 # -- registration ---------------------------------------------------------------------------
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("topic", help="list, inspect, echo, measure and publish topics")
-    add_zenoh_arg(p)
+    add_session_arguments(p)
     ops = p.add_subparsers(dest="op", metavar="OP", required=True)
     o = _op_parser(ops, "list", "topics on the network")
     _graph_args(o)
@@ -103,7 +103,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _op_parser(ops: argparse._SubParsersAction, name: str, help: str) -> argparse.ArgumentParser:
     o = ops.add_parser(name, help=help, description=help)
-    add_zenoh_arg(o)
+    add_session_arguments(o)
     return o
 
 

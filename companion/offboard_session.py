@@ -22,15 +22,13 @@ from __future__ import annotations
 
 import enum
 import logging
-import math
 import threading
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Protocol
 
-from px4_link.setpoints import PositionSetpoint, Setpoint, VelocitySetpoint
+from px4_link.targets import Target, TargetRefused
 
-log = logging.getLogger("companion.offboard")
+log = logging.getLogger("companion.offboard")   # the name it logged under before the rename, kept
 
 SAFE_MODE = "AUTO.LOITER"   # PX4 Hold: where the companion parks the vehicle when it stops streaming
 
@@ -42,20 +40,12 @@ class OffboardState(enum.StrEnum):
     FAILSAFE_HOLD = "failsafe_hold"
 
 
-class Refused(Exception):
-    """A setpoint or request the lifecycle will not act on; ``reason`` is a short code."""
-
-    def __init__(self, reason: str, message: str) -> None:
-        super().__init__(message)
-        self.reason = reason
-
-
 class Offboard(Protocol):
     """What the lifecycle needs of px4_link's ``link.offboard``."""
 
     @property
     def streaming(self) -> bool: ...
-    def set_setpoint(self, sp: Setpoint) -> None: ...
+    def set_setpoint(self, sp: Target) -> None: ...
     def start(self) -> object: ...
     def stop(self, mode: str | None = ...) -> object: ...
     def stop_stream(self) -> None: ...
@@ -65,8 +55,8 @@ class Action(Protocol):
     def set_mode(self, name: str) -> object: ...
 
 
-class Link(Protocol):
-    """What the lifecycle needs of px4_link.Px4Link."""
+class Vehicle(Protocol):
+    """What the session drives: the part of px4_link.Px4Link it needs."""
 
     @property
     def mode(self) -> str: ...
@@ -78,48 +68,11 @@ class Link(Protocol):
     def action(self) -> Action: ...
 
 
-@dataclass(frozen=True)
-class VehicleMotion:
-    position: tuple[float, float, float]
-    velocity: tuple[float, float, float]
-
-
-def check_against_vehicle(sp: Setpoint, vehicle: VehicleMotion | None, max_offset_m: float,
-                          max_speed: float) -> None:
-    """Raise Refused unless ``sp`` is something the vehicle can fly to from where it is now.
-
-    A position target may lie at most ``max_offset_m`` (plus one second of the vehicle's
-    current speed: a moving vehicle's target leads it) from the vehicle's position. This
-    compares with the vehicle, not with the previous setpoint, so a restarted GCS that
-    streams from the vehicle's current position is accepted anywhere, and a stale target
-    far away is refused, saying how far.
-    """
-    values = (sp.x, sp.y, sp.z) if isinstance(sp, PositionSetpoint) else (sp.vx, sp.vy, sp.vz)
-    if not all(math.isfinite(v) for v in values) or (sp.yaw is not None and not math.isfinite(sp.yaw)):
-        raise Refused("non_finite", f"setpoint has a non-finite value: {values}")
-    if isinstance(sp, VelocitySetpoint):
-        if sp.speed > max_speed:
-            raise Refused("too_fast", f"velocity {sp.speed:.1f} m/s > speed limit {max_speed:g} m/s")
-        return
-    if vehicle is None or not all(math.isfinite(v) for v in vehicle.position):
-        raise Refused("no_position", "vehicle position unknown: position setpoints need LOCAL_POSITION_NED")
-    speed = math.hypot(*vehicle.velocity) if all(math.isfinite(v) for v in vehicle.velocity) else 0.0
-    allowed = max_offset_m + speed * 1.0
-    jump = math.dist(values, vehicle.position)
-    if jump > allowed:
-        raise Refused("jump", f"jump {jump:.1f} m from vehicle position > {allowed:.0f} m "
-                              f"(target {_fmt(values)}, vehicle at {_fmt(vehicle.position)})")
-
-
-def _fmt(v: tuple[float, ...]) -> str:
-    return "(" + ", ".join(f"{x:.1f}" for x in v) + ")"
-
-
 Transition = Callable[[OffboardState, OffboardState, str], None]
 
 
 class OffboardLifecycle:
-    def __init__(self, link: Link, on_transition: Transition) -> None:
+    def __init__(self, link: Vehicle, on_transition: Transition) -> None:
         self.link = link
         self._on_transition = on_transition
         self._state = OffboardState.IDLE
@@ -143,18 +96,18 @@ class OffboardLifecycle:
             self._on_transition(old, new, why)
 
     # -- setpoints (any thread) ----------------------------------------------------
-    def forward(self, sp: Setpoint) -> None:
-        """Hand ``sp`` to PX4's stream, or raise Refused when no session is open."""
+    def forward(self, sp: Target) -> None:
+        """Hand ``sp`` to PX4's stream, or raise TargetRefused("no_session") when no session is open."""
         with self._lock:
             if not self.in_session:
                 hint = ("failsafe hold: send offboard_start to resume from the vehicle's position"
                         if self._state is OffboardState.FAILSAFE_HOLD else
                         "no offboard session: send offboard_start first")
-                raise Refused("no_session", f"setpoint not forwarded to PX4 ({hint})")
-            self.link.offboard.set_setpoint(sp)   # SetpointRejected propagates: nothing was sent
+                raise TargetRefused("no_session", f"setpoint not forwarded to PX4 ({hint})")
+            self.link.offboard.set_setpoint(sp)   # px4_link's TargetRefused propagates: nothing was sent
 
     # -- requests (command thread) -------------------------------------------------
-    def start(self, candidate: Setpoint) -> None:
+    def start(self, candidate: Target) -> None:
         """Open a session from ``candidate`` (already checked against the vehicle)."""
         with self._lock:
             if self._state is OffboardState.ACTIVE and self.link.mode == "OFFBOARD":

@@ -24,7 +24,8 @@ class KeysError(ValueError):
     """A keys directory or request that cannot work; the message says what to do."""
 
 
-def _check_name(name: str, what: str = "node name") -> str:
+def check_name(name: str, what: str = "node name") -> str:
+    """``name`` if it is a valid node name (a key chunk and a file name), else :class:`KeysError`."""
     if not isinstance(name, str) or not _NAME.match(name):
         raise KeysError(f"invalid {what} {name!r}: letters, digits, underscores, not starting with a digit")
     return name
@@ -53,7 +54,7 @@ def load_roles(keys_dir: str | Path) -> dict[str, NodeEntry]:
         drones = entry.get("drones") or []
         if not isinstance(drones, list):
             raise KeysError(f"{path}: node {name!r}: drones must be a list")
-        out[_check_name(str(name))] = NodeEntry(str(name), entry["role"], [_check_name(str(x)) for x in drones])
+        out[check_name(str(name))] = NodeEntry(str(name), entry["role"], [check_name(str(x)) for x in drones])
     return out
 
 

@@ -1,8 +1,9 @@
-"""Offboard setpoints and the checks they pass before anything reaches PX4.
+"""Offboard position/velocity targets and the one validator they pass before anything reaches PX4.
 
 PX4 flies whatever SET_POSITION_TARGET_LOCAL_NED says; a NaN, a typo of 1000 m or a
-setpoint far outside the test area is a crash. So every setpoint is validated here, and a
-rejected one raises ``SetpointRejected`` and is never sent.
+target far outside the test area is a crash. So every target is validated here, by
+``TargetValidator`` (px4_link's own stream checks, and the companion's check against what
+the vehicle is doing), and a refused one raises ``TargetRefused`` and is never sent.
 """
 from __future__ import annotations
 
@@ -28,9 +29,13 @@ IGNORE_ACCEL = IGNORE_AFX | IGNORE_AFY | IGNORE_AFZ
 TYPE_MASK_POSITION_YAW = IGNORE_VELOCITY | IGNORE_ACCEL | IGNORE_YAW_RATE   # 0x9F8
 TYPE_MASK_VELOCITY_YAW = IGNORE_POSITION | IGNORE_ACCEL | IGNORE_YAW_RATE   # 0x9C7
 
+Vec3 = tuple[float, float, float]
 
-class SetpointRejected(ValueError):
-    """A setpoint failed validation; ``reason`` is a short machine-readable code."""
+
+class TargetRefused(ValueError):
+    """A target (or an offboard request) that will not be flown. ``reason`` is a short
+    machine-readable code; the message says what was refused and why (value and limit),
+    and is what the sender is told."""
 
     def __init__(self, reason: str, message: str) -> None:
         super().__init__(message)
@@ -38,7 +43,7 @@ class SetpointRejected(ValueError):
 
 
 @dataclass(frozen=True, slots=True)
-class PositionSetpoint:
+class PositionTarget:
     """Target position in PX4's local NED frame (metres; z is negative up). yaw in rad,
     None to leave the heading to PX4."""
     x: float
@@ -55,7 +60,7 @@ class PositionSetpoint:
 
 
 @dataclass(frozen=True, slots=True)
-class VelocitySetpoint:
+class VelocityTarget:
     """Target velocity in local NED (m/s). yaw in rad, None to leave it to PX4."""
     vx: float
     vy: float
@@ -74,16 +79,15 @@ class VelocitySetpoint:
         return (self.vx, self.vy, self.vz) + (() if self.yaw is None else (self.yaw,))
 
 
-OffboardSetpoint = PositionSetpoint | VelocitySetpoint
-Setpoint = OffboardSetpoint  # deprecated alias: collides with zenoh_robot.msgs.Setpoint
+Target = PositionTarget | VelocityTarget
 
 
-def mavlink_fields(sp: OffboardSetpoint) -> dict[str, float | int]:
+def mavlink_fields(sp: Target) -> dict[str, float | int]:
     """Keyword arguments for set_position_target_local_ned_encode (minus ids and time)."""
     f: dict[str, float | int] = dict(coordinate_frame=MAV_FRAME_LOCAL_NED, type_mask=sp.type_mask,
                                      x=0.0, y=0.0, z=0.0, vx=0.0, vy=0.0, vz=0.0,
                                      afx=0.0, afy=0.0, afz=0.0, yaw=0.0, yaw_rate=0.0)
-    if isinstance(sp, PositionSetpoint):
+    if isinstance(sp, PositionTarget):
         f.update(x=sp.x, y=sp.y, z=sp.z)
     else:
         f.update(vx=sp.vx, vy=sp.vy, vz=sp.vz)
@@ -94,13 +98,13 @@ def mavlink_fields(sp: OffboardSetpoint) -> dict[str, float | int]:
 
 @dataclass(frozen=True, slots=True)
 class Geofence:
-    """Where position setpoints may go, relative to the local origin (PX4 home/EKF origin).
+    """Where position targets may go, relative to the local origin (PX4 home/EKF origin).
 
     Any limit set to None is not checked. Altitude is -z (up positive).
     """
     max_distance_m: float | None = 100.0        # horizontal radius around the origin
     max_altitude_m: float | None = 50.0
-    min_altitude_m: float | None = None         # e.g. -1.0 to forbid setpoints below ground
+    min_altitude_m: float | None = None         # e.g. -1.0 to forbid targets below ground
     x_range: tuple[float, float] | None = None  # optional box, north (m)
     y_range: tuple[float, float] | None = None  # optional box, east (m)
 
@@ -123,15 +127,32 @@ class Geofence:
         return None
 
 
-class SetpointValidator:
-    """Stateful checks: the jump check needs the previously accepted setpoint.
+@dataclass(frozen=True, slots=True)
+class VehicleMotion:
+    """Where the vehicle is and how fast it moves (local NED, m and m/s)."""
+    position: Vec3
+    velocity: Vec3
 
-    Jump rule: a position setpoint may lie at most ``max_speed * dt`` from the reference,
-    where dt is the time since the previous accepted position setpoint clamped to
-    [min_dt, 1 s]. The reference is that previous setpoint when it is younger than 1 s,
-    otherwise the vehicle's latest position (if known). So a stream may move the target at
-    up to max_speed, and a fresh target may be at most max_speed * 1 s from the vehicle.
-    Velocity setpoints are checked against max_speed directly.
+
+class TargetValidator:
+    """Every check a target passes before PX4 may fly it. Not thread safe: one owner.
+
+    Two rules for position targets, one per caller:
+
+    - ``check`` (px4_link's stream): the geofence, and a step rule. A position target may
+      lie at most ``max_speed * dt`` from the reference, where dt is the time since the
+      previous accepted position target clamped to [min_dt, 1 s]. The reference is that
+      previous target when it is younger than 1 s, otherwise the vehicle's latest position
+      (if known). So a stream may move the target at up to max_speed, and a fresh target
+      may be at most max_speed * 1 s from the vehicle. Stateful: ``accept`` records the
+      reference.
+    - ``check_against_vehicle`` (the companion, with its live limits): a position target
+      may lie at most ``max_offset_m`` plus one second of the vehicle's current speed from
+      the vehicle. It compares with the vehicle, not with the previous target, so a
+      restarted GCS that streams from the vehicle's position is accepted anywhere, and a
+      stale target far away is refused, saying how far. Stateless.
+
+    Both refuse non-finite values and velocity targets faster than max_speed.
     """
 
     STALE_S = 1.0
@@ -141,28 +162,32 @@ class SetpointValidator:
         self.geofence = geofence
         self.max_speed = max_speed
         self.min_dt = min_dt
-        self._last_pos: tuple[float, float, float] | None = None
+        self._last_pos: Vec3 | None = None
         self._last_time: float | None = None
 
-    def check(self, sp: OffboardSetpoint, now: float,
-              vehicle_position: tuple[float, float, float] | None = None) -> None:
-        """Raise SetpointRejected if ``sp`` must not be sent; records nothing."""
-        if not isinstance(sp, (PositionSetpoint, VelocitySetpoint)):
-            raise SetpointRejected("type", f"unsupported setpoint type {type(sp).__name__}")
+    @staticmethod
+    def _check_values(sp: Target, max_speed: float | None) -> None:
+        """The checks every target passes, whoever asks: type, finite, velocity speed."""
+        if not isinstance(sp, (PositionTarget, VelocityTarget)):
+            raise TargetRefused("type", f"unsupported target type {type(sp).__name__} "
+                                        "(PositionTarget or VelocityTarget)")
         if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in sp.values()):
-            raise SetpointRejected("non_finite", f"setpoint has a non-finite value: {sp}")
-        if isinstance(sp, VelocitySetpoint):
-            if self.max_speed is not None and sp.speed > self.max_speed:
-                raise SetpointRejected("too_fast", f"velocity {sp.speed:.1f} m/s exceeds "
-                                                   f"max_speed {self.max_speed:g} m/s")
+            raise TargetRefused("non_finite", f"target has a non-finite value: {sp}")
+        if isinstance(sp, VelocityTarget) and max_speed is not None and sp.speed > max_speed:
+            raise TargetRefused("too_fast", f"velocity {sp.speed:.1f} m/s exceeds max_speed {max_speed:g} m/s")
+
+    def check(self, sp: Target, now: float, vehicle_position: Vec3 | None = None) -> None:
+        """Raise TargetRefused if px4_link must not stream ``sp``; records nothing."""
+        self._check_values(sp, self.max_speed)
+        if isinstance(sp, VelocityTarget):
             return
         if self.geofence is not None:
             why = self.geofence.violation(sp.x, sp.y, sp.z)
             if why is not None:
-                raise SetpointRejected("geofence", f"setpoint {sp} rejected: {why}")
+                raise TargetRefused("geofence", f"target {sp} refused: {why}")
         if self.max_speed is None:
             return
-        ref: tuple[float, float, float] | None = None
+        ref: Vec3 | None = None
         dt = self.STALE_S
         if self._last_pos is not None and self._last_time is not None \
                 and now - self._last_time < self.STALE_S:
@@ -176,17 +201,44 @@ class SetpointValidator:
             return
         if not all(math.isfinite(v) for v in ref):
             # NaN > allowed is False: a spoofed NaN position would disable the jump check.
-            raise SetpointRejected("no_reference", f"setpoint {sp} rejected: the reference "
-                                                   f"position {ref} is not finite")
+            raise TargetRefused("no_reference", f"target {sp} refused: the reference "
+                                                f"position {ref} is not finite")
         jump = math.dist((sp.x, sp.y, sp.z), ref)
         allowed = self.max_speed * dt
         if not jump <= allowed:
-            raise SetpointRejected(
-                "too_fast", f"setpoint {sp} jumps {jump:.1f} m in {dt:.2f} s "
+            raise TargetRefused(
+                "too_fast", f"target {sp} jumps {jump:.1f} m in {dt:.2f} s "
                             f"({jump / dt:.1f} m/s > max_speed {self.max_speed:g} m/s)")
 
-    def accept(self, sp: OffboardSetpoint, now: float) -> None:
-        """Record an accepted setpoint as the reference for the next jump check."""
-        if isinstance(sp, PositionSetpoint):
+    def accept(self, sp: Target, now: float) -> None:
+        """Record an accepted target as the reference for the next step check."""
+        if isinstance(sp, PositionTarget):
             self._last_pos = (sp.x, sp.y, sp.z)
             self._last_time = now
+
+    def check_against_vehicle(self, sp: Target, vehicle: VehicleMotion | None, max_offset_m: float,
+                              max_speed: float | None = None) -> None:
+        """Raise TargetRefused unless the vehicle can fly to ``sp`` from where it is now.
+
+        ``max_speed`` None uses the validator's own. ``vehicle`` None means its position is
+        unknown (or stale): a position target is then refused.
+        """
+        limit = self.max_speed if max_speed is None else max_speed
+        self._check_values(sp, limit)
+        if isinstance(sp, VelocityTarget):
+            return
+        if vehicle is None or not all(math.isfinite(v) for v in vehicle.position):
+            raise TargetRefused("no_position", f"vehicle position unknown: position target "
+                                               f"{_fmt((sp.x, sp.y, sp.z))} needs LOCAL_POSITION_NED")
+        speed = math.hypot(*vehicle.velocity) if all(math.isfinite(v) for v in vehicle.velocity) else 0.0
+        allowed = max_offset_m + speed * 1.0
+        jump = math.dist((sp.x, sp.y, sp.z), vehicle.position)
+        if jump > allowed:
+            raise TargetRefused("jump", f"jump {jump:.1f} m from vehicle position > {allowed:.0f} m "
+                                        f"(max_offset_m {max_offset_m:g} + 1 s at {speed:.1f} m/s; "
+                                        f"target {_fmt((sp.x, sp.y, sp.z))}, "
+                                        f"vehicle at {_fmt(vehicle.position)})")
+
+
+def _fmt(v: tuple[float, ...]) -> str:
+    return "(" + ", ".join(f"{x:.1f}" for x in v) + ")"

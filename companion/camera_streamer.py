@@ -1,0 +1,105 @@
+"""The drone's camera on ``<id>/image``, as the stream profile's image mode carries it.
+
+raw: one rgb8 ``Image`` per frame; jpeg: one JPEG ``Image``; sliced: JPEG strips
+(image_transport.ImagePublisher); fec: one JPEG in shares plus parity (image_fec). Frames are
+numbered as a camera driver numbers them (``header.seq``), and every frame (and strip) sent is
+recorded for the experiment's fresh-frame figures.
+
+Threads: its own ``camera`` thread reads, encodes and publishes (never the executor that serves
+setpoints); ``start`` and ``close`` are called by the owner. The rate follows a live `param set`.
+"""
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable
+from typing import Any
+
+from zenoh_robot import Node
+from zenoh_robot.image_fec import FecImagePublisher
+from zenoh_robot.image_transport import MAX_SLICES, ImagePublisher, encode_strip
+from zenoh_robot.msgs import Header, Image
+from zenoh_robot.qos import QoSProfile
+from zenoh_robot.tools.stream_metrics import StreamRecorder
+
+from .camera import RateKeeper, open_source
+from .config import CompanionConfig
+
+log = logging.getLogger("companion")   # the app's logger: log lines keep the name they always had
+
+
+class CameraStreamer:
+    def __init__(self, node: Node, topic: str, qos: QoSProfile, config: Callable[[], CompanionConfig],
+                 sent_frames: StreamRecorder, sent_strips: StreamRecorder) -> None:
+        self._config = config             # live: a `param set` replaces the config
+        self._sent_frames, self._sent_strips = sent_frames, sent_strips
+        profile = config().profile
+        self.publisher: Any
+        if profile.image_mode == "sliced":
+            self.publisher = ImagePublisher(node, topic, qos, quality=profile.jpeg_quality)
+        elif profile.image_mode == "fec":
+            self.publisher = FecImagePublisher(node, topic, qos, quality=profile.jpeg_quality)
+        else:
+            self.publisher = node.create_publisher(Image, topic, qos)
+        self._seq = 0   # the frame's header.seq
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def set_loss(self) -> Callable[[float], None] | None:
+        """Where the measured loss goes (FEC parity follows it), or None when nothing adapts."""
+        return self.publisher.set_loss if isinstance(self.publisher, FecImagePublisher) else None
+
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._loop, name="camera", daemon=True)
+        self._thread.start()
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+
+    def _loop(self) -> None:
+        cfg = self._config()
+        try:
+            source = open_source(cfg.camera or "test", cfg.image_width, cfg.image_height)
+        except RuntimeError as exc:
+            log.error("camera: %s; no images", exc)
+            return
+        rate = RateKeeper(cfg.camera_rate_hz)
+        try:
+            while not self._stop.is_set():
+                frame = source.read()
+                if frame is None:
+                    log.warning("camera: end of stream")
+                    return
+                self.publish_frame(frame)
+                if self._config().camera_rate_hz != cfg.camera_rate_hz:   # a live `param set` (a GCS's downlink)
+                    cfg = self._config()
+                    rate = RateKeeper(cfg.camera_rate_hz)
+                rate.wait()
+        finally:
+            source.close()
+
+    def publish_frame(self, frame: Any) -> None:
+        head = Header.now(frame_id="camera", seq=self._seq)
+        self._seq += 1
+        if isinstance(self.publisher, ImagePublisher):
+            self.publisher.publish(frame, head)
+            n = self.publisher.frames - 1
+            self._sent_frames.record(n, head.stamp)   # slices carry the frame number
+            for i in range(self.publisher.last_count):
+                self._sent_strips.record(n * MAX_SLICES + i, head.stamp)
+            return
+        if isinstance(self.publisher, FecImagePublisher):
+            n = self.publisher.publish(frame, head)
+            self._sent_frames.record(n, head.stamp)
+            self._sent_strips.record(n * MAX_SLICES, head.stamp)
+            return
+        profile = self._config().profile
+        if profile.image_mode == "jpeg":
+            h, w = frame.shape[:2]
+            img = Image(head, h, w, "jpeg", 0, 0, encode_strip(frame, profile.jpeg_quality))
+        else:
+            img = Image.from_array(frame, header=head)
+        sent = self.publisher.publish(img)
+        self._sent_frames.record(sent.seq, sent.stamp_ns)

@@ -1,0 +1,40 @@
+"""What the companion tells the GCS it saw and did: FailsafeEvents on ``<id>/events``, logged too.
+
+Threads: any. ``Publisher.publish`` is thread safe; the list of kinds sent is only appended
+to and trimmed (the summary reads it at the end).
+"""
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from drone_contract.messages import FailsafeEvent
+from zenoh_robot.msgs import Header
+from zenoh_robot.publisher import PublisherClosed
+from zenoh_robot.ratelimit import RateLimiter
+
+log = logging.getLogger("companion")   # the app's logger: event lines keep the name they always had
+
+
+class EventReporter:
+    KEPT = 200   # kinds kept for the summary
+
+    def __init__(self, publisher: Any, report_interval_s: float) -> None:
+        self.publisher = publisher
+        self.sent: list[str] = []
+        self.limiter = RateLimiter(interval=report_interval_s)
+
+    def event(self, kind: str, detail: str, action: str = "", client_id: str = "", count: int = 0) -> None:
+        log.warning("%s%s: %s -> %s", kind, f" [{client_id}]" if client_id else "", detail, action or "no action")
+        self.sent.append(kind)
+        del self.sent[:-self.KEPT]
+        try:
+            self.publisher.publish(FailsafeEvent(Header.now(), kind, detail, action, client_id, count))
+        except PublisherClosed:
+            pass
+
+    def refused(self, kind: str, client_id: str, reason: str, detail: str) -> None:
+        """Count always; publish and log the first and then once per interval per (kind, client, reason)."""
+        count = self.limiter.hit(kind, client_id, reason)
+        if count:
+            self.event(kind, detail, "refused", client_id, count)

@@ -1,0 +1,139 @@
+"""Who may steer the drone, and where a setpoint from the GCS goes.
+
+A setpoint is admitted only from the GCS in control (control.py); it is checked against what
+the vehicle is doing now; inside an operator-requested offboard session it goes to px4_link's
+stream (offboard_session.py), outside one it is kept as the sender's candidate, where an
+``offboard_start`` begins. Every refusal is counted and reported as an event (rate-limited).
+
+Threads: ``on_setpoint`` runs on the node's executor (any of its threads: the companion's is
+multi-threaded); ``offboard_start`` on the PX4 worker. The candidates table is bounded
+(a forger can invent client ids) and guarded by a lock.
+"""
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from drone_contract.messages import DroneSetpoint, valid_client_id
+from px4_link import Px4Link
+from px4_link.targets import PositionTarget, Target, TargetRefused, TargetValidator, VehicleMotion, VelocityTarget
+from px4_link.telemetry import LocalPosition
+from zenoh_robot.tools.stream_metrics import StreamRecorder
+
+from .config import CompanionConfig
+from .control import ControlArbiter
+from .events import EventReporter
+from .failsafe import DeadlineFailsafe
+from .offboard_session import OffboardLifecycle, OffboardState
+from .px4_worker import Px4Worker
+
+
+@dataclass
+class Candidate:
+    """The latest setpoint from one client while no session forwards it: where offboard_start begins."""
+    sp: Target | None
+    at: float
+    refused: str = ""        # why the latest one was refused, "" when it passed the checks
+
+
+def to_target(msg: DroneSetpoint) -> Target:
+    yaw = msg.yaw if math.isfinite(msg.yaw) else None
+    return (VelocityTarget(msg.x, msg.y, msg.z, yaw) if msg.is_velocity
+            else PositionTarget(msg.x, msg.y, msg.z, yaw))
+
+
+class SetpointGate:
+    MAX_CANDIDATES = 16
+    RESUME_EVERY_S = 3.0     # resume_on_setpoints: one attempt at a time, not one per setpoint
+
+    def __init__(self, link: Px4Link, control: ControlArbiter, lifecycle: OffboardLifecycle,
+                 failsafe: DeadlineFailsafe, events: EventReporter, worker: Px4Worker,
+                 config: Callable[[], CompanionConfig]) -> None:
+        self._link, self._control, self._lifecycle = link, control, lifecycle
+        self._failsafe, self._events, self._worker = failsafe, events, worker
+        self._config = config             # live: a `param set` replaces the config
+        self.received = StreamRecorder()
+        self.rejected = 0
+        self.ignored = 0                  # valid but outside a session: kept as candidate only
+        self._candidates: dict[str, Candidate] = {}
+        self._lock = threading.Lock()
+        self._resume_tried = 0.0
+        # Limits are passed to each check: max_offset_m and max_speed are live parameters.
+        self.targets = TargetValidator(geofence=None, max_speed=None)
+
+    def on_setpoint(self, msg: DroneSetpoint, info: Any) -> None:
+        self.received.record(info.seq, info.source_stamp_ns, info.received_stamp_ns)
+        client = msg.client_id if valid_client_id(msg.client_id) else ""
+        holder = self._control.holder
+        if holder and client != holder or not client:
+            _, why, _ = self._control.admit(client, "setpoint")
+            self.rejected += 1
+            self._events.refused("setpoint_rejected", client, "not_in_control", why)
+            return
+        self._control.seen(client)
+        now = time.monotonic()
+        cfg = self._config()
+        try:
+            sp = to_target(msg)
+            self.targets.check_against_vehicle(sp, self._motion(), cfg.max_offset_m, cfg.max_speed)
+        except TargetRefused as exc:
+            self._remember(client, None, now, f"{exc}")
+            self.rejected += 1
+            self._events.refused("setpoint_rejected", client, exc.reason, f"setpoint refused: {exc}")
+            return
+        self._remember(client, sp, now, "")
+        try:
+            self._lifecycle.forward(sp)
+        except TargetRefused as exc:
+            if exc.reason == "no_session":   # valid, kept as the candidate, never sent
+                self.ignored += 1
+                self._events.refused("setpoint_ignored", client, exc.reason, str(exc))
+                return
+            # px4_link's own checks (geofence, step rate)
+            self.rejected += 1
+            self._remember(client, None, now, str(exc))
+            self._events.refused("setpoint_rejected", client, exc.reason, f"setpoint refused: {exc}")
+            return
+        self._failsafe.fed(now)
+
+    def _remember(self, client: str, sp: Target | None, now: float, refused: str) -> None:
+        with self._lock:
+            if client not in self._candidates and len(self._candidates) >= self.MAX_CANDIDATES:
+                oldest = min(self._candidates, key=lambda c: self._candidates[c].at)
+                del self._candidates[oldest]
+            self._candidates[client] = Candidate(sp, now, refused)
+        if (not refused and self._config().resume_on_setpoints and client == self._control.holder
+                and self._lifecycle.state is OffboardState.FAILSAFE_HOLD
+                and now - self._resume_tried > self.RESUME_EVERY_S):
+            self._resume_tried = now
+            self._worker.submit_guarded("resume", lambda: self.offboard_start(client))
+
+    def _motion(self) -> VehicleMotion | None:
+        pos = self._link.telemetry.latest(LocalPosition)
+        if pos is None or time.monotonic() - pos.received_at > 1.0:
+            return None
+        return VehicleMotion((pos.x, pos.y, pos.z), (pos.vx, pos.vy, pos.vz))
+
+    def offboard_start(self, client: str) -> str:
+        """Open a session from ``client``'s candidate (PX4 worker: waits for PX4's ACK)."""
+        with self._lock:
+            cand = self._candidates.get(client)
+        now = time.monotonic()
+        cfg = self._config()
+        fresh = cand is not None and now - cand.at <= max(cfg.setpoint_deadline, 0.5)
+        if cand is None or not fresh:
+            raise TargetRefused("no_setpoints", f"no recent setpoints from {client}: stream setpoints (from the "
+                                                "vehicle's position) before asking for OFFBOARD")
+        if cand.sp is None:
+            raise TargetRefused("setpoints_refused", f"setpoints refused: {cand.refused}")
+        try:
+            self.targets.check_against_vehicle(cand.sp, self._motion(), cfg.max_offset_m, cfg.max_speed)
+        except TargetRefused as exc:
+            raise TargetRefused(exc.reason, f"setpoints refused: {exc}") from None
+        self._lifecycle.start(cand.sp)
+        self._failsafe.rearm()
+        return "OFFBOARD"

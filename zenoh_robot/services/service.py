@@ -1,0 +1,287 @@
+"""A server: requests from queries and from put-carried copies, run once on the node's executor, answered.
+
+Threads: the queryable and subscriber callbacks run on Zenoh's threads and only hand the request
+to the node's executor; the handler runs and replies there, then the query is dropped so the
+querier sees it finalised at once. The package doc has the wire format and the at-most-once contract.
+"""
+from __future__ import annotations
+
+import hashlib
+import logging
+import math
+import secrets
+import threading
+import time
+from collections import OrderedDict
+from collections.abc import Callable
+from typing import Any, Generic, TypeVar
+
+import msgpack
+import zenoh
+
+from .._wire import call_plan as plans
+from .._wire import envelope
+from ..context import EntityContext
+from ..message import Message, require_message_type, type_support, validated
+from ..ratelimit import RateLimitedLog
+from .errors import _error_payload
+from .idempotency import IdempotencyCache, Responder
+from .keys import DESCRIBE_PARAM, REPLY_CHUNK, REQUEST_CHUNK, service_name_of_key
+from .multicast import MAX_REPLY_PUBLISHERS, MULTICAST_REPLY_COPIES, _best_effort_publisher, _reply_attachment
+
+Req = TypeVar("Req", bound=Message)
+Resp = TypeVar("Resp", bound=Message)
+
+log = logging.getLogger("zenoh_robot.services")    # one logger for the package, whichever module logs
+MAX_REQUEST_BYTES = 16 << 20    # a request over this is refused (bad_request) before it is copied
+
+
+class Service(Generic[Req, Resp]):
+    """A server: ``handler(request) -> response`` run on the node's executor, at most once per request id."""
+
+    def __init__(self, context: EntityContext, name: str, key: str, request_type: type[Req],
+                 response_type: type[Resp], handler: Callable[[Req], Resp]) -> None:
+        for what, t in (("request", request_type), ("response", response_type)):
+            require_message_type(t, f"create_service {name!r}: {what} type")
+        if not callable(handler):
+            raise TypeError(f"create_service {name!r}: handler must be callable")
+        self.context = context
+        self._req = type_support(request_type)
+        self._resp = type_support(response_type)
+        self.name = name
+        self.key = key
+        self.service_name = service_name_of_key(key)
+        self.request_type = request_type
+        self.response_type = response_type
+        self.handler = handler
+        self.server_id = secrets.randbits(63)
+        self.served = 0
+        self.errors = 0
+        self.executions = 0       # handler runs (a duplicate request never adds one)
+        self.duplicates = 0       # requests answered from, or joined to, an earlier copy
+        self.cache = IdempotencyCache()
+        self._lock = threading.Lock()
+        self._destroyed = False
+        self.bad_requests = 0     # refused before the handler: malformed, oversize, a field off its schema
+        self.reply_copies = 0     # multicast path: reply puts sent (copies included) ...
+        self.reply_bytes = 0      # ... and their payload bytes
+        self._loss = math.nan     # set_loss: this node's loss estimate (sizes reply copies)
+        self._recent_replies: OrderedDict[str, float] = OrderedDict()   # reply key -> when copies went out
+        self._rlog = RateLimitedLog(log)
+        self._queryable = context.session.declare_queryable(key, self._on_query, complete=True)
+        # Every session: a multicast session carries calls only this way; on a unicast session
+        # clients with AdaptiveRetry send best-effort copies here besides their query (package doc).
+        self._request_sub: Any = context.session.declare_subscriber(f"{key}/{REQUEST_CHUNK}", self._on_put_request)
+        self._reply_pubs: OrderedDict[int, Any] = OrderedDict()
+
+    @property
+    def cache_evictions(self) -> int:
+        return self.cache.evictions
+
+    def set_loss(self, loss: float) -> None:
+        """This node's measured loss (0..1, e.g. ``link_monitor.adapt(service.set_loss)``): sizes reply copies."""
+        self._loss = float(loss)
+
+    # Zenoh's thread: only hand over.
+    def _on_query(self, query: zenoh.Query) -> None:
+        if self._destroyed:
+            query.drop()
+            return
+        if DESCRIBE_PARAM in str(query.parameters):
+            # No user code involved: answer at once, so listing works even if the node does not spin.
+            self._describe(query)
+            return
+
+        def respond(ok: bool, data: bytes) -> None:
+            try:
+                if ok:
+                    query.reply(self.key, data)
+                else:
+                    query.reply_err(data)
+            except Exception as exc:  # a reply can fail once the querier gave up
+                log.debug("service %s: reply failed: %s", self.service_name, exc)
+            finally:
+                try:
+                    query.drop()     # the querier sees this attempt finalised at once
+                except Exception:
+                    pass
+        payload = query.payload
+        self._on_request(payload, respond)
+
+    def _on_put_request(self, sample: zenoh.Sample) -> None:
+        """Multicast sessions: a request put on ``<key>/@rq``; the reply goes to the client's own key."""
+        if self._destroyed:
+            return
+        data = sample.payload
+        try:
+            peek = envelope.unpack(data.to_bytes()) if len(data) <= MAX_REQUEST_BYTES else None
+        except envelope.MalformedSample:
+            peek = None
+        if peek is None:    # no client to answer: count and drop
+            with self._lock:
+                self.bad_requests += 1
+            self._rlog.warning("bad_request", "service %s: dropped a malformed or oversize multicast request",
+                               self.service_name)
+            return
+        client_id, seq = peek.publisher_id, peek.seq
+        asked = plans.requested_reply_copies(peek.extra.get(plans.REPLY_COPIES_KEY))
+        own = plans.reply_copies_for(self._loss) if math.isfinite(self._loss) else MULTICAST_REPLY_COPIES
+        copies = max(asked or 0, own)
+
+        def respond(ok: bool, payload: bytes) -> None:
+            self._put_reply(client_id, seq, ok, payload, copies)
+        self._on_request(data, respond)
+
+    _RECENT_REPLIES = 1024        # bounded: reply keys remembered for the burst check below
+
+    def _reply_publisher(self, client_id: int) -> Any:
+        with self._lock:
+            pub = self._reply_pubs.get(client_id)
+            if pub is not None:
+                self._reply_pubs.move_to_end(client_id)
+                return pub
+        pub = _best_effort_publisher(self.context.session, f"{self.key}/{REPLY_CHUNK}/{client_id}")
+        with self._lock:
+            if self._destroyed:
+                pub.undeclare()
+                raise RuntimeError("service destroyed")
+            self._reply_pubs[client_id] = pub
+            old = [self._reply_pubs.popitem(last=False)[1] for _ in range(len(self._reply_pubs) - MAX_REPLY_PUBLISHERS)]
+        for o in old:     # bounded: a flood of client ids must not grow us
+            try:
+                o.undeclare()
+            except Exception:
+                pass
+        return pub
+
+    def _put_reply(self, client_id: int, seq: int, ok: bool, payload: bytes, copies: int) -> None:
+        """The first copy now, the others REPLY_SPACING_S apart (each in its own datagram)."""
+        now = time.monotonic()
+        reply_key = f"{client_id}/{seq}"
+        with self._lock:
+            last = self._recent_replies.get(reply_key)
+            # Joined duplicates are all answered at once when the handler ends: one burst of copies
+            # serves them all. A request copy arriving later still gets its own copies.
+            if last is not None and now - last < plans.REPLY_SPACING_S:
+                return
+            self._recent_replies[reply_key] = now
+            self._recent_replies.move_to_end(reply_key)
+            while len(self._recent_replies) > self._RECENT_REPLIES:
+                self._recent_replies.popitem(last=False)
+            self.reply_copies += copies
+            self.reply_bytes += copies * len(payload)
+        attachment = _reply_attachment(seq, ok)
+        try:
+            pub = self._reply_publisher(client_id)
+
+            def put(data: bytes) -> None:
+                pub.put(data, attachment=attachment)
+            put(payload)
+        except Exception as exc:
+            log.debug("service %s: reply put failed: %s", self.service_name, exc)
+            return
+        if copies > 1:
+            self.context.repeater.schedule(put, payload, copies - 1, plans.REPLY_SPACING_S)
+
+    def _on_request(self, payload: zenoh.ZBytes | None, respond: Responder) -> None:
+        size = len(payload) if payload is not None else 0
+        if size > MAX_REQUEST_BYTES:     # refused before it is copied
+            respond(False, self._bad_request(f"request of {size} bytes is over the limit of {MAX_REQUEST_BYTES}"))
+            return
+        data = payload.to_bytes() if payload is not None else b""
+        key = hashlib.blake2b(data, digest_size=16).digest()
+        state, cached = self.cache.begin(key, respond)
+        if state != "new":
+            with self._lock:
+                self.duplicates += 1
+            if cached is not None:
+                respond(*cached)
+            return
+        if not self.context.executor.call_soon(lambda: self._run(key, data, respond)):
+            busy = _error_payload("busy", f"service {self.service_name}: server queue full, request dropped")
+            for waiter in [respond, *self.cache.finish(key, (False, busy), keep=False)]:
+                waiter(False, busy)
+
+    def _run(self, key: bytes, data: bytes, respond: Responder) -> None:
+        try:
+            ok, reply, executed = self._execute(data)
+        except Exception as exc:   # never kill the executor, never leave joined duplicates hanging
+            ok, reply, executed = False, _error_payload("handler", f"internal error: {exc}"), False
+        for waiter in [respond, *self.cache.finish(key, (ok, reply), keep=executed)]:
+            waiter(ok, reply)
+
+    def describe(self) -> dict[str, Any]:
+        return {"service": service_name_of_key(self.key), "node": self.context.fully_qualified_name,
+                "request": self._req.name, "request_hash": self._req.hash,
+                "response": self._resp.name, "response_hash": self._resp.hash}
+
+    def _describe(self, query: zenoh.Query) -> None:
+        try:
+            query.reply(self.key, msgpack.packb(self.describe(), use_bin_type=True))
+        except Exception as exc:
+            log.debug("service %s: describe reply failed: %s", self.service_name, exc)
+        finally:
+            try:
+                query.drop()
+            except Exception:
+                pass
+
+    def _execute(self, data: bytes) -> tuple[bool, bytes, bool]:
+        """(ok, reply payload, whether the handler ran) for one request's bytes."""
+        try:
+            env = envelope.unpack(data)
+        except envelope.MalformedSample as exc:
+            return False, self._bad_request(f"malformed request ({exc})"), False
+        rt, resp_t = self._req, self._resp
+        dict_form = env.extra.get("form") == "dict"
+        if env.type_hash != rt.hash or env.type_name != rt.name:
+            return False, _error_payload("type", f"service {self.service_name} takes {rt.name} ({rt.hash}), "
+                                                 f"got {env.type_name} ({env.type_hash})"), False
+        want_name, want_hash = env.extra.get("rt"), env.extra.get("rh")
+        if want_hash is not None and (want_hash != resp_t.hash or want_name != resp_t.name):
+            return False, _error_payload("type", f"service {self.service_name} returns {resp_t.name} "
+                                                 f"({resp_t.hash}), client expects {want_name} ({want_hash})"), False
+        try:
+            # Both forms are checked field by field (types, ranges, lengths): a handler never sees
+            # force='yes' or a NaN where an int belongs; the caller gets a ServiceError naming the field.
+            if dict_form:
+                request = validated(self.request_type.from_dict(env.body))
+            else:
+                request = rt.decode(env.body)
+        except Exception as exc:
+            return False, self._bad_request(f"cannot decode {rt.name}: {str(exc)[:500]}"), False
+        with self._lock:
+            self.executions += 1
+        try:
+            response = self.handler(request)
+            if not isinstance(response, self.response_type):
+                raise TypeError(f"handler returned {type(response).__name__}, "
+                                f"not {resp_t.name}")
+            body = response.to_dict() if dict_form else resp_t.encode(response)
+        except Exception as exc:
+            with self._lock:
+                self.errors += 1
+            self._rlog.warning("handler", "service %s: handler raised %s: %s", self.service_name,
+                               type(exc).__name__, exc)
+            return False, _error_payload("handler", f"{type(exc).__name__}: {exc}"), True
+        with self._lock:
+            self.served += 1
+        return True, envelope.pack(resp_t.name, resp_t.hash, self.server_id, env.seq, time.time_ns(), body,
+                                   {"form": "dict"} if dict_form else None), True
+
+    def _bad_request(self, why: str) -> bytes:
+        with self._lock:
+            self.bad_requests += 1
+        self._rlog.warning("bad_request", "service %s: refused a request: %s", self.service_name, why)
+        return _error_payload("bad_request", f"service {self.service_name}: {why}")
+
+    def destroy(self) -> None:
+        self._destroyed = True
+        with self._lock:
+            reply_pubs, self._reply_pubs = list(self._reply_pubs.values()), OrderedDict()
+        for handle in (self._queryable, self._request_sub, *reply_pubs):
+            try:
+                if handle is not None:
+                    handle.undeclare()
+            except Exception:
+                pass  # already closed with the session
