@@ -31,6 +31,7 @@ from typing import Any
 from drone_contract.messages import CONTROL_TOKEN_PREFIX, Command, CommandResult, valid_client_id
 from drone_contract.streams import DOWN, STREAM_SPECS, UP, StreamSpec
 from px4_link import Px4Link
+from px4_link.telemetry import LocalPosition
 from zenoh_robot import Node
 from zenoh_robot.events import SubscriptionEventCallbacks
 from zenoh_robot.loss_feedback import LossMonitor
@@ -89,12 +90,13 @@ class Companion:
         events = _stream("events", DOWN)
         self.events = EventReporter(node.create_publisher(_message(events), events.name, q[events.name]),
                                     config.report_interval_s)
-        self.worker = Px4Worker(self.events)
+        self.worker = Px4Worker(self.events, link.cancel_command)
         self.control = ControlArbiter(config.control_lease_s)
         self.lifecycle = OffboardLifecycle(link, self._on_transition)
         self.failsafe = DeadlineFailsafe(self.lifecycle, self.control, self.events, self.worker,
-                                         lambda: self.config.setpoint_deadline)
+                                         lambda: self.config.setpoint_deadline, self._vehicle_position)
         self.gate = SetpointGate(link, self.control, self.lifecycle, self.failsafe, self.events, self.worker, live)
+        link.offboard.geofence = config.geofence()   # px4_link fences every target with the values in force
         self.desk = CommandDesk(link, self.control, self.lifecycle, self.gate, self.failsafe, self.events,
                                 self.worker, live)
 
@@ -130,7 +132,14 @@ class Companion:
         if self.camera is not None:
             self.camera.start()
         self.params.on_change = self._on_params_changed
+        self.params.guard_writes(node, self.control, self.events)   # safety limits: only the GCS in control
         node.add_on_close(self.close)
+
+    def _vehicle_position(self) -> tuple[float, float, float] | None:
+        pos = self.link.telemetry.latest(LocalPosition)
+        if pos is None or time.monotonic() - pos.received_at > 1.0:
+            return None
+        return pos.x, pos.y, pos.z
 
     def _live_config(self) -> CompanionConfig:
         return self.config   # replaced as a whole by a `param set`: the parts read it through this
@@ -145,9 +154,8 @@ class Companion:
     def _watchdog(self) -> None:
         now = time.monotonic()
         self.failsafe.check(now)
-        gone = self.control.expire(now)
-        if gone:
-            self.events.event("control_changed", f"{gone} released: liveliness lost", "no GCS in control", gone)
+        self.worker.expire(now)   # commands past their reply's deadline never run later
+        self.desk.watch_control(now)
         if not self.lifecycle.in_session and self.link.mode == "OFFBOARD" and self.link.connected \
                 and now - self._park_sent > 2.0:
             # Real PX4 returns to OFFBOARD after landing and auto-disarm: never leave it there.
@@ -163,16 +171,15 @@ class Companion:
             self.events.event("stray_offboard", "PX4 in OFFBOARD without an operator-requested session", SAFE_MODE)
 
     def _on_params_changed(self, changes: dict[str, Any]) -> None:   # the parameter service's thread
-        old, self.config = self.config, self.params.config
+        self.config = self.params.config
         if "control_lease_s" in changes:
             self.control.lease_s = self.config.control_lease_s
         if "report_interval_s" in changes:
             self.events.limiter.interval = self.config.report_interval_s
         if "sensor_rate_hz" in changes:
             self.telemetry.set_sensor_rate(self.config.sensor_rate_hz)
-        for name, value in changes.items():
-            if self.events.limiter.hit("param_changed", name):
-                self.events.event("param_changed", f"{name}: {getattr(old, name)!r} -> {value!r}", "applied")
+        if changes.keys() & {"fence_radius_m", "fence_ceiling_m", "fence_floor_m"}:
+            self.link.offboard.geofence = self.config.geofence()
 
     def _on_link_event(self, name: str, details: dict[str, Any]) -> None:   # px4_link's thread: never block
         if name == "offboard_lost":
@@ -212,5 +219,6 @@ class Companion:
                 "px4_streams": self.telemetry.summary(),
                 "px4": {"ever_connected": self.link.system_id is not None, "connected": self.link.connected},
                 "parameters": {"changed": self.params.changed, "refused": self.params.refused},
+                "failsafe": self.failsafe.summary(), "px4_worker": self.worker.summary(),
                 "logs": {"sent": {k: v.to_dict() for k, v in self.sent.items()},
                          "received": {"setpoint": received.to_dict()}}}

@@ -11,8 +11,10 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from drone_contract.link_protection import log_startup_line
 from drone_contract.streams import IMAGE_MODES, PROFILES, STREAMS, StreamProfile, stream_profile
 from px4_link import CommandError, Px4Link
+from px4_link.targets import DEFAULT_FENCE_CEILING_M, DEFAULT_FENCE_FLOOR_M, DEFAULT_FENCE_RADIUS_M
 from zenoh_robot import Node
 from zenoh_robot.names import validate_node_name
 from zenoh_robot.parameters import ParameterError, ParameterStore, add_param_argument, params_from_args
@@ -61,6 +63,14 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                         "needs, the rest off; default: PX4's own streams (always so with --mavlink-tunnel)")
     p.add_argument("--max-offset", type=float, default=10.0,
                    help="farthest a position setpoint may lie from the vehicle, m (default 10)")
+    p.add_argument("--fence-radius", type=float, default=DEFAULT_FENCE_RADIUS_M,
+                   help="geofence: farthest horizontal distance from home any setpoint may take the drone, m "
+                        "(default %(default)g; position setpoints beyond are refused, velocity ones stop at it)")
+    p.add_argument("--fence-ceiling", type=float, default=DEFAULT_FENCE_CEILING_M,
+                   help="geofence ceiling above home, m (default %(default)g)")
+    p.add_argument("--fence-floor", type=float, default=DEFAULT_FENCE_FLOOR_M,
+                   help="geofence floor above home, m: the lowest any setpoint may take the drone "
+                        "(default %(default)g, never below home; landing is PX4's land mode)")
     p.add_argument("--control-lease", type=float, default=5.0,
                    help="a GCS in control without a liveliness token loses control after this silence, s")
     p.add_argument("--allow-force-disarm", action="store_true",
@@ -124,6 +134,8 @@ def run(args: argparse.Namespace) -> int:
                              resume_on_setpoints=args.resume_on_setpoints, sensor_rate_hz=args.sensor_rate,
                              camera=None if args.camera == "none" else args.camera, camera_rate_hz=args.camera_rate,
                              max_offset_m=args.max_offset, control_lease_s=args.control_lease,
+                             fence_radius_m=args.fence_radius, fence_ceiling_m=args.fence_ceiling,
+                             fence_floor_m=args.fence_floor,
                              allow_force_disarm=args.allow_force_disarm, px4_streams=args.px4_streams,
                              mavlink_tunnel=args.mavlink_tunnel,
                              param_allow=tuple(n for n in args.param_allow.split(",") if n),
@@ -133,20 +145,21 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f"-p {', '.join(unknown)}: not a companion parameter; parameters: "
                        f"{', '.join(sorted(known_names()))}")
     try:   # every -p value checked now, before PX4 or Zenoh is opened
-        CompanionParameters(config).declare(ParameterStore(params))
+        in_force = CompanionParameters(config).declare(ParameterStore(params))
     except ParameterError as exc:
         raise CliError(f"-p: {exc}") from None
     try:   # the profile says unicast or multicast; multicast needs --iface (one-line error otherwise)
         session = session_config_from_args(args, lambda: profile.session_config(args.iface), args.id)
     except ValueError as exc:
         raise CliError(str(exc)) from None
+    log_startup_line(log, session)
     from zenoh_robot import MultiThreadedExecutor
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     from .mavlink_tunnel import MavlinkTunnel, maybe_tee
     with px4_connection(args.px4, args.sysid) as px4_conn, \
             maybe_tee(args.mavlink_tunnel, px4_conn) as (tee, connection), \
-            Px4Link(connection) as link, \
+            Px4Link(connection, geofence=in_force.geofence()) as link, \
             Node("companion", namespace=args.id, config=session, executor=MultiThreadedExecutor(3),
                  parameter_overrides=params, enable_topic_statistics=not args.no_topic_statistics) as node:
         log.info("companion %s: PX4 at %s, profile %s", args.id, connection, profile.name)

@@ -1,19 +1,34 @@
 """The companion's ``command`` service: who may command the drone, what is allowed, and who does it.
 
 A command passes three gates, in order: it is one of the contract's (``drone_contract.commands``);
-its sender holds control or claims it (the ControlArbiter; ``take_control`` and ``release_control``
-are answered here, without PX4); the one policy (``command_policy``) allows it whoever sends it.
-Then its handler, from the table keyed by ``CommandName``, runs on the PX4 worker and the reply
-waits for it. Every command is logged with its sender and every refusal says why.
+its sender holds control or claims it (the ControlArbiter; ``take_control``, ``hand_over`` and a
+``release_control`` outside an offboard session are answered here, without PX4); the one policy
+(``command_policy``) allows it whoever sends it. Then its handler, from the table keyed by
+``CommandName``, runs on the PX4 worker and the reply waits for it.
+Every command is logged with its sender and every refusal says why.
 
-Threads: ``on_command`` runs on the node's executor (it blocks until the worker is done, up to
-``TIMEOUT_S``); handlers run on the PX4 worker, one at a time.
+Control never lapses in the air: a ``release_control`` during an offboard session (starting,
+active or failsafe hold) puts the drone in HOLD on the PX4 worker first, then releases; a
+``hand_over`` (or a ``release_control`` naming a GCS) offers control to that GCS, the holder keeping
+it until the named GCS confirms with ``take_control``; ``watch_control`` (the companion's watchdog)
+withdraws an offer nobody confirmed, holding the drone when its holder has left, and releases a
+gone holder only on the ground. Every change is a ``control_changed`` event.
+
+Threads: ``on_command`` runs on the node's executor and never waits for PX4: a command for PX4
+goes to the worker's bounded command lane (full: refused at once, "busy") and the reply is a
+future the service answers when the handler is done, or after ``TIMEOUT_S`` (then the command is
+abandoned: it never starts later, px4_link withdraws its PX4 command). The executor stays free
+for setpoints and the watchdog. Handlers run on the PX4 worker's command lane, one at a time;
+``watch_control`` on the executor.
 """
 from __future__ import annotations
 
 import logging
 import math
+import time
 from collections.abc import Callable
+from concurrent.futures import Future
+from typing import Any
 
 from drone_contract.commands import COMMAND_SPECS, COMMANDS, CommandName, command_name
 from drone_contract.messages import Command, CommandResult, valid_client_id
@@ -22,11 +37,12 @@ from px4_link.commands import CommandError
 from px4_link.targets import TargetRefused
 
 from .config import CompanionConfig
-from .control import ControlArbiter
+from .control import ControlArbiter, HandOver
 from .events import EventReporter
 from .failsafe import DeadlineFailsafe
-from .offboard_session import SAFE_MODE, OffboardLifecycle
-from .px4_worker import Px4Worker
+from .offboard_session import SAFE_MODE, OffboardLifecycle, OffboardState
+from .px4_params import px4_param_refusal
+from .px4_worker import CommandAbandoned, Px4Worker, WorkerBusy
 from .setpoint_gate import SetpointGate
 
 log = logging.getLogger("companion")   # the app's logger: log lines keep the name they always had
@@ -47,13 +63,14 @@ def command_policy(cmd: Command, config: CompanionConfig, landed: bool | None) -
                     f"({', '.join(config.param_allow) or 'empty'})")
         if not math.isfinite(cmd.value):
             return f"set_param {cmd.text}: value {cmd.value} is not finite"
+        return px4_param_refusal(cmd.text, cmd.value)
     return ""
 
 
 class CommandDesk:
     TIMEOUT_S = 20.0
     # Answered by the control claim itself, never by PX4.
-    CONTROL_ONLY = (CommandName.TAKE_CONTROL, CommandName.RELEASE_CONTROL)
+    CONTROL_ONLY = (CommandName.TAKE_CONTROL, CommandName.HAND_OVER)
 
     def __init__(self, link: Px4Link, control: ControlArbiter, lifecycle: OffboardLifecycle,
                  gate: SetpointGate, failsafe: DeadlineFailsafe, events: EventReporter, worker: Px4Worker,
@@ -72,19 +89,27 @@ class CommandDesk:
             CommandName.OFFBOARD_STOP: self._leave_for("AUTO.LOITER"),
             CommandName.OFFBOARD_START: lambda cmd: self._gate.offboard_start(cmd.client_id),
             CommandName.SET_PARAM: self._set_param,
+            CommandName.RELEASE_CONTROL: self._release_holding,   # only during a session: HOLD first
         }
         unanswered = set(COMMAND_SPECS) - set(self._handlers) - set(self.CONTROL_ONLY)
         if unanswered:   # a command added to the contract must get a handler here
             raise RuntimeError(f"commands without a handler: {sorted(unanswered)}")
 
-    def on_command(self, cmd: Command) -> CommandResult:
+    def on_command(self, cmd: Command) -> CommandResult | Future[CommandResult]:
         who = cmd.client_id if valid_client_id(cmd.client_id) else f"<invalid {cmd.client_id[:64]!r}>"
         log.info("command %s (value=%g text=%r force=%s) from %s", cmd.name[:32], cmd.value, cmd.text[:32],
                  cmd.force, who)
         res = self._decide(cmd)
+        if isinstance(res, Future):
+            res.add_done_callback(lambda done: self._log_failure(cmd, who, done.result()))
+        else:
+            self._log_failure(cmd, who, res)
+        return res
+
+    @staticmethod
+    def _log_failure(cmd: Command, who: str, res: CommandResult) -> None:
         if not res.success:
             log.warning("command %s from %s refused or failed: %s", cmd.name[:32], who, res.message)
-        return res
 
     def _result(self, ok: bool, message: str) -> CommandResult:
         return CommandResult(ok, message, self._link.state.mode)
@@ -93,17 +118,28 @@ class CommandDesk:
         self.refused += 1
         return self._result(False, why)
 
-    def _decide(self, cmd: Command) -> CommandResult:
+    def _decide(self, cmd: Command) -> CommandResult | Future[CommandResult]:
         name = command_name(cmd.name)
         if name is None:
             return self._refuse(f"unknown command {cmd.name[:32]!r}; commands: {', '.join(COMMANDS)}")
         client = cmd.client_id
+        if name is CommandName.HAND_OVER or name is CommandName.RELEASE_CONTROL and cmd.text:
+            return self._hand_over(client, cmd.text, leaving=name is CommandName.RELEASE_CONTROL)
         if name is CommandName.RELEASE_CONTROL:
-            if self._control.release(client):
+            if self._control.holder != client or not client:
+                return self._refuse(f"release_control refused: {client or '<none>'} does not hold control "
+                                    f"(holder: {self._control.holder or 'none'})")
+            if not self._session_open:
+                self._control.release(client)
                 self._events.event("control_changed", f"{client} released control", "no GCS in control", client)
                 return self._result(True, "control released")
-            return self._refuse(f"release_control refused: {client or '<none>'} does not hold control "
-                                f"(holder: {self._control.holder or 'none'})")
+            # In a session: the PX4 worker holds the drone, then releases (_release_holding).
+        if name is CommandName.TAKE_CONTROL and not cmd.force:
+            previous = self._control.accept(client)
+            if previous:
+                self._events.event("control_changed", f"{client} took control from {previous} (hand-over confirmed)",
+                                   f"{client} in control", previous)
+                return self._result(True, f"{client} in control (handed over by {previous})")
         ok, why, previous = self._control.admit(client, name, claim=True,
                                                 force=cmd.force and name is CommandName.TAKE_CONTROL)
         if not ok:
@@ -118,16 +154,102 @@ class CommandDesk:
         if why:
             return self._refuse(why)
         handler = self._handlers[name]
-        future = self._worker.submit(handler, cmd)
         try:
-            msg = future.result(timeout=self.TIMEOUT_S)
-        except (CommandError, TargetRefused) as exc:
+            job = self._worker.submit(name.value, lambda: handler(cmd), self.TIMEOUT_S)
+        except WorkerBusy as exc:
+            self._events.refused("command_refused", client if valid_client_id(client) else "", "busy",
+                                 f"command {name} from {client}: busy: {exc}")
+            return self._refuse(f"busy: {exc}")
+        reply: Future[CommandResult] = Future()
+        job.add_done_callback(lambda done: reply.set_result(self._outcome(done)))
+        return reply
+
+    def _outcome(self, done: Future[Any]) -> CommandResult:
+        """The reply for a finished (or abandoned) handler: on the thread that settled it, so short."""
+        try:
+            msg = done.result()
+        except (CommandError, TargetRefused, CommandAbandoned) as exc:
             return self._result(False, str(exc))
         except Exception as exc:  # noqa: BLE001  (a bad argument, a link that is down: the sender hears it)
             return self._result(False, f"{type(exc).__name__}: {exc}")
         return self._result(True, msg if isinstance(msg, str) and msg else "done")
 
+    # -- control that never lapses in the air ------------------------------------------
+    @property
+    def _session_open(self) -> bool:
+        return self._lifecycle.state is not OffboardState.IDLE
+
+    def _hand_over(self, client: str, target: str, *, leaving: bool) -> CommandResult:
+        ok, why = self._control.offer_to(client, target, leaving=leaving)
+        if not ok:
+            self._events.refused("control_refused", client if valid_client_id(client) else "", "hand_over", why)
+            return self._refuse(why)
+        offer = self._control.offer
+        wait = max(0.0, offer.until - time.monotonic()) if offer is not None else 0.0
+        detail = (f"{client} offers control to {target}: {target} confirms with take_control within {wait:.0f} s; "
+                  f"{client} stays in control until then")
+        self._events.event("control_changed", detail, "hand-over offered", target)
+        return self._result(True, f"hand-over offered to {target} ({wait:.0f} s to confirm with take_control); "
+                                  f"{client} stays in control until then")
+
+    def watch_control(self, now: float) -> None:
+        """The watchdog's control checks (executor): offers nobody confirmed, holders that are gone."""
+        offer = self._control.expire_offer(now)
+        if offer is not None:
+            self._offer_expired(offer, now)
+        vehicle = self._link.state
+        # Unknown landed state while armed counts as flying: the safe side.
+        grounded = not self._session_open and (not vehicle.armed or vehicle.landed is True)
+        gone = self._control.expire(now, may_release=grounded)
+        if gone is None:
+            return
+        if gone.released:
+            self._events.event("control_changed", f"{gone.holder} released: liveliness lost", "no GCS in control",
+                               gone.holder)
+        else:
+            self._events.event("control_changed", f"{gone.holder} gone (no liveliness token, silent "
+                                                  f"{gone.silent_s:.1f} s) while the vehicle is not on the ground",
+                               f"{gone.holder} stays in control", gone.holder)
+
+    def _offer_expired(self, offer: HandOver, now: float) -> None:
+        left = offer.leaving or self._control.gone(offer.holder, now)
+        if self._control.holder != offer.holder:
+            return
+        self._events.event("control_changed", f"hand-over from {offer.holder} to {offer.target} not confirmed "
+                                              f"in time", f"{offer.holder} stays in control" if not left else
+                           f"{offer.holder} has left: HOLD", offer.target)
+        if left:
+            # A drone whose holder has left must hold now, not after the command in flight.
+            self._worker.submit_failsafe("hand_over_expired",
+                                         lambda: self._hold_and_release(offer.holder, offer.leaving), preempt=True)
+
+    def _hold_and_release(self, client: str, release: bool) -> None:
+        """PX4 worker: HOLD when a session is open; release when ``client`` asked to (it still holds)."""
+        if self._control.holder != client:
+            return   # someone took over meanwhile: theirs now
+        if self._session_open:
+            self._failsafe.clear()
+            self._lifecycle.leave(SAFE_MODE, f"{client} left control")
+        if release and self._control.release(client):
+            self._events.event("control_changed", f"{client} released control", f"HOLD ({SAFE_MODE}) first; "
+                                                                                 "no GCS in control", client)
+
     # -- handlers (PX4 worker) -----------------------------------------------------------
+    def _release_holding(self, cmd: Command) -> str:
+        client = cmd.client_id
+        if self._control.holder != client:
+            raise CommandError(0, None, f"release_control: {client} no longer holds control "
+                                        f"(holder: {self._control.holder or 'none'})")
+        held = self._session_open
+        if held:
+            self._failsafe.clear()
+            self._lifecycle.leave(SAFE_MODE, f"release_control by {client}")
+        self._control.release(client)
+        self._events.event("control_changed", f"{client} released control" + (" during an offboard session" if held
+                                                                              else ""),
+                           f"HOLD ({SAFE_MODE}) first; no GCS in control" if held else "no GCS in control", client)
+        return f"control released (the drone holds: {SAFE_MODE})" if held else "control released"
+
     def _leave_for(self, mode: str) -> Handler:
         def leave(cmd: Command) -> None:
             self._failsafe.clear()

@@ -3,8 +3,17 @@
 ``companion --mavlink-tunnel`` puts a UDP tee where PX4 sends (its MAVLink port):
 every datagram from PX4 goes on to the companion's own link unchanged and is also
 published on ``<id>/mavlink/down``; datagrams arriving on ``<id>/mavlink/up`` (from
-``gcs --mavlink-out``, i.e. from a QGC on the GCS machine) go to PX4 only if the
+``gcs --mavlink-out``, i.e. from a QGC on the GCS machine) go to PX4 only as far as the
 command policy lets them through.
+
+Only what was judged reaches PX4: each datagram from QGC is parsed frame by frame (a fresh
+parser per datagram, so no partial frame carries over into the next), and the frames the policy
+accepts are re-encoded (their own sequence number, system and component id) and sent on; the
+datagram itself never is. Bytes that are no frame, frames failing their CRC or flags, a partial
+frame at the datagram's end and the refused frames are dropped and counted. Re-encoding also
+drops payload bytes the companion's dialect does not know (extension fields it could not judge).
+A signed frame is sent as received, signature included, when its payload is exactly the one
+judged; otherwise it is re-encoded (unsigned).
 
 Policy (safety first: the drone never moves unless an authorised operator asked, and
 the companion is where that is decided): by default only read-only traffic goes up:
@@ -55,48 +64,117 @@ STATUSTEXT_PERIOD = 2.0     # at most one refusal notice per this many seconds
 @dataclass
 class TunnelCounters:
     down: int = 0                 # datagrams from PX4 published
-    up_forwarded: int = 0         # datagrams from QGC sent to PX4
-    up_refused: int = 0
-    up_malformed: int = 0         # not MAVLink at all
+    up_forwarded: int = 0         # datagrams of accepted frames sent to PX4
+    up_frames_forwarded: int = 0  # frames in them
+    up_refused: int = 0           # datagrams holding at least one refused frame
+    up_malformed: int = 0         # datagrams without one whole MAVLink frame
+    up_bad_data: int = 0          # chunks dropped as no frame: bad prefix, failed CRC, bad flags, unknown id
+    up_partial: int = 0           # datagrams ending in an incomplete frame (dropped)
+    up_dropped_bytes: int = 0     # bytes from QGC that were not a judged frame (bad data, partial frames)
     refused_by_message: Counter[str] = field(default_factory=Counter)
 
 
+@dataclass
+class Judged:
+    """One datagram from QGC, frame by frame."""
+    accepted: list[Any] = field(default_factory=list)    # frames the policy lets through, in order
+    refused: list[Any] = field(default_factory=list)     # frames it does not
+    bad_data: int = 0             # BAD_DATA chunks
+    partial: bool = False         # an incomplete frame at the end
+    dropped_bytes: int = 0        # bytes of bad data and of the partial frame
+
+
+def _parser() -> Any:
+    """A fresh robust parser: one per datagram, so nothing of one datagram completes a frame of the next."""
+    p = mavlink2.MAVLink(None)
+    p.robust_parsing = True
+    return p
+
+
+def _payload(frame: bytes) -> bytes:
+    header = 10 if frame[0] == mavlink2.PROTOCOL_MARKER_V2 else 6
+    return frame[header:header + frame[1]]
+
+
+def _signed(frame: bytes) -> bool:
+    return frame[0] == mavlink2.PROTOCOL_MARKER_V2 and bool(frame[2] & mavlink2.MAVLINK_IFLAG_SIGNED)
+
+
 class MavlinkPolicy:
-    """Decides whether a datagram from QGC may reach PX4; says why not."""
+    """Decides which frames of a datagram from QGC may reach PX4, and encodes them again.
+
+    Stateless between datagrams (every call makes its own parser): safe from any thread.
+    """
 
     def __init__(self, allow_control: bool = False) -> None:
         self.allow_control = allow_control
-        self._parser = mavlink2.MAVLink(None)
-        self._parser.robust_parsing = True
+
+    def judge(self, data: bytes) -> Judged:
+        """Split ``data`` into accepted and refused frames; count what is no frame at all."""
+        parser = _parser()
+        try:
+            msgs = parser.parse_buffer(data) or []
+        except Exception:   # pymavlink raised on something it could not even call bad data: trust nothing
+            return Judged(bad_data=1, dropped_bytes=len(data))
+        judged = Judged()
+        for m in msgs:
+            if m.get_type() == "BAD_DATA":
+                judged.bad_data += 1
+                judged.dropped_bytes += len(m.get_msgbuf())
+            elif self._allowed(m):
+                judged.accepted.append(m)
+            else:
+                judged.refused.append(m)
+        left = parser.buf_len()
+        if left:
+            judged.partial = True
+            judged.dropped_bytes += left
+        return judged
 
     def frames(self, data: bytes) -> list[Any]:
+        """The whole frames in ``data`` (accepted or not)."""
         try:
-            msgs = self._parser.parse_buffer(data) or []
-        except Exception:   # a malformed datagram: nothing in it is trusted
+            msgs = _parser().parse_buffer(data) or []
+        except Exception:
             return []
         return [m for m in msgs if m.get_type() != "BAD_DATA"]
 
     def refused(self, msgs: list[Any]) -> list[Any]:
-        """The frames that may not go up (empty: forward the datagram)."""
+        """The frames that may not go up."""
+        return [m for m in msgs if not self._allowed(m)]
+
+    def _allowed(self, m: Any) -> bool:
         if self.allow_control:
-            return []
-        out = []
-        for m in msgs:
-            name = m.get_type()
-            if name in READ_ONLY:
-                continue
-            if name in COMMANDS and getattr(m, "command", None) in READ_ONLY_COMMANDS:
-                continue
-            out.append(m)
-        return out
+            return True
+        name = m.get_type()
+        if name in READ_ONLY:
+            return True
+        return name in COMMANDS and getattr(m, "command", None) in READ_ONLY_COMMANDS
+
+    @staticmethod
+    def encode(m: Any) -> bytes:
+        """``m`` packed again from its decoded fields, with its own seq, system and component id and wire version."""
+        original = bytes(m.get_msgbuf())
+        enc = mavlink2.MAVLink(None, srcSystem=m.get_srcSystem(), srcComponent=m.get_srcComponent())
+        enc.seq = m.get_seq()
+        fresh = bytes(m.pack(enc, force_mavlink1=original[0] == mavlink2.PROTOCOL_MARKER_V1))
+        if _signed(original) and _payload(original) == _payload(fresh):
+            return original   # exactly what was judged, and PX4 with signing still accepts it
+        return fresh
 
 
 class UdpTee:
     """Sits where PX4 sends: ``listen`` (PX4's target), relays to the link at ``link_port``.
 
-    PX4 -> tee -> link, link -> tee -> PX4 (the address PX4 last sent from); every PX4
-    datagram also goes to ``on_down``. ``inject(data)`` sends to PX4 (for QGC's traffic).
+    PX4 -> tee -> link, link -> tee -> PX4; every PX4 datagram also goes to ``on_down``.
+    ``inject(data)`` sends to PX4 (for QGC's traffic). Behind the tee the link hears everything
+    from one address, so the tee does the link's address lock for it: PX4 is the first address
+    that sends to ``listen`` (it moves only after ``RELOCK_S`` of silence, a PX4 restart on a new
+    port), and only the link's own socket may send to PX4 through the link side; datagrams from
+    anyone else are dropped and counted in ``foreign``.
     """
+
+    RELOCK_S = 3.0
 
     def __init__(self, listen: tuple[str, int], link_port: int, on_down: Callable[[bytes], None]) -> None:
         self.on_down = on_down
@@ -108,6 +186,8 @@ class UdpTee:
         self.px4_addr: tuple[str, int] | None = None
         self.relayed = 0
         self.callback_errors = 0
+        self.foreign = 0
+        self._px4_heard = 0.0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="mavlink-tee", daemon=True)
 
@@ -138,15 +218,27 @@ class UdpTee:
                 except OSError:
                     continue
                 if s is self._px4_side:
-                    self.px4_addr = addr
+                    if not self._is_px4(addr):
+                        self.foreign += 1
+                        continue
                     self._link_side.sendto(data, self._link_addr)
                     self.relayed += 1
                     try:
                         self.on_down(data)
                     except Exception:
                         self.callback_errors += 1
+                elif addr != self._link_addr:
+                    self.foreign += 1   # a local process other than the link: never relayed to PX4
                 elif self.px4_addr is not None:
                     self._px4_side.sendto(data, self.px4_addr)
+
+    def _is_px4(self, addr: tuple[str, int]) -> bool:
+        now = time.monotonic()
+        if self.px4_addr is None or addr == self.px4_addr or now - self._px4_heard > self.RELOCK_S:
+            self.px4_addr = addr
+            self._px4_heard = now
+            return True
+        return False
 
     def close(self) -> None:
         self._stop.set()
@@ -170,6 +262,7 @@ class MavlinkTunnel:
         self._reply = mavlink2.MAVLink(None, srcSystem=sysid, srcComponent=compid)
         self._notice_at = 0.0
         self._logged_at = 0.0
+        self._dropped_logged_at = 0.0
         tee.on_down = self.publish_down
 
     def publish_down(self, data: bytes) -> None:
@@ -177,20 +270,32 @@ class MavlinkTunnel:
         self.counters.down += 1
 
     def _on_up(self, pkt: MavlinkPacket) -> None:
-        data = bytes(pkt.data)
-        msgs = self.policy.frames(data)
-        if not msgs:
-            self.counters.up_malformed += 1
+        judged = self.policy.judge(bytes(pkt.data))
+        c = self.counters
+        c.up_bad_data += judged.bad_data
+        c.up_partial += judged.partial
+        c.up_dropped_bytes += judged.dropped_bytes
+        if judged.dropped_bytes:
+            self._log_dropped(judged)
+        if not judged.accepted and not judged.refused:
+            c.up_malformed += 1
             return
-        refused = self.policy.refused(msgs)
-        if not refused:
-            if self.tee.inject(data):
-                self.counters.up_forwarded += 1
-            return
-        self.counters.up_refused += 1
-        for m in refused:
-            self.counters.refused_by_message[m.get_type()] += 1
-        self._report(refused)
+        if judged.refused:
+            c.up_refused += 1
+            for m in judged.refused:
+                c.refused_by_message[m.get_type()] += 1
+            self._report(judged.refused)
+        if judged.accepted and self.tee.inject(b"".join(self.policy.encode(m) for m in judged.accepted)):
+            c.up_forwarded += 1
+            c.up_frames_forwarded += len(judged.accepted)
+
+    def _log_dropped(self, judged: Judged) -> None:
+        now = time.monotonic()
+        if now - self._dropped_logged_at >= 10.0:
+            self._dropped_logged_at = now
+            log.warning("MAVLink from the GCS: %d bytes that are no whole valid frame dropped (%d bad data, "
+                        "%d partial frames so far)", judged.dropped_bytes, self.counters.up_bad_data,
+                        self.counters.up_partial)
 
     def _report(self, refused: list[Any]) -> None:
         """Tell QGC (down the tunnel) why nothing happened: DENIED for commands, else a STATUSTEXT."""

@@ -1,6 +1,8 @@
 """Who may steer the drone, and where a setpoint from the GCS goes.
 
-A setpoint is admitted only from the GCS in control (control.py); it is checked against what
+A setpoint is admitted only from the GCS in control (control.py); while an offboard session is
+open (starting, active or failsafe hold) only from the holder, ever: a session without a holder
+admits nobody's, so no gap in control is a gap any streamer can fill. It is checked against what
 the vehicle is doing now; inside an operator-requested offboard session it goes to px4_link's
 stream (offboard_session.py), outside one it is kept as the sender's candidate, where an
 ``offboard_start`` begins. Every refusal is counted and reported as an event (rate-limited).
@@ -14,6 +16,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -22,6 +25,7 @@ from drone_contract.messages import DroneSetpoint, valid_client_id
 from px4_link import Px4Link
 from px4_link.targets import PositionTarget, Target, TargetRefused, TargetValidator, VehicleMotion, VelocityTarget
 from px4_link.telemetry import LocalPosition
+from zenoh_robot.ratelimit import RateLimiter
 from zenoh_robot.tools.stream_metrics import StreamRecorder
 
 from .config import CompanionConfig
@@ -41,7 +45,8 @@ class Candidate:
 
 
 def to_target(msg: DroneSetpoint) -> Target:
-    yaw = msg.yaw if math.isfinite(msg.yaw) else None
+    # NaN leaves the heading to PX4 (the message says so); an infinite yaw is no heading: refused.
+    yaw = None if math.isnan(msg.yaw) else msg.yaw
     return (VelocityTarget(msg.x, msg.y, msg.z, yaw) if msg.is_velocity
             else PositionTarget(msg.x, msg.y, msg.z, yaw))
 
@@ -58,18 +63,26 @@ class SetpointGate:
         self._config = config             # live: a `param set` replaces the config
         self.received = StreamRecorder()
         self.rejected = 0
+        self.rejected_by_reason: Counter[str] = Counter()   # refused after the control check, by reason
         self.ignored = 0                  # valid but outside a session: kept as candidate only
+        # The holder's refusals have a limiter of their own: the shared one is keyed by client id and
+        # full (new keys counted, never reported) once a peer has forged enough ids.
+        self._holder_reports = RateLimiter(interval=config().report_interval_s)
         self._candidates: dict[str, Candidate] = {}
         self._lock = threading.Lock()
         self._resume_tried = 0.0
         # Limits are passed to each check: max_offset_m and max_speed are live parameters.
         self.targets = TargetValidator(geofence=None, max_speed=None)
+        self._flying = ""                 # whose setpoint px4_link streams: told when the fence cuts it
+        link.add_event_listener(self._on_link_event)
 
     def on_setpoint(self, msg: DroneSetpoint, info: Any) -> None:
         self.received.record(info.seq, info.source_stamp_ns, info.received_stamp_ns)
         client = msg.client_id if valid_client_id(msg.client_id) else ""
         holder = self._control.holder
-        if holder and client != holder or not client:
+        session = self._lifecycle.state is not OffboardState.IDLE
+        # Outside a session a setpoint with no holder is only kept as its sender's candidate.
+        if not client or client != holder and (holder or session):
             _, why, _ = self._control.admit(client, "setpoint")
             self.rejected += 1
             self._events.refused("setpoint_rejected", client, "not_in_control", why)
@@ -82,8 +95,7 @@ class SetpointGate:
             self.targets.check_against_vehicle(sp, self._motion(), cfg.max_offset_m, cfg.max_speed)
         except TargetRefused as exc:
             self._remember(client, None, now, f"{exc}")
-            self.rejected += 1
-            self._events.refused("setpoint_rejected", client, exc.reason, f"setpoint refused: {exc}")
+            self._refuse(client, exc.reason, f"setpoint refused: {exc}")
             return
         self._remember(client, sp, now, "")
         try:
@@ -94,11 +106,32 @@ class SetpointGate:
                 self._events.refused("setpoint_ignored", client, exc.reason, str(exc))
                 return
             # px4_link's own checks (geofence, step rate)
-            self.rejected += 1
             self._remember(client, None, now, str(exc))
-            self._events.refused("setpoint_rejected", client, exc.reason, f"setpoint refused: {exc}")
+            self._refuse(client, exc.reason, f"setpoint refused: {exc}")
             return
+        self._flying = client
         self._failsafe.fed(now)
+
+    def _on_link_event(self, name: str, details: dict[str, Any]) -> None:   # px4_link's thread: never block
+        """px4_link cut the velocity it streams at the fence, or let it expire: tell its sender."""
+        if name == "setpoint_clamped":
+            self.rejected += 1
+            self._events.refused("setpoint_rejected", self._flying, str(details.get("reason", "geofence")),
+                                 f"setpoint cut: {details.get('message', '')}")
+        elif name == "setpoint_expired":
+            self._events.event("setpoint_expired", str(details.get("message", "")), "zero velocity", self._flying)
+
+    def _refuse(self, client: str, reason: str, detail: str) -> None:
+        """Count a refused setpoint of a sender that passed the control check, and tell it why."""
+        self.rejected += 1
+        self.rejected_by_reason[reason] += 1
+        if not client or client != self._control.holder:
+            self._events.refused("setpoint_rejected", client, reason, detail)
+            return
+        self._holder_reports.interval = self._config().report_interval_s   # a live parameter
+        count = self._holder_reports.hit(reason)
+        if count:
+            self._events.event("setpoint_rejected", detail, "refused", client, count)
 
     def _remember(self, client: str, sp: Target | None, now: float, refused: str) -> None:
         with self._lock:
@@ -134,6 +167,7 @@ class SetpointGate:
             self.targets.check_against_vehicle(cand.sp, self._motion(), cfg.max_offset_m, cfg.max_speed)
         except TargetRefused as exc:
             raise TargetRefused(exc.reason, f"setpoints refused: {exc}") from None
+        self._flying = client
         self._lifecycle.start(cand.sp)
         self._failsafe.rearm()
         return "OFFBOARD"

@@ -11,6 +11,8 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
+HAND_OVER_S = 10.0   # how long an offer of control (hand_over) waits for the named GCS's take_control
+
 
 class CommandName(enum.StrEnum):
     ARM = "arm"
@@ -24,6 +26,7 @@ class CommandName(enum.StrEnum):
     SET_PARAM = "set_param"
     TAKE_CONTROL = "take_control"
     RELEASE_CONTROL = "release_control"
+    HAND_OVER = "hand_over"
 
 
 @dataclass(frozen=True)
@@ -47,8 +50,14 @@ COMMAND_SPECS: dict[CommandName, CommandSpec] = {s.name: s for s in (
     CommandSpec(CommandName.OFFBOARD_STOP, "end the OFFBOARD session: AUTO.LOITER"),
     CommandSpec(CommandName.SET_PARAM, "set a PX4 parameter on the companion's allow-list",
                 value="parameter value", text="parameter name"),
-    CommandSpec(CommandName.TAKE_CONTROL, "become the GCS in control", force="take over from another GCS"),
-    CommandSpec(CommandName.RELEASE_CONTROL, "give control up", claims_control=False),
+    CommandSpec(CommandName.TAKE_CONTROL, "become the GCS in control, or confirm a hand-over offered to this GCS",
+                force="take over from another GCS"),
+    CommandSpec(CommandName.RELEASE_CONTROL, "give control up; during an OFFBOARD session the drone holds "
+                "(AUTO.LOITER) first", text="optional: a GCS id to hand over to instead (as hand_over)",
+                claims_control=False),
+    CommandSpec(CommandName.HAND_OVER, "offer control to another GCS, which confirms with take_control within "
+                f"{HAND_OVER_S:g} s; the sender keeps control until then", text="the GCS id to hand over to",
+                claims_control=False),
 )}
 COMMANDS: tuple[str, ...] = tuple(str(n) for n in CommandName)
 # What `gcs cmd` accepts: the contract's names plus the short alias `offboard`.

@@ -8,6 +8,10 @@ Identity: every setpoint and command carries this GCS's ``client_id`` (``user@ho
 default), and the session declares the liveliness token ``zr_gcs/<client_id>`` by which
 a drone's companion knows its controller is still there (companion/control.py).
 
+Setpoints go only to a drone this GCS may steer: one whose state names this GCS as its controller,
+or no controller (the first claim: PX4 needs setpoints before ``offboard_start``); never one another
+GCS controls, so an observer never fills a gap in control.
+
 Targets start where the drone is: until the drone's offboard session is active under this
 GCS, the target follows the drone's reported position (climbing towards the altitude at
 most ``MAX_LEAD_M`` ahead); once active, the pattern is flown relative to that anchor. So
@@ -180,7 +184,8 @@ class DroneView:
         previous_at = self.state_at
         self.state, self.state_at = msg, time.monotonic()
         if self.gcs.downlink is not None:   # a join (or rejoin): ask for this GCS's downlink rates
-            self.gcs.downlink.on_state(self.id, previous_at, self.state_at, float(msg.sensor_rate_requested_hz))
+            self.gcs.downlink.on_state(self.id, previous_at, self.state_at, float(msg.sensor_rate_requested_hz),
+                                       msg.controller)
         if msg.mode == "OFFBOARD" and self._anchor is not None:
             x, y = msg.position[0] - self._anchor.x, msg.position[1] - self._anchor.y
             self.max_path_error = max(self.max_path_error,
@@ -189,6 +194,12 @@ class DroneView:
     @property
     def in_control(self) -> bool:
         return self.state is not None and self.state.controller == self.gcs.config.client_id
+
+    @property
+    def may_stream(self) -> bool:
+        """This GCS holds control of the drone, or nobody does (it may be about to claim it)."""
+        s = self.state
+        return s is not None and s.controller in ("", self.gcs.config.client_id)
 
     @property
     def session_active(self) -> bool:
@@ -334,7 +345,7 @@ class Gcs:
         self._declare_parameters()
         rates = {k: v for k, v in (("sensor_rate_hz", config.sensor_rate_hz),
                                    ("camera_rate_hz", config.camera_rate_hz)) if v is not None}
-        self.downlink = DownlinkRates(node, rates, self._downlink_refused) if rates else None
+        self.downlink = DownlinkRates(node, rates, self._downlink_refused, config.client_id) if rates else None
         if self.downlink is not None:
             node.add_on_close(self.downlink.close)
         # The companion knows its controller is alive by this token (dropped when the session ends).
@@ -408,19 +419,30 @@ class Gcs:
         """Explicit takeover (``--take-control``): the previous GCS is told by the drone."""
         return {d.id: d.command("take_control", force=True) for d in list(self.drones.values())}
 
-    def release_control(self, timeout: float = 2.0) -> None:
-        """On exit: give control back at once instead of leaving it to the liveliness lease."""
-        for d in list(self.drones.values()):
-            if d.in_control:
-                res = d.command("release_control", timeout=timeout)
-                log.info("%s: release_control: %s", d.id, res.message)
+    def release_control(self, timeout: float = 5.0) -> dict[str, CommandResult]:
+        """On exit: give control back at once instead of leaving it to the liveliness lease. A drone
+        in an offboard session holds (AUTO.LOITER) before it is released (companion/command_desk.py),
+        which waits for PX4: the drones are asked at once, each on its own thread."""
+        results: dict[str, CommandResult] = {}
+
+        def release(d: DroneView) -> None:
+            results[d.id] = res = d.command("release_control", timeout=timeout)
+            log.info("%s: release_control: %s", d.id, res.message)
+
+        threads = [threading.Thread(target=release, args=(d,), name=f"release-{d.id}", daemon=True)
+                   for d in list(self.drones.values()) if d.in_control]
+        for th in threads:
+            th.start()
+        for th in threads:
+            th.join(timeout + 1.0)
+        return results
 
     def _stream(self) -> None:
         if not self.streaming:
             return
         for drone in list(self.drones.values()):
             t = drone.target()
-            if t is not None:
+            if t is not None and drone.may_stream:
                 drone.send_setpoint(t)
 
     def image_path(self, drone_id: str) -> Path:

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import math
 import sys
 import threading
@@ -14,6 +15,7 @@ from rich.console import Console
 from rich.live import Live
 
 from drone_contract.commands import CLI_COMMANDS, resolve_cli_name
+from drone_contract.link_protection import log_startup_line, reaches_network
 from drone_contract.streams import IMAGE_MODES, PROFILES, StreamProfile, stream_profile
 from zenoh_robot import Node, SessionConfig
 from zenoh_robot.parameters import add_param_argument, params_from_args
@@ -26,6 +28,8 @@ from .formation import FORMATIONS, resolve
 from .mission import ON_FAILURE, run_mission, run_swarm_mission
 from .patterns import PATTERNS
 
+log = logging.getLogger("gcs")
+
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("gcs", help="ground control station: setpoints, telemetry, images, commands")
@@ -35,7 +39,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     c.add_argument("drone", help="a drone id, or 'all': every drone of --drones, else every drone heard "
                                  "within --discover s")
     c.add_argument("command", choices=CLI_COMMANDS)
-    c.add_argument("value", nargs="?", help="takeoff altitude, or NAME=VALUE for set_param")
+    c.add_argument("value", nargs="?", help="takeoff altitude, NAME=VALUE for set_param, or the GCS id to "
+                                           "hand control over to (hand_over, release_control)")
     c.add_argument("--force", action="store_true",
                    help="disarm: in flight (the companion refuses unless started with --allow-force-disarm); "
                         "take_control: take over from another GCS")
@@ -63,6 +68,9 @@ def add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mission", action="store_true",
                    help="fly every drone of --drones at once: offboard, arm, pattern for --duration, land; "
                         "without it the pattern is flown once an operator starts a drone's offboard session")
+    p.add_argument("--insecure-ok", action="store_true",
+                   help="fly --mission over a network (--iface, or --connect to another host) without --secure: "
+                        "anyone who reaches that network can command the drones as this GCS")
     p.add_argument("--on-failure", choices=ON_FAILURE, default="continue",
                    help="--mission with several drones: when one fails, the others go on or hold (default continue)")
     p.add_argument("--formation", choices=FORMATIONS, default="auto",
@@ -152,6 +160,12 @@ def run(args: argparse.Namespace) -> int:
                       f"{args.save_image.with_name(args.save_image.stem + '_<id>' + args.save_image.suffix)} "
                       "(each name is printed when first written)")
     session = session_config(args, profile)
+    log_startup_line(log, session)
+    if args.mission and not session.secure and reaches_network(session) and not args.insecure_ok:
+        # One flag must not be all that stands between a field flight and an open link.
+        print("gcs: --mission over a network without --secure: commands would be unauthenticated (a peer can "
+              "claim this GCS's client id); give --secure DIR, or --insecure-ok to fly anyway", file=sys.stderr)
+        return 2
     with Node("gcs", config=session, parameter_overrides=params,
               enable_topic_statistics=not args.no_topic_statistics) as node:
         gcs = Gcs(node, config)
@@ -330,10 +344,16 @@ def run_command(args: argparse.Namespace) -> int:
         except ValueError:
             print(f"gcs cmd: parameter value {raw!r} is not a number", file=sys.stderr)
             return 2
+    elif name in ("hand_over", "release_control"):
+        text = args.value or ""
+        if name == "hand_over" and not text:
+            print("gcs cmd: hand_over needs the GCS id to hand control over to", file=sys.stderr)
+            return 2
     client_id = _client_id(args)
     if client_id is None:
         return 2
     config = session_config_from_args(args, name="gcs")
+    log_startup_line(log, config)
     with Node("gcs_cmd", config=config) as node:
         if args.drone == "all":
             targets = [d for d in (args.drones or "").split(",") if d] or discover_drones(node, args.discover)

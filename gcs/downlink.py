@@ -4,7 +4,10 @@ A companion publishes SensorCombined at ``sensor_rate_hz`` (200 Hz asked of PX4)
 frames at ``camera_rate_hz`` (30) whatever its GCS needs; a swarm GCS that shows ten drones
 does not need 200 Hz of IMU or 30 fps from each. With ``--sensor-rate`` / ``--camera-rate``
 the GCS sets those two live parameters on ``/<drone>/companion`` (the same parameter service
-``zenoh-robot param set`` uses) once per join.
+``zenoh-robot param set`` uses) once per join, and only on a drone it controls: the rates are
+every GCS's downlink, so the companion accepts them only from the GCS in control (companion/
+params.py). A monitoring GCS says once "not in control: downlink left as is" and asks as soon
+as a state shows it in control.
 
 A join is the first state heard from a drone, a state after ``REJOIN_S`` of silence, or a state
 showing a sensor rate other than the one applied (the companion restarted with its defaults).
@@ -30,6 +33,7 @@ if TYPE_CHECKING:
     from zenoh_robot import Node
 
 log = logging.getLogger("gcs.downlink")
+NOT_IN_CONTROL = "not in control: downlink left as is"
 REJOIN_S = 3.0       # a state after this much silence is a (re)join: ask again
 RECHECK_S = 5.0      # at most one "rate differs from the one applied" re-ask per drone per this
 CALL_TIMEOUT_S = 3.0
@@ -39,7 +43,7 @@ PARAMS = {"sensor_rate_hz": "sensor", "camera_rate_hz": "camera"}
 @dataclass
 class DownlinkStatus:
     """One drone's answer to the rates asked (what the summary and the sweep report)."""
-    status: str = "pending"        # pending | asking | applied | refused | unanswered
+    status: str = "pending"        # pending | asking | applied | refused | unanswered | not_in_control
     detail: str = ""
     asked: int = 0                 # requests sent (one per join)
     applied_at: float = 0.0
@@ -55,13 +59,14 @@ class DownlinkRates:
     MAX_ANSWERS = 10
 
     def __init__(self, node: Node, rates: dict[str, float], report: Callable[[str, str], None],
-                 timeout: float = CALL_TIMEOUT_S) -> None:
+                 client_id: str, timeout: float = CALL_TIMEOUT_S) -> None:
         bad = {k: v for k, v in rates.items() if k not in PARAMS or not (math.isfinite(v) and v > 0)}
         if bad:
             raise ValueError(f"downlink rates: {bad} (sensor_rate_hz, camera_rate_hz > 0)")
         self.node = node
         self.rates = dict(rates)
         self.timeout = timeout
+        self.client_id = client_id     # this GCS: sent with the requests, compared with each drone's controller
         self._report = report          # (drone, refusal text): the drone's failures list
         self.status: dict[str, DownlinkStatus] = {}
         self._clients: dict[str, ParameterClient] = {}
@@ -73,10 +78,15 @@ class DownlinkRates:
         self._thread.start()
 
     # -- joins (executor thread: never blocks) ---------------------------------------
-    def on_state(self, drone: str, previous_at: float, now: float, sensor_requested_hz: float) -> None:
-        """Called with every state: decides whether this is a join worth asking at."""
+    def on_state(self, drone: str, previous_at: float, now: float, sensor_requested_hz: float,
+                 controller: str) -> None:
+        """Called with every state (``controller``: the state's GCS in control): decides whether
+        this is a join worth asking at."""
+        if controller != self.client_id:
+            self._not_in_control(drone)
+            return
         st = self.status.get(drone)
-        if st is None or previous_at == 0.0 or now - previous_at > REJOIN_S:
+        if st is None or st.status == "not_in_control" or previous_at == 0.0 or now - previous_at > REJOIN_S:
             self.joined(drone)
             return
         want = self.rates.get("sensor_rate_hz")
@@ -85,6 +95,16 @@ class DownlinkRates:
                 and abs(sensor_requested_hz - want) > 1e-3 and now >= self._recheck_at.get(drone, 0.0)):
             self._recheck_at[drone] = now + RECHECK_S
             self.joined(drone)
+
+    def _not_in_control(self, drone: str) -> None:
+        with self._cv:
+            st = self.status.setdefault(drone, DownlinkStatus())
+            if st.status in ("not_in_control", "asking") or drone in self._pending:
+                return   # said once; a request already under way is answered by the companion
+            st.status, st.detail = "not_in_control", NOT_IN_CONTROL
+            st.answers.append(NOT_IN_CONTROL)
+            del st.answers[:-self.MAX_ANSWERS]
+        log.warning("%s: %s (asked when this GCS is in control)", drone, NOT_IN_CONTROL)
 
     def joined(self, drone: str) -> None:
         with self._cv:
@@ -124,7 +144,8 @@ class DownlinkRates:
         try:
             client = self._clients.get(drone)
             if client is None:
-                client = self._clients[drone] = ParameterClient(self.node, f"/{drone}/companion", self.timeout)
+                client = self._clients[drone] = ParameterClient(self.node, f"/{drone}/companion", self.timeout,
+                                                                          self.client_id)
             params = [Parameter(k, ParameterType.DOUBLE, float(v)) for k, v in self.rates.items()]
             results = client.set(params)
         except Exception as exc:   # timeout, no server, a closing session: reported, never raised

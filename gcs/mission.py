@@ -128,9 +128,12 @@ def _fly(gcs: Gcs, drone: DroneView, duration: float, out: dict[str, Any], log: 
         res = drone.command(name, value)
         step(name, res.success, res.message)
 
-    step("drone connected", until(lambda: bool(drone.state and drone.state.connected
-                                               and drone.setpoints_sent > 5), 30.0),
-         "" if drone.state else "no state from the drone")
+    connected = until(lambda: bool(drone.state and drone.state.connected and drone.setpoints_sent > 5), 30.0)
+    # Setpoints go only to a drone nobody else controls (gcs/app.py): say so rather than time out mutely.
+    step("drone connected", connected,
+         "" if connected else "no state from the drone" if drone.state is None else
+         f"{drone.state.controller} is in control of {drone.id}: no setpoints sent (take over with "
+         "--take-control)" if not drone.may_stream else "")
     time.sleep(0.3)   # a few setpoints from the drone's position reach the companion first
     command("offboard_start")
     command("arm")

@@ -68,6 +68,10 @@ class NotConnected(CommandError):
     """No vehicle heartbeat yet, so there is nobody to send the command to."""
 
 
+class CommandCancelled(CommandError):
+    """Withdrawn while waiting for its ACK (``CommandSender.cancel``): no more attempts are sent."""
+
+
 _ERRORS: dict[int, type[CommandError]] = {
     MAV_RESULT_TEMPORARILY_REJECTED: CommandTemporarilyRejected,
     MAV_RESULT_DENIED: CommandDenied,
@@ -106,8 +110,24 @@ class CommandSender:
         self._waiting_for: int | None = None
         self._ack: tuple[int, int, int] | None = None  # (result, progress, result_param2)
         self._answered = False
+        self._owner: int | None = None     # thread ident of the command in flight
+        self._cancelled = ""               # why the command in flight was withdrawn, or ""
         self.sent = 0
         self.retried = 0
+        self.cancelled = 0
+
+    def cancel(self, owner: int, why: str) -> bool:
+        """Withdraw the command in flight if thread ``owner`` sent it: its ``run`` raises
+        CommandCancelled at once and sends no more attempts, so a more urgent command (a failsafe
+        HOLD from another thread) gets the link now, not after the retries. Any thread; True if
+        one was withdrawn. Only the named thread's command, so a failsafe is never withdrawn."""
+        with self._cond:
+            if self._waiting_for is None or self._owner != owner or self._answered:
+                return False
+            self._cancelled = why or "cancelled"
+            self.cancelled += 1
+            self._cond.notify_all()
+            return True
 
     def handle_ack(self, command: int, result: int, progress: int = 0,
                    result_param2: int = 0) -> str:
@@ -141,6 +161,8 @@ class CommandSender:
                 self._waiting_for = command
                 self._ack = None
                 self._answered = False
+                self._owner = threading.get_ident()
+                self._cancelled = ""
             try:
                 attempts = 0
                 while attempts <= retries:
@@ -160,6 +182,8 @@ class CommandSender:
                                     deadline = time.monotonic() + timeout
                                     continue
                                 return self._finish(command, result, param2, attempts, start)
+                            if self._cancelled:
+                                raise CommandCancelled(command, None, f"{name}: {self._cancelled}")
                             left = deadline - time.monotonic()
                             if left <= 0:
                                 break
@@ -169,6 +193,7 @@ class CommandSender:
             finally:
                 with self._cond:
                     self._waiting_for = None
+                    self._owner = None
 
     def _finish(self, command: int, result: int, param2: int, attempts: int,
                 start: float) -> CommandAck:

@@ -219,6 +219,10 @@ class LinkCore:
                 self.safe_call(cb, sample)
 
     # ----------------------------------------------------------------- sending
+    def cancel_command(self, owner: int, why: str) -> bool:
+        """Withdraw the COMMAND_LONG thread ``owner`` is waiting on (commands.CommandSender.cancel)."""
+        return self._commands.cancel(owner, why)
+
     def send_command(self, command: int, *params: float, timeout: float | None = None,
                      retries: int | None = None) -> CommandAck:
         if not self._state.connected:

@@ -13,7 +13,7 @@ from collections.abc import Callable
 from .action import Action
 from .commands import CommandAck
 from .core import LinkCore
-from .offboard import Offboard
+from .offboard import VELOCITY_TIMEOUT_S, Offboard
 from .param import Param
 from .plugin import EventCallback
 from .stats import LinkStats
@@ -40,7 +40,8 @@ class Px4Link:
     ``udpin:0.0.0.0:14540`` and consider ``signing_key_file``.
 
     Events delivered to ``on_event(name, details)``: connected, disconnected, rebooted,
-    mode_changed, armed_changed, landed_changed, offboard_lost, setpoint_rejected, statustext.
+    mode_changed, armed_changed, landed_changed, offboard_lost, setpoint_rejected, setpoint_clamped,
+    setpoint_expired (offboard.py), statustext.
     Callbacks run on the link's threads: keep them short (see core.py).
     """
 
@@ -49,6 +50,7 @@ class Px4Link:
                  setpoint_rate_hz: float = 20.0,
                  geofence: Geofence | None = _DEFAULT_GEOFENCE,
                  max_speed: float | None = 10.0,
+                 velocity_timeout_s: float = VELOCITY_TIMEOUT_S,
                  source_system: int = 245,
                  source_component: int = 191,  # MAV_COMP_ID_ONBOARD_COMPUTER
                  target_system: int | None = None,
@@ -71,7 +73,7 @@ class Px4Link:
         if on_event is not None:   # first, as before: the user's callback sees each event first
             self._core.add_event_listener(on_event)
         self.action = Action(self._core)
-        self.offboard = Offboard(self._core, geofence, max_speed)
+        self.offboard = Offboard(self._core, geofence, max_speed, velocity_timeout_s)
         self.param = Param(self._core)
         self.telemetry = Telemetry(self._core)
 
@@ -141,6 +143,11 @@ class Px4Link:
 
     def add_event_listener(self, callback: EventCallback) -> None:
         self._core.add_event_listener(callback)
+
+    def cancel_command(self, owner: int, why: str) -> bool:
+        """Withdraw the command thread ``owner`` (a ``threading.get_ident()``) is waiting on: it
+        raises CommandCancelled at once and sends no more retries. True if there was one."""
+        return self._core.cancel_command(owner, why)
 
     def send_command(self, command: int, *params: float, timeout: float | None = None,
                      retries: int | None = None) -> CommandAck:

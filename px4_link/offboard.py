@@ -2,7 +2,21 @@
 
 The plugin owns its stream: a periodic hook on the core's send thread repeats the latest
 setpoint at the link's tick rate (``setpoint_rate_hz``), and a mode hook on the receive
-thread tells a loss of OFFBOARD from our own switch away."""
+thread tells a loss of OFFBOARD from our own switch away.
+
+What is sent is decided on every send, not once when the target arrives:
+
+- a position target is a place: it is checked against the fence when set and re-sent as is;
+- a velocity target is a motion: on every send it is fenced from where the vehicle is then
+  (``Geofence.fence_velocity``: its speed towards a boundary is cut to the speed from which
+  the vehicle still stops before it), and it expires like PX4's own offboard timeout
+  (COM_OF_LOSS_T, 1 s): a velocity not refreshed within ``velocity_timeout_s`` is replaced
+  by zero velocity, so a sender that goes silent leaves the vehicle braking, not flying on.
+
+Each cut and each expiry is counted (``setpoints_clamped``, ``setpoints_expired``) and
+reported once per episode as an event (``setpoint_clamped`` with reason "geofence",
+``setpoint_expired``); the episode ends when a target is sent uncut again (resp. refreshed).
+"""
 from __future__ import annotations
 
 import threading
@@ -11,19 +25,43 @@ import time
 from .action import set_mode
 from .commands import CommandAck
 from .plugin import Core, Event
-from .targets import Geofence, Target, TargetRefused, TargetValidator, mavlink_fields
+from .targets import (
+    Geofence,
+    PositionTarget,
+    StoppingModel,
+    Target,
+    TargetRefused,
+    TargetValidator,
+    VelocityTarget,
+    mavlink_fields,
+)
 from .telemetry import LocalPosition
+
+# PX4's COM_OF_LOSS_T default: a velocity older than this is not what the sender wants now.
+VELOCITY_TIMEOUT_S = 1.0
+POSITION_MAX_AGE_S = 1.0   # older LOCAL_POSITION_NED is not where the vehicle is
 
 
 class Offboard:
     """Setpoints are checked (finite, geofence, speed/jump) before anything is sent; the
-    core's send thread repeats the latest one at ``setpoint_rate_hz`` through ``_tick``."""
+    core's send thread repeats the latest one at ``setpoint_rate_hz`` through ``_tick``.
 
-    def __init__(self, core: Core, geofence: Geofence | None, max_speed: float | None) -> None:
+    Threads: ``set_setpoint`` on the caller's thread, ``_tick`` on the send thread; both
+    send, and the episode flags they share are guarded by ``_lock``. ``geofence`` may be
+    replaced at any time (one attribute, read once per send)."""
+
+    def __init__(self, core: Core, geofence: Geofence | None, max_speed: float | None,
+                 velocity_timeout_s: float = VELOCITY_TIMEOUT_S,
+                 stopping: StoppingModel | None = None) -> None:
         self._core = core
         self._validator = TargetValidator(geofence, max_speed)
+        self.velocity_timeout_s = velocity_timeout_s
+        self.stopping = stopping or StoppingModel()
         self._lock = threading.Lock()
         self.setpoint: Target | None = None
+        self._set_at = 0.0            # when ``setpoint`` was last set (refreshed) by the caller
+        self._expired = False         # the velocity expired: zero velocity is being sent
+        self._clamped = False         # the fence is cutting the velocity sent
         self._streaming = False
         self._stream_started: float | None = None
         self._active = False
@@ -31,6 +69,15 @@ class Offboard:
         self._t0 = time.monotonic()   # time_boot_ms of our setpoints counts from here
         core.add_periodic(self._tick)
         core.add_mode_hook(self._on_mode_change)
+
+    @property
+    def geofence(self) -> Geofence | None:
+        return self._validator.geofence
+
+    @geofence.setter
+    def geofence(self, fence: Geofence | None) -> None:
+        """Replace the fence (e.g. a live parameter change): the next send obeys it."""
+        self._validator.geofence = fence
 
     @property
     def streaming(self) -> bool:
@@ -46,8 +93,8 @@ class Offboard:
         TargetRefused (nothing is sent)."""
         core = self._core
         now = time.monotonic()
-        lp = core.latest(LocalPosition)
-        vehicle_pos = lp.position if lp is not None and now - lp.received_at < 1.0 else None
+        lp = self._fresh_position(now)
+        vehicle_pos = lp.position if lp is not None else None
         try:
             self._validator.check(sp, now, vehicle_pos)
         except TargetRefused as e:
@@ -57,10 +104,12 @@ class Offboard:
         self._validator.accept(sp, now)
         with self._lock:
             self.setpoint = sp
+            self._set_at = now
+            self._expired = False
             if not self._streaming:
                 self._streaming = True
                 self._stream_started = now
-        self._send(sp)   # at once rather than at the next tick: setpoint age matters
+        self._send(sp, now)   # at once rather than at the next tick: setpoint age matters
 
     def stop_stream(self) -> None:
         """Stop streaming (the setpoint is kept). In OFFBOARD this makes PX4 fail safe
@@ -114,14 +163,65 @@ class Offboard:
         """Periodic hook (send thread): repeat the latest setpoint while streaming."""
         sp = self.setpoint
         if self._streaming and sp is not None:
-            self._send(sp)
+            self._send(sp, time.monotonic())
 
-    def _send(self, sp: Target) -> None:
+    def _fresh_position(self, now: float) -> LocalPosition | None:
+        lp = self._core.latest(LocalPosition)
+        return lp if lp is not None and now - lp.received_at < POSITION_MAX_AGE_S else None
+
+    def outgoing(self, sp: Target, now: float) -> Target:
+        """What goes to PX4 for ``sp`` now: a position as is; a velocity zeroed when expired,
+        then fenced from the vehicle's latest position. Starts and ends the episodes (counts
+        and emits on the calling thread)."""
+        if isinstance(sp, PositionTarget):
+            return sp
+        events: list[Event] = []
+        with self._lock:
+            age = now - self._set_at
+            if age > self.velocity_timeout_s:
+                if not self._expired:
+                    self._expired = True
+                    events.append(("setpoint_expired", {
+                        "setpoint": sp, "age_s": age, "message":
+                        f"velocity target {sp} not refreshed for {age:.1f} s "
+                        f"(> {self.velocity_timeout_s:g} s): zero velocity sent"}))
+                sp = VelocityTarget(0.0, 0.0, 0.0, sp.yaw)
+        fence = self._validator.geofence
+        sent: Target = sp
+        why: str | None = None
+        if fence is not None:
+            lp = self._fresh_position(now)
+            if lp is None:   # cannot be fenced: brake rather than fly blind
+                sent = VelocityTarget(0.0, 0.0, 0.0, sp.yaw)
+                if sp.speed > 0.0:
+                    why = "vehicle position unknown (no LOCAL_POSITION_NED for 1 s): zero velocity sent"
+            else:   # where it is now, not where it was when PX4 said so
+                age = now - lp.received_at
+                here = (lp.x + lp.vx * age, lp.y + lp.vy * age, lp.z + lp.vz * age)
+                sent, why = fence.fence_velocity(sp, here, self.stopping)
+        with self._lock:
+            start = why is not None and not self._clamped
+            self._clamped = why is not None
+        if start:
+            events.append(("setpoint_clamped", {"setpoint": sp, "sent": sent, "reason": "geofence",
+                                                "message": f"velocity target {_fmt(sp)} m/s cut by the geofence: "
+                                                           f"{why}"}))
+        for name, details in events:
+            self._core.count("setpoints_expired" if name == "setpoint_expired" else "setpoints_clamped")
+            self._core.emit(name, details)
+        return sent
+
+    def _send(self, sp: Target, now: float) -> None:
         core = self._core
         if not core.can_send:
             return
+        sp = self.outgoing(sp, now)
         sysid, compid = core.vehicle_ids()
         boot_ms = int((time.monotonic() - self._t0) * 1000) & 0xFFFFFFFF
         core.send_message(core.encoder().set_position_target_local_ned_encode(
             boot_ms, sysid, compid, **mavlink_fields(sp)))
         core.count("setpoints_sent")
+
+
+def _fmt(sp: VelocityTarget) -> str:
+    return "(" + ", ".join(f"{v:.1f}" for v in (sp.vx, sp.vy, sp.vz)) + ")"

@@ -19,6 +19,8 @@ class LinkStats:
     heartbeats_sent: int = 0
     setpoints_sent: int = 0
     setpoints_rejected: int = 0
+    setpoints_clamped: int = 0     # velocity targets cut by the geofence (episodes)
+    setpoints_expired: int = 0     # velocity targets not refreshed in time: zero velocity sent
     commands_sent: int = 0
     command_retries: int = 0
     reconnects: int = 0

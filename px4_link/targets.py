@@ -8,7 +8,7 @@ the vehicle is doing), and a refused one raises ``TargetRefused`` and is never s
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 # MAV_FRAME_LOCAL_NED: the only frame this link streams in.
 MAV_FRAME_LOCAL_NED = 1
@@ -96,17 +96,60 @@ def mavlink_fields(sp: Target) -> dict[str, float | int]:
     return f
 
 
+# PX4's own geofence parameters are GF_MAX_HOR_DIST (horizontal distance from home) and
+# GF_MAX_VER_DIST (height above home); PX4 ships both off (0). The link bounds every target
+# by default: a companion that forgets to configure a fence still has one.
+DEFAULT_FENCE_RADIUS_M = 100.0
+DEFAULT_FENCE_CEILING_M = 120.0   # the usual legal ceiling for small drones (EU open category)
+DEFAULT_FENCE_FLOOR_M = 0.0       # never below home: the ground, unless a user lowers it
+
+
+@dataclass(frozen=True, slots=True)
+class StoppingModel:
+    """How far the vehicle travels before it stands still, from a speed: it keeps going for
+    ``reaction_s`` (the link's tick, the telemetry's age, the controller's lag), then brakes at
+    ``brake_mps2`` (PX4's MPC_ACC_HOR default is 3 m/s^2).
+
+    1 s of reaction: in the simulator's loop (velocity P gain 3, tilt lag 0.35 s) a 9.5 m/s
+    stream then stops within 0.02 m of the fence with telemetry up to 0.2 s old (0.2 m at
+    0.3 s); with 0.5 s it overshot by 1.0-1.8 m."""
+    brake_mps2: float = 3.0
+    reaction_s: float = 1.0
+
+    def distance(self, speed: float) -> float:
+        """Stopping distance from ``speed`` (m/s): v * reaction + v^2 / (2 a)."""
+        v = max(speed, 0.0)
+        return v * self.reaction_s + v * v / (2.0 * self.brake_mps2)
+
+    def speed_within(self, distance: float) -> float:
+        """The highest speed whose stopping distance is ``distance``: the inverse of ``distance``."""
+        if distance <= 0.0:
+            return 0.0
+        a, t = self.brake_mps2, self.reaction_s
+        return a * (math.sqrt(t * t + 2.0 * distance / a) - t)
+
+
 @dataclass(frozen=True, slots=True)
 class Geofence:
-    """Where position targets may go, relative to the local origin (PX4 home/EKF origin).
+    """Where the vehicle may be sent, relative to the local origin (PX4 home / EKF origin).
 
-    Any limit set to None is not checked. Altitude is -z (up positive).
+    - ``max_distance_m``: horizontal radius around the origin (PX4's GF_MAX_HOR_DIST).
+    - ``max_altitude_m``: the ceiling, height above the origin (PX4's GF_MAX_VER_DIST).
+    - ``min_altitude_m``: the floor, the lowest height above the origin a target may ask for
+      (0: never below home). It bounds targets, not the vehicle: a vehicle below it (taking off,
+      landing with PX4's own land mode) is never pushed anywhere; it may only climb or hold.
+    - ``x_range``/``y_range``: an optional box, north/east (m).
+
+    Any limit set to None is not checked. Altitude is -z (NED, up positive). Position targets
+    outside are refused (``violation``); velocity targets are bounded predictively
+    (``fence_velocity``): their speed towards a boundary never exceeds the speed from which the
+    vehicle can still stop before it, so a stream that points out stops the vehicle at the fence.
     """
-    max_distance_m: float | None = 100.0        # horizontal radius around the origin
-    max_altitude_m: float | None = 50.0
-    min_altitude_m: float | None = None         # e.g. -1.0 to forbid targets below ground
-    x_range: tuple[float, float] | None = None  # optional box, north (m)
-    y_range: tuple[float, float] | None = None  # optional box, east (m)
+    max_distance_m: float | None = DEFAULT_FENCE_RADIUS_M
+    max_altitude_m: float | None = DEFAULT_FENCE_CEILING_M
+    min_altitude_m: float | None = DEFAULT_FENCE_FLOOR_M
+    x_range: tuple[float, float] | None = None
+    y_range: tuple[float, float] | None = None
 
     def violation(self, x: float, y: float, z: float) -> str | None:
         """Why (x, y, z) is outside the fence, or None when inside."""
@@ -126,6 +169,61 @@ class Geofence:
             return f"y={y:.1f} m outside geofence box {self.y_range}"
         return None
 
+    def boundaries(self, position: Vec3, heading: Vec3) -> list[tuple[str, Vec3, float]]:
+        """Each limit as (name, outward unit vector at ``position``, distance left to it; negative
+        when already beyond). ``heading`` picks the radial direction at the origin itself."""
+        x, y, z = position
+        out: list[tuple[str, Vec3, float]] = []
+        if self.max_distance_m is not None:
+            r = math.hypot(x, y)
+            if r > 1e-6:
+                u: Vec3 = (x / r, y / r, 0.0)
+            else:   # at the origin every horizontal direction is radial: the one flown is outward
+                h = math.hypot(heading[0], heading[1])
+                u = (heading[0] / h, heading[1] / h, 0.0) if h > 1e-9 else (1.0, 0.0, 0.0)
+            out.append((f"radius {self.max_distance_m:g} m", u, self.max_distance_m - r))
+        if self.max_altitude_m is not None:
+            out.append((f"ceiling {self.max_altitude_m:g} m", (0.0, 0.0, -1.0), self.max_altitude_m + z))
+        if self.min_altitude_m is not None:
+            out.append((f"floor {self.min_altitude_m:g} m", (0.0, 0.0, 1.0), -z - self.min_altitude_m))
+        if self.x_range is not None:
+            out.append((f"box x <= {self.x_range[1]:g} m", (1.0, 0.0, 0.0), self.x_range[1] - x))
+            out.append((f"box x >= {self.x_range[0]:g} m", (-1.0, 0.0, 0.0), x - self.x_range[0]))
+        if self.y_range is not None:
+            out.append((f"box y <= {self.y_range[1]:g} m", (0.0, 1.0, 0.0), self.y_range[1] - y))
+            out.append((f"box y >= {self.y_range[0]:g} m", (0.0, -1.0, 0.0), y - self.y_range[0]))
+        return out
+
+    def fence_velocity(self, sp: VelocityTarget, position: Vec3,
+                       stopping: StoppingModel) -> tuple[VelocityTarget, str | None]:
+        """``sp`` bounded so the vehicle at ``position`` stops inside the fence, and why it was
+        cut (None when it passes as is).
+
+        For every boundary the component of ``sp`` towards it may be at most the speed from
+        which the vehicle stops in the distance left (``stopping.speed_within``); beyond a
+        boundary, none. Components pointing back inside, and along a boundary, pass: a
+        vehicle at the fence can still fly along it or come home.
+        """
+        if not all(math.isfinite(v) for v in position):
+            return replace(sp, vx=0.0, vy=0.0, vz=0.0), "vehicle position not finite: velocity not fenced, zero sent"
+        v = [sp.vx, sp.vy, sp.vz]
+        why: dict[str, str] = {}
+        limits = self.boundaries(position, (sp.vx, sp.vy, sp.vz))
+        # Two passes: a cut towards one boundary can add speed towards a neighbouring one that
+        # is not orthogonal (the radius and a box side).
+        for _ in range(2):
+            for name, u, left in limits:
+                towards = v[0] * u[0] + v[1] * u[1] + v[2] * u[2]
+                allowed = stopping.speed_within(left)
+                if towards > allowed + 1e-9:
+                    cut = towards - allowed
+                    v = [v[i] - cut * u[i] for i in range(3)]
+                    why.setdefault(name, f"{towards:.1f} m/s towards the {name} ({max(left, 0.0):.1f} m left) "
+                                         f"cut to {allowed:.1f} m/s")
+        if not why:
+            return sp, None
+        return replace(sp, vx=v[0], vy=v[1], vz=v[2]), "; ".join(why.values())
+
 
 @dataclass(frozen=True, slots=True)
 class VehicleMotion:
@@ -139,7 +237,9 @@ class TargetValidator:
 
     Two rules for position targets, one per caller:
 
-    - ``check`` (px4_link's stream): the geofence, and a step rule. A position target may
+    - ``check`` (px4_link's stream): the geofence, and a step rule. A velocity target needs the
+      vehicle's position when there is a fence (it is fenced on every send, ``fence_velocity``).
+      A position target may
       lie at most ``max_speed * dt`` from the reference, where dt is the time since the
       previous accepted position target clamped to [min_dt, 1 s]. The reference is that
       previous target when it is younger than 1 s, otherwise the vehicle's latest position
@@ -180,6 +280,12 @@ class TargetValidator:
         """Raise TargetRefused if px4_link must not stream ``sp``; records nothing."""
         self._check_values(sp, self.max_speed)
         if isinstance(sp, VelocityTarget):
+            # Fenced on every send, from where the vehicle is then (Geofence.fence_velocity): a
+            # velocity is a motion, not a place, so it cannot be judged once here.
+            if self.geofence is not None and (vehicle_position is None
+                                              or not all(math.isfinite(v) for v in vehicle_position)):
+                raise TargetRefused("no_position", f"velocity target {sp} refused: the geofence needs the "
+                                                   "vehicle's position (LOCAL_POSITION_NED, under 1 s old)")
             return
         if self.geofence is not None:
             why = self.geofence.violation(sp.x, sp.y, sp.z)

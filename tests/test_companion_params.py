@@ -16,10 +16,11 @@ import pytest
 from conftest import ROOT, free_port, python_proc, wait_for
 
 from companion.params import SPECS, qos_param_names
-from drone_contract.messages import FailsafeEvent, VehicleState
+from drone_contract.messages import CONTROL_TOKEN_PREFIX, Command, CommandResult, FailsafeEvent, VehicleState
 from drone_contract.streams import stream_profile
 from zenoh_robot import Node, SessionConfig
 
+OPERATOR = "tester"   # the client id the test's sets carry; it takes control first (safety limits: holder only)
 CLI = [sys.executable, "-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())"]
 
 
@@ -49,7 +50,8 @@ class Drone:
 
     def param(self, *args: str) -> subprocess.CompletedProcess[str]:
         op, *rest = args
-        return cli("param", "--zenoh", str(self.client_zenoh), "--timeout", "10", op, self.node, *rest)
+        return cli("param", "--zenoh", str(self.client_zenoh), "--timeout", "10", "--client-id", OPERATOR,
+                   op, self.node, *rest)
 
 
 @pytest.fixture(scope="module")
@@ -93,6 +95,12 @@ def test_live_changes_apply_and_bad_values_are_refused(drone: tuple[Drone, subpr
         threading.Thread(target=node.spin, daemon=True).start()
         assert wait_for(lambda: bool(states), 20.0), "no VehicleState from the companion"
         assert states[-1].sensor_rate_requested_hz == 200.0
+        # As a GCS does: its liveliness token keeps control while the (slow) CLI calls run.
+        token = node.declare_liveliness_token(f"{CONTROL_TOKEN_PREFIX}/{OPERATOR}")   # kept: dropped, it goes
+        assert token is not None
+        commands = node.create_client(f"/{d.id}/command", Command, CommandResult)
+        res = commands.call(Command("take_control", 0.0, "", False, OPERATOR), timeout=10.0)
+        assert res.success, res.message
 
         for name, value, why in (("max_offset_m", "500", "outside 0.5..100 m"),
                                  ("max_speed", ".nan", "outside"),
@@ -110,14 +118,15 @@ def test_live_changes_apply_and_bad_values_are_refused(drone: tuple[Drone, subpr
         r = d.param("set", "sensor_rate_hz", "100")
         assert r.returncode == 0, r.stderr
         # Applied, not only stored: the companion reports it and asks PX4 for the new rate.
-        assert wait_for(lambda: any(e.kind == "param_changed" and "max_offset_m: 7.0 -> 4.0" in e.detail
+        assert wait_for(lambda: any(e.kind == "param_changed" and "max_offset_m 7.0 -> 4.0" in e.detail
+                                    and e.client_id == OPERATOR
                                     for e in events), 10.0), [e.detail for e in events]
         assert wait_for(lambda: states[-1].sensor_rate_requested_hz == 100.0, 10.0)
 
     proc.send_signal(2)
     out, _ = proc.communicate(timeout=20)
     assert proc.returncode == 0 and "Traceback" not in out, out
-    assert "param_changed: sensor_rate_hz: 200.0 -> 100.0" in out
+    assert f"param_changed [{OPERATOR}]: sensor_rate_hz 200.0 -> 100.0" in out
     assert "no setpoints received" in out and "lost nan" not in out
     summary = _strict_json(d.record.read_text())
     assert isinstance(summary, dict)

@@ -38,11 +38,46 @@ def test_holder_released_when_its_token_goes_and_it_falls_silent() -> None:
     assert c.expire(t0 + 10.0) is None            # token alive: kept however long it is silent
     c.token("gcs1", False)
     assert c.expire(t0 + 0.5) is None             # within the lease
-    assert c.expire(t0 + 1.5) == "gcs1" and c.holder == ""
+    gone = c.expire(t0 + 1.5)
+    assert gone is not None and gone.released and gone.holder == "gcs1" and c.holder == ""
     c.admit("script", "arm", claim=True)          # no token at all: lives by the lease
     c.seen("script")
     assert c.expire(c._holder_seen + 0.5) is None
-    assert c.expire(c._holder_seen + 1.5) == "script"
+    gone = c.expire(c._holder_seen + 1.5)
+    assert gone is not None and gone.released and gone.holder == "script"
+
+
+def test_lease_expiry_in_the_air_keeps_the_holder_and_says_so_once() -> None:
+    c = ControlArbiter(lease_s=1.0)
+    c.admit("gcs1", "offboard_start", claim=True)
+    t0 = c._holder_seen
+    kept = c.expire(t0 + 1.5, may_release=False)
+    assert kept is not None and not kept.released and kept.holder == "gcs1" and c.holder == "gcs1"
+    assert c.expire(t0 + 5.0, may_release=False) is None      # told once per silence
+    c.seen("gcs1")                                             # back: a new silence is told again
+    assert c.expire(c._holder_seen + 1.5, may_release=False) is not None
+    gone = c.expire(t0 + 60.0, may_release=True)               # landed: now it is released
+    assert gone is not None and gone.released and c.holder == ""
+
+
+def test_hand_over_only_to_the_named_client_within_its_time() -> None:
+    c = ControlArbiter()
+    c.hand_over_s = 1.0
+    c.admit("a", "take_control", claim=True)
+    assert not c.offer_to("b", "c")[0]                         # only the holder offers
+    assert not c.offer_to("a", "a")[0] and not c.offer_to("a", "x y")[0]
+    assert c.offer_to("a", "b")[0] and c.holder == "a"          # a keeps control until b confirms
+    assert c.accept("c") == "" and c.holder == "a"
+    assert c.accept("b") == "a" and c.holder == "b" and c.offer is None
+    assert c.counters.hand_overs == 1
+    assert c.offer_to("b", "a")[0]
+    o = c.offer
+    assert o is not None and c.expire_offer(o.until - 0.1) is None
+    assert c.expire_offer(o.until + 0.1) == o and c.offer is None
+    assert c.accept("a", o.until + 0.2) == "" and c.holder == "b"
+    c.offer_to("b", "a")
+    c.admit("z", "take_control", claim=True, force=True)       # a forced takeover ends the offer
+    assert c.offer is None and c.accept("a") == ""
 
 
 def test_release_only_by_the_holder() -> None:

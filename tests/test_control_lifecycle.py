@@ -20,7 +20,7 @@ from gcs.app import Gcs, GcsConfig
 from gcs.mission import run_mission
 from px4_link import Px4Link
 from px4_link.sim import Simulator
-from zenoh_robot import MultiThreadedExecutor, Node
+from zenoh_robot import MultiThreadedExecutor, Node, SessionConfig
 from zenoh_robot.msgs import Header
 
 FAST = {"MPC_TKO_SPEED": 3.0, "MPC_LAND_SPEED": 2.0}
@@ -74,6 +74,7 @@ class Rig:
     op: Client
     other: Client
     ground: Node
+    connect: SessionConfig    # for another GCS's own session
 
 
 @contextmanager
@@ -91,7 +92,7 @@ def rig(ns: str, **config: object) -> Iterator[Rig]:
         try:
             assert wait_for(lambda: op.state is not None and op.state.connected
                             and all(v == v for v in op.state.position), 15), "no state from the companion"
-            yield Rig(sim, link, comp, op, other, ground)
+            yield Rig(sim, link, comp, op, other, ground, connect)
         finally:
             op.close()
             other.close()

@@ -15,6 +15,7 @@ from conftest import linked_nodes, wait_for
 from pymavlink.dialects.v20 import common as mavlink2
 
 from companion.mavlink_tunnel import MavlinkPolicy, MavlinkTunnel, UdpTee, free_udp_port
+from drone_contract.tunnel import TUNNEL_QOS, TUNNEL_UP, MavlinkPacket
 from gcs.mavlink_out import MavlinkOut, parse_udpout
 from px4_link.sim import Simulator
 
@@ -116,3 +117,133 @@ def test_tunnel_delivers_heartbeats_to_qgc_and_refuses_arming(ns):
             tunnel.close()
             qgc.close()
             link.close()
+
+
+class FakePx4:
+    """A UDP socket where PX4 would be: says hello to the tee (so the tee knows where PX4 is) and
+    collects every datagram the tee sends it."""
+
+    def __init__(self, tee: UdpTee) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.2)
+        mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+        self.sock.sendto(mav.heartbeat_encode(2, 12, 0, 0, 3).pack(mav), ("127.0.0.1", tee.port))
+        assert wait_for(lambda: tee.px4_addr == self.sock.getsockname(), 5.0)
+        self.got: list[bytes] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                self.got.append(self.sock.recvfrom(65535)[0])
+            except (TimeoutError, OSError):
+                continue
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join()
+        self.sock.close()
+
+
+def _frames() -> dict[str, bytes]:
+    mav = mavlink2.MAVLink(None, srcSystem=255, srcComponent=190)
+    mav.seq = 41
+    read = mav.param_request_read_encode(1, 1, b"MPC_XY_VEL_MAX", -1).pack(mav)
+    info = mav.command_long_encode(1, 1, mavlink2.MAV_CMD_REQUEST_MESSAGE, 0, 148, 0, 0, 0, 0, 0, 0).pack(mav)
+    arm = mav.command_long_encode(1, 1, mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0).pack(mav)
+    arm2 = mav.command_long_encode(1, 1, mavlink2.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0).pack(mav)
+    bad_crc = bytearray(arm2)
+    bad_crc[-1] ^= 0xFF
+    return {"read": read, "info": info, "arm": arm, "arm_bad_crc": bytes(bad_crc)}
+
+
+def test_policy_judges_frame_by_frame_and_counts_what_is_no_frame():
+    f = _frames()
+    policy = MavlinkPolicy()
+    j = policy.judge(b"\x00garbage\xff" + f["read"] + f["arm_bad_crc"] + f["info"] + f["arm"][:9])
+    assert [m.get_type() for m in j.accepted] == ["PARAM_REQUEST_READ", "COMMAND_LONG"]
+    assert j.refused == []
+    assert j.bad_data == 2 and j.partial          # the garbage, the frame failing its CRC; the cut frame
+    assert j.dropped_bytes == len(b"\x00garbage\xff") + len(f["arm_bad_crc"]) + 9
+    # Re-encoded from the decoded fields, each frame is the very frame QGC sent (seq, ids, CRC).
+    assert [policy.encode(m) for m in j.accepted] == [f["read"], f["info"]]
+    # A MAVLink 1 frame stays MAVLink 1.
+    mav1 = mavlink2.MAVLink(None, srcSystem=255, srcComponent=190)
+    v1 = mav1.heartbeat_encode(6, 8, 0, 0, 0).pack(mav1, force_mavlink1=True)
+    assert policy.encode(policy.judge(v1).accepted[0]) == v1
+    # The parser keeps nothing between datagrams: a frame cut across two is two partial drops.
+    first, second = policy.judge(f["read"][:8]), policy.judge(f["read"][8:])
+    assert first.accepted == second.accepted == [] and first.partial
+
+
+def test_tunnel_forwards_only_the_frames_it_accepted(ns):
+    """Garbage, a frame failing its CRC, a truncated frame and a forbidden command around allowed
+    frames: only the allowed frames' bytes reach PX4, and the counters say what was dropped."""
+    f = _frames()
+    link = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)   # stands in for the companion's Px4Link
+    link.bind(("127.0.0.1", 0))
+    tee = UdpTee(("127.0.0.1", free_udp_port()), link.getsockname()[1], lambda d: None).start()
+    px4 = FakePx4(tee)
+    with linked_nodes(ns) as (gcs_node, companion_node):
+        tunnel = MavlinkTunnel(companion_node, tee)
+        up = gcs_node.create_publisher(MavlinkPacket, TUNNEL_UP, TUNNEL_QOS)
+        spinner = threading.Thread(target=companion_node.spin, kwargs={"timeout": 20}, daemon=True)
+        spinner.start()
+        try:
+            assert wait_for(lambda: up.get_subscription_count() > 0, 5.0)
+            time.sleep(0.5)
+            garbage = b"\x00\x01not mavlink\xfe"   # ends in a v1 marker: the parser waits for more
+            up.publish(MavlinkPacket(b"\x55garbage" + f["read"] + f["arm_bad_crc"] + f["read"][:12]))
+            assert wait_for(lambda: len(px4.got) >= 1, 5.0), tunnel.counters
+            assert px4.got == [f["read"]]
+            c = tunnel.counters
+            assert (c.up_forwarded, c.up_frames_forwarded, c.up_bad_data, c.up_partial) == (1, 1, 2, 1), c
+            assert c.up_dropped_bytes == len(b"\x55garbage") + len(f["arm_bad_crc"]) + 12, c
+            # An allowed frame followed by a forbidden command in one datagram: only the allowed one.
+            up.publish(MavlinkPacket(f["info"] + f["arm"]))
+            assert wait_for(lambda: len(px4.got) >= 2, 5.0), tunnel.counters
+            assert px4.got[1] == f["info"]
+            assert c.refused_by_message["COMMAND_LONG"] == 1 and c.up_refused == 1
+            # Bytes that are no frame at all go nowhere.
+            up.publish(MavlinkPacket(garbage))
+            assert wait_for(lambda: c.up_malformed == 1, 5.0), c
+            time.sleep(0.5)
+            assert len(px4.got) == 2, px4.got
+            assert not any(b"garbage" in d or b"mavlink" in d for d in px4.got)
+        finally:
+            companion_node.shutdown()
+            spinner.join(timeout=5)
+            tunnel.close()
+            px4.close()
+            link.close()
+
+
+def test_tee_relays_to_px4_only_from_the_link_and_only_px4_to_the_link():
+    link = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    link.bind(("127.0.0.1", 0))
+    link.settimeout(0.5)
+    tee = UdpTee(("127.0.0.1", free_udp_port()), link.getsockname()[1], lambda d: None).start()
+    px4 = FakePx4(tee)
+    stranger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    stranger.bind(("127.0.0.1", 0))
+    try:
+        assert link.recvfrom(65535)[0]                      # PX4's hello reached the link
+        link_side = ("127.0.0.1", tee._link_side.getsockname()[1])
+        link.sendto(b"from the link", link_side)
+        assert wait_for(lambda: b"from the link" in px4.got, 5.0)
+        stranger.sendto(b"from a stranger", link_side)      # a local process on the link side
+        stranger.sendto(b"posing as px4", ("127.0.0.1", tee.port))
+        assert wait_for(lambda: tee.foreign == 2, 5.0), tee.foreign
+        time.sleep(0.3)
+        assert b"from a stranger" not in px4.got
+        assert tee.px4_addr == px4.sock.getsockname()
+        with pytest.raises(TimeoutError):
+            link.recvfrom(65535)                             # the impostor's datagram never reached the link
+    finally:
+        tee.close()
+        px4.close()
+        stranger.close()
+        link.close()

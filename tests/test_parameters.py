@@ -1,6 +1,8 @@
 """Node parameters: declare/get/set with types, refusing callbacks, overrides, -p parsing, remote CLI."""
 from __future__ import annotations
 
+import threading
+
 import pytest
 from conftest import python_proc, wait_ready
 
@@ -10,9 +12,12 @@ from zenoh_robot.parameters import (
     InvalidParameterValueError,
     Parameter,
     ParameterAlreadyDeclaredError,
+    ParameterClient,
     ParameterNotDeclaredError,
     ParameterType,
     SetParametersResult,
+    current_caller,
+    default_client_id,
     format_param_value,
     parse_param_args,
     qos_from_parameters,
@@ -165,3 +170,50 @@ def test_remote_param_cli(ns):
     finally:
         node.terminate()
         node.wait(timeout=10)
+
+
+def test_a_write_guard_judges_each_remote_request_by_its_caller(ns):
+    """Node.set_parameter_write_guard over real sessions: the caller's client_id reaches the guard
+    and the on-set callbacks; a refusal covers the whole request; local sets and guardless nodes
+    keep rclpy's behaviour; a guard that breaks refuses."""
+    with Node("keeper", namespace=ns) as server, Node("asker", namespace=ns) as asker:
+        server.declare_parameter("limit", 1.0)
+        server.declare_parameter("free", 1)
+        asked: list[tuple[list[str], str]] = []
+        callers: list[str] = []
+
+        def guard(names: list[str], caller: str) -> str:
+            asked.append((names, caller))
+            return "" if caller == "boss" or names == ["free"] else f"limit: only boss, not {caller}"
+
+        server.add_on_set_parameters_callback(lambda ps: callers.append(current_caller()) or SetParametersResult(True))
+        stop = threading.Event()
+        spinner = threading.Thread(target=lambda: [server.spin_once(0.05) for _ in iter(stop.is_set, True)])
+        spinner.start()
+        try:
+            boss = ParameterClient(asker, f"/{ns}/keeper", timeout=3.0, client_id="boss")
+            other = ParameterClient(asker, f"/{ns}/keeper", timeout=3.0, client_id="other")
+            assert boss.wait_for_node(5.0)
+            assert other.set([Parameter("limit", 2.0)])[0].successful   # no guard: rclpy's behaviour
+            assert callers == ["other"]
+            server.set_parameter_write_guard(guard)
+            results = other.set([Parameter("free", 2), Parameter("limit", 3.0)])
+            assert [r.successful for r in results] == [False, False]
+            assert all(r.reason == "limit: only boss, not other" for r in results)
+            assert asked[-1] == (["free", "limit"], "other")
+            assert server.get_parameter_value("limit") == 2.0 and server.get_parameter_value("free") == 1
+            assert other.set([Parameter("free", 5)])[0].successful
+            assert boss.set([Parameter("limit", 4.0)])[0].successful and server.get_parameter_value("limit") == 4.0
+            assert callers[-2:] == ["other", "boss"]
+            assert server.set_parameters([Parameter("limit", 0.5)])[0].successful   # local: no guard, no caller
+            assert callers[-1] == "" and current_caller() == ""
+            server.set_parameter_write_guard(lambda names, caller: 1 / 0)
+            (r,) = boss.set([Parameter("limit", 9.0)])
+            assert not r.successful and "write guard raised ZeroDivisionError" in r.reason
+            assert server.get_parameter_value("limit") == 0.5
+        finally:
+            stop.set()
+            spinner.join(5)
+    # Without client_id the client sends the id a GCS uses by default (user@host).
+    assert ParameterClient.__init__.__defaults__ == (3.0, None)
+    assert "@" in default_client_id() and len(default_client_id()) <= 64

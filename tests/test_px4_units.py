@@ -216,3 +216,49 @@ def test_rate_below_10hz_refused() -> None:
     from px4_link import Px4Link
     with pytest.raises(ValueError):
         Px4Link("udpin:127.0.0.1:0", setpoint_rate_hz=5)
+
+
+class _FakeCore:
+    """Just what ``Offboard.outgoing`` touches: the latest position, counters and events."""
+
+    def __init__(self, position: tuple[float, float, float]) -> None:
+        from px4_link.telemetry import LocalPosition
+        self.lp = LocalPosition(0, *position, 0.0, 0.0, 0.0)
+        self.counts: dict[str, int] = {}
+        self.events: list[str] = []
+
+    def latest(self, kind):
+        return self.lp
+
+    def count(self, key: str, n: int = 1) -> None:
+        self.counts[key] = self.counts.get(key, 0) + n
+
+    def emit(self, name: str, details: dict) -> None:
+        self.events.append(name)
+
+    def add_periodic(self, hook) -> None: ...
+    def add_mode_hook(self, hook) -> None: ...
+
+
+def test_offboard_fences_each_send_and_expires_velocity_once_per_episode() -> None:
+    import time as _time
+
+    from px4_link.offboard import Offboard
+    core = _FakeCore((100.0, 0.0, -5.0))   # at the fence
+    ob = Offboard(core, Geofence(max_distance_m=100), max_speed=10, velocity_timeout_s=1.0)  # type: ignore[arg-type]
+    now = _time.monotonic()
+    core.lp = type(core.lp)(0, 100.0, 0.0, -5.0, 0.0, 0.0, 0.0, received_at=now)
+    out = VelocityTarget(4, 0, 0)
+    ob.setpoint, ob._set_at = out, now
+    for k in range(5):                                   # five sends, one episode
+        assert ob.outgoing(out, now + 0.05 * k) == VelocityTarget(0, 0, 0)
+    assert core.events == ["setpoint_clamped"] and core.counts == {"setpoints_clamped": 1}
+    assert ob.outgoing(VelocityTarget(-4, 0, 0), now) == VelocityTarget(-4, 0, 0)   # back in: episode over
+    ob.outgoing(out, now)
+    assert core.counts["setpoints_clamped"] == 2
+    back = VelocityTarget(-2, 1, 0)
+    ob.setpoint, ob._set_at = back, now
+    assert ob.outgoing(back, now + 1.5) == VelocityTarget(0, 0, 0)   # not refreshed: zero
+    assert ob.outgoing(back, now + 1.6) == VelocityTarget(0, 0, 0)
+    assert core.counts["setpoints_expired"] == 1
+    assert ob.outgoing(PositionTarget(1, 2, -3), now + 9) == PositionTarget(1, 2, -3)   # a place never expires

@@ -144,6 +144,8 @@ def test_gcs_asks_each_drone_for_its_downlink_and_again_after_a_restart(ns: str,
     with swarm(ns, tmp_path, 2, "test", procs=procs, pattern="hover", sensor_rate_hz=50.0, camera_rate_hz=10.0) as g:
         dl = g.downlink
         assert dl is not None
+        # The downlink is every GCS's: only the GCS in control sets it (gcs/downlink.py).
+        assert all(r.success for r in g.take_control().values())
         assert wait_for(lambda: all(dl.status.get(d, None) is not None and dl.status[d].status == "applied"
                                     for d in g.drones), 15), {d: s.as_dict() for d, s in dl.status.items()}
         assert wait_for(lambda: all(d.state is not None and d.state.sensor_rate_requested_hz == 50.0
@@ -157,6 +159,8 @@ def test_gcs_asks_each_drone_for_its_downlink_and_again_after_a_restart(ns: str,
         procs[0].terminate()
         procs[0].wait(timeout=10)
         procs[0] = companion(tmp_path / "client.json5", first.id, 1, "test")
+        assert wait_for(lambda: first.state is not None and first.state.sensor_rate_requested_hz == 200.0, 30)
+        assert first.command("take_control", force=True).success   # a restarted companion has no holder
         assert wait_for(lambda: dl.status[first.id].asked == 2 and dl.status[first.id].status == "applied", 30), \
             dl.status[first.id].as_dict()
         assert wait_for(lambda: first.state is not None and first.state.sensor_rate_requested_hz == 50.0, 5)
@@ -169,6 +173,7 @@ def test_a_refused_downlink_is_reported_once_and_named(ns: str, tmp_path: Path) 
     drone's failures, naming it; the sensor rate asked with it is set on its own and applied."""
     with swarm(ns, tmp_path, 1, "none", pattern="hover", sensor_rate_hz=50.0, camera_rate_hz=500.0) as g:
         dl = g.downlink
+        assert all(r.success for r in g.take_control().values())   # only the GCS in control sets the downlink
         d = next(iter(g.drones.values()))
         assert dl is not None
         assert wait_for(lambda: d.id in dl.status and dl.status[d.id].status == "refused", 15), dl.status

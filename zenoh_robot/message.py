@@ -275,7 +275,7 @@ def message(cls: type | None = None, *, name: str | None = None) -> Any:
     return wrap(cls) if cls is not None else wrap
 
 
-_REGISTRY: dict[str, type] = {}
+_REGISTRY: dict[str, type[Message]] = {}
 
 
 def register(cls: type["Message"]) -> None:
@@ -284,7 +284,7 @@ def register(cls: type["Message"]) -> None:
     _REGISTRY.setdefault(cls.__name__, cls)
 
 
-def lookup(type_name: str) -> type:
+def lookup(type_name: str) -> type[Message]:
     """Find a message type by full (``zenoh_robot/Setpoint``) or short (``Setpoint``) name."""
     try:
         return _REGISTRY[type_name]

@@ -32,12 +32,14 @@ from .parameters import (
     ParameterType,
     SetCallback,
     SetParametersResult,
+    WriteGuard,
 )
 from .publisher import Publisher
 from .qos import SYSTEM_DEFAULT, QoSProfile
 from .qos_monitor import QoSMonitor
 from .services import Client, Service, Services
 from .services.retry import _DEFAULT as _DEFAULT_RETRY
+from .services.service import Handler
 from .session_config import SessionConfig, open_session
 from .subscription import RawMessage, Subscription
 from .wire import ENVELOPE, WireFormat
@@ -291,7 +293,9 @@ class Node:
         return self._services.resolve_service_name(name)
 
     def create_service(self, name: str, request_type: type[Req], response_type: type[Resp],
-                       handler: Callable[[Req], Resp]) -> Service[Req, Resp]:
+                       handler: Handler[Req, Resp]) -> Service[Req, Resp]:
+        """``handler(request)`` returns the response, or a ``concurrent.futures.Future`` of it to answer
+        later without holding the executor (services/service.py)."""
         return self._services.create_service(name, request_type, response_type, handler)
 
     def create_client(self, name: str, request_type: type[Req], response_type: type[Resp],
@@ -348,6 +352,11 @@ class Node:
     def set_parameters(self, parameters: Iterable[Parameter]) -> list[SetParametersResult]:
         """Set each parameter on its own; one result per parameter, in order."""
         return self._parameters.set_parameters(parameters)
+
+    def set_parameter_write_guard(self, guard: WriteGuard | None) -> None:
+        """``guard(names, caller_client_id) -> ""`` or why not: judges every remote set request
+        (the whole request) before any check or on-set callback; None removes it. Local sets pass."""
+        self._parameter_service.set_write_guard(guard)
 
     def set_parameters_atomically(self, parameters: Iterable[Parameter]) -> SetParametersResult:
         """All or nothing: one result for the lot."""

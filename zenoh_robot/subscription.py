@@ -103,6 +103,7 @@ class SubscriptionCounters:
     hook_errors: int = 0       # a sample hook (e.g. topic statistics) raised; the sample was still delivered
     internal_errors: int = 0   # anything else that failed on one sample; the subscription kept draining
     busy_ns: int = 0           # executor time draining, counted only with topic statistics (busy_pct)
+    forgotten: int = 0         # publisher ids dropped from a full per-publisher table (sequence, mismatch log)
     # Highest seq per publisher id, for `lost`; bounded (least recently seen id forgotten first).
     per_publisher_seq: dict[int, int] = field(default_factory=OrderedDict)
 
@@ -318,7 +319,7 @@ class Subscription(Generic[M]):
             # A redundant or repeating publisher, whatever this subscription's own QoS: from now
             # on, deliver each of its samples once.
             dedup = self.dedup = Deduplicator()
-        for fresh_seq, stamp, fresh_body in dedup.fresh(pub_id, seq, stamp_ns, body, extra):
+        for fresh_seq, stamp, fresh_body in dedup.fresh(pub_id, seq, stamp_ns, body, extra, received_ns):
             self._deliver_sample(type_name, pub_id, fresh_seq, stamp, fresh_body, received_ns)
 
     def _type_mismatch(self, type_name: str, type_hash: str, pub_id: int) -> None:
@@ -327,6 +328,7 @@ class Subscription(Generic[M]):
             self._mismatch_reported[pub_id] = None
             if len(self._mismatch_reported) > MAX_TRACKED_PUBLISHERS:
                 self._mismatch_reported.popitem(last=False)
+                self.counters.forgotten += 1
             self._rlog.error("type_mismatch", "type mismatch on %r: publisher %x sends %s (hash %s), this "
                              "subscription expects %s (hash %s); its samples are dropped", self.topic,
                              pub_id, type_name[:100], type_hash[:64], self.type_name, self._hash)
@@ -415,6 +417,7 @@ class Subscription(Generic[M]):
         if last is None:
             if len(table) >= MAX_TRACKED_PUBLISHERS:
                 jumps.pop(table.popitem(last=False)[0], None)   # type: ignore[call-arg]
+                self.counters.forgotten += 1
             table[pub_id] = seq
             return 0
         pend = jumps.pop(pub_id, None)

@@ -32,8 +32,18 @@ session), so the defence is in the protocol state instead:
   real sample start a new epoch, which delivers it: the worst case is a repeated copy
   delivered twice, never a silenced stream.
 * Every table is bounded: :data:`MAX_PUBLISHERS` publisher ids (least recently seen
-  forgotten), EPOCHS epochs each, a WINDOW-bit set per epoch, and a carried history is
-  used only if it holds at most :data:`MAX_HISTORY` entries (what a publisher can send).
+  forgotten, counted in ``forgotten``), EPOCHS epochs each, a WINDOW-bit set per epoch, and a
+  carried history is used only if it holds at most :data:`MAX_HISTORY` entries (what a
+  publisher can send).
+* A flood of spoofed publisher ids cannot push out a publisher that is delivering. An id
+  whose current epoch has delivered at least :data:`ESTABLISHED` of its last WINDOW seqs and
+  was heard within :data:`ACTIVE_NS` is spared when it reaches the head of the full table: it
+  goes back to the end (``spared``) and the next id is forgotten instead, at most
+  :data:`MAX_SPARED` of them per new id (so spoofed ids that establish themselves cost a
+  bounded amount of work, never an unbounded scan). Forgetting the real publisher was not
+  harmless: its next sample opened a fresh entry, and the repeated copies and carried history
+  of samples already delivered then came through again, late and out of order (a stale
+  setpoint after a newer one).
 """
 from __future__ import annotations
 
@@ -47,6 +57,9 @@ MAX_HISTORY = 64    # the protocol's cap on both (QoSProfile.redundancy / repeat
 WINDOW = 1024       # seqs below an epoch's top whose delivery is remembered
 AHEAD = 1024        # a seq at most this far above an epoch's top continues that epoch
 EPOCHS = 4          # epochs remembered per publisher id
+ESTABLISHED = 16    # seqs delivered in an epoch's window that make its publisher worth keeping
+ACTIVE_NS = 2_000_000_000   # ... while heard within this time (receive stamps, ns)
+MAX_SPARED = 64     # established publishers moved back per eviction, at most
 _MASK = (1 << WINDOW) - 1
 
 
@@ -77,11 +90,12 @@ def check_extra(extra: dict[str, Any]) -> str | None:
 
 
 class _Epoch:
-    __slots__ = ("top", "seen")
+    __slots__ = ("top", "seen", "heard_ns")
 
-    def __init__(self, seq: int) -> None:
+    def __init__(self, seq: int, now_ns: int) -> None:
         self.top = seq
         self.seen = 1          # bit i: seq top - i was delivered
+        self.heard_ns = now_ns  # receive stamp of the last sample this epoch took
 
     def covers(self, seq: int) -> bool:
         return self.top - WINDOW < seq <= self.top + AHEAD
@@ -90,10 +104,12 @@ class _Epoch:
 class Deduplicator:
     """Subscriber side, one per subscription: what each publisher has had delivered.
 
-    ``fresh(pub_id, seq, stamp, body, extra)`` returns the samples to deliver, oldest
+    ``fresh(pub_id, seq, stamp, body, extra, now_ns)`` returns the samples to deliver, oldest
     first: recovered ones from the carried history, then this one; duplicates (repeats
-    of a packet, or history already delivered) yield nothing. See the module doc for
-    why a forged sequence number cannot silence the real publisher.
+    of a packet, or history already delivered) yield nothing. ``now_ns`` is the sample's
+    receive stamp (0: the caller keeps no time, and every established publisher counts as
+    active). See the module doc for why a forged sequence number cannot silence the real
+    publisher, and why a flood of spoofed ids cannot push it out.
     """
 
     MAX_PUBLISHERS = 1024   # bounded: forget the least recently seen publisher beyond this
@@ -105,17 +121,19 @@ class Deduplicator:
         self.late = 0               # delivered after a higher seq of the same epoch
         self.epochs_started = 0     # a publisher id seen again with a seq no epoch covers
         self.history_rejected = 0   # carried histories over MAX_HISTORY entries, ignored
+        self.forgotten = 0          # publisher ids dropped from the full table
+        self.spared = 0             # established, active publishers moved back instead of forgotten
 
     def __len__(self) -> int:
         return len(self._pubs)
 
     def fresh(self, pub_id: int, seq: int, stamp_ns: int, body: Any,
-              extra: dict[str, Any]) -> list[tuple[int, int, Any]]:
+              extra: dict[str, Any], now_ns: int = 0) -> list[tuple[int, int, Any]]:
         epochs = self._pubs.get(pub_id)
         if epochs is None:
             if len(self._pubs) >= self.MAX_PUBLISHERS:
-                self._pubs.popitem(last=False)
-            self._pubs[pub_id] = [_Epoch(seq)]
+                self._forget_one(now_ns)
+            self._pubs[pub_id] = [_Epoch(seq, now_ns)]
             return [(seq, stamp_ns, body)]
         self._pubs.move_to_end(pub_id)
         for i, ep in enumerate(epochs):
@@ -125,9 +143,10 @@ class Deduplicator:
                 break
         else:
             self.epochs_started += 1
-            epochs.insert(0, _Epoch(seq))
+            epochs.insert(0, _Epoch(seq, now_ns))
             del epochs[EPOCHS:]
             return [(seq, stamp_ns, body)]
+        ep.heard_ns = now_ns
         if seq <= ep.top:
             bit = 1 << (ep.top - seq)
             if ep.seen & bit:
@@ -143,6 +162,21 @@ class Deduplicator:
             ep.seen |= 1 << (seq - s)
         out.append((seq, stamp_ns, body))
         return out
+
+    def _forget_one(self, now_ns: int) -> None:
+        # The table is full: forget the least recently seen id, sparing established publishers
+        # that are still delivering (module doc: a flood of spoofed ids must not push them out).
+        pubs = self._pubs
+        for _ in range(MAX_SPARED):
+            old_id, epochs = pubs.popitem(last=False)
+            ep = epochs[0]
+            if now_ns - ep.heard_ns > ACTIVE_NS or ep.seen.bit_count() < ESTABLISHED:
+                self.forgotten += 1
+                return
+            pubs[old_id] = epochs       # back to the end: the next one goes instead
+            self.spared += 1
+        pubs.popitem(last=False)        # MAX_SPARED established ids in a row: the oldest goes
+        self.forgotten += 1
 
     def _recovered(self, top: int, seq: int, extra: dict[str, Any]) -> list[tuple[int, int, Any]]:
         history = extra.get(HISTORY_KEY)

@@ -5,7 +5,7 @@ services and their wire types (service), another node's parameters (client), ``-
 from __future__ import annotations
 
 from .args import add_param_argument, format_param_value, params_from_args, parse_param_args, parse_param_value
-from .client import ParameterClient
+from .client import ParameterClient, default_client_id
 from .service import (
                       PARAMETER_SERVICES,
                       DescribeParametersRequest,
@@ -21,6 +21,8 @@ from .service import (
                       SetParametersRequest,
                       SetParametersResponse,
                       SetParametersResultMsg,
+                      WriteGuard,
+                      current_caller,
 )
 from .store import ParameterStore, SetCallback, qos_from_parameters
 from .types import (
@@ -45,7 +47,7 @@ __all__ = [
     "ParameterService", "PARAMETER_SERVICES", "ParameterValue", "ParameterMsg", "SetParametersResultMsg",
     "ParameterDescriptorMsg", "ListParametersRequest", "ListParametersResponse", "GetParametersRequest",
     "GetParametersResponse", "SetParametersRequest", "SetParametersResponse", "DescribeParametersRequest",
-    "DescribeParametersResponse",
-    "ParameterClient",
+    "DescribeParametersResponse", "WriteGuard", "current_caller",
+    "ParameterClient", "default_client_id",
     "parse_param_value", "parse_param_args", "add_param_argument", "params_from_args", "format_param_value",
 ]

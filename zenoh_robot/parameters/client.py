@@ -2,6 +2,9 @@
 from __future__ import annotations
 
 import builtins
+import getpass
+import re
+import socket
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -22,12 +25,23 @@ if TYPE_CHECKING:
     from ..services import Client
 
 
-class ParameterClient:
-    """Read and change another node's parameters through its parameter services."""
+def default_client_id() -> str:
+    """``user@host``, reduced to the characters a client id may hold: the id a GCS uses unless told."""
+    raw = f"{getpass.getuser()}@{socket.gethostname()}"
+    return re.sub(r"[^A-Za-z0-9_.@:+-]", "_", raw)[:64]
 
-    def __init__(self, node: "Node", target: str, timeout: float = 3.0) -> None:
+
+class ParameterClient:
+    """Read and change another node's parameters through its parameter services.
+
+    Set requests carry ``client_id`` (default: :func:`default_client_id`), which the node's write
+    guard may judge (a node that controls a vehicle lets only its operator change safety limits).
+    """
+
+    def __init__(self, node: "Node", target: str, timeout: float = 3.0, client_id: str | None = None) -> None:
         self.target = target if target.startswith("/") else "/" + target
         self.timeout = timeout
+        self.client_id = default_client_id() if client_id is None else client_id
         self._clients: dict[str, Client[Any, Any]] = {name: node.create_client(f"{self.target}/{name}", req, resp)
                          for name, (req, resp) in PARAMETER_SERVICES.items()}
 
@@ -52,7 +66,7 @@ class ParameterClient:
 
     def set(self, parameters: Sequence[Parameter]) -> builtins.list[SetParametersResult]:
         msgs = [ParameterMsg(p.name, ParameterValue.of(p.type_, p.value)) for p in parameters]
-        resp = self._clients["set_parameters"].call(SetParametersRequest(msgs), self.timeout)
+        resp = self._clients["set_parameters"].call(SetParametersRequest(msgs, self.client_id), self.timeout)
         return [SetParametersResult(r.successful, r.reason) for r in resp.results]
 
     def describe(self, names: Sequence[str]) -> builtins.list[ParameterDescriptor | None]:

@@ -3,9 +3,17 @@
 ``~/list_parameters``, ``~/get_parameters``, ``~/set_parameters`` and
 ``~/describe_parameters`` (Zenoh keys ``@srv/<ns>/<node>/<service>``) run on the
 node's executor like any service; ``zenoh-robot param`` and ParameterClient use them.
+
+Who writes: a set request carries the caller's ``client_id`` (a claim, as every id a peer
+sends; the secure profile's ACL decides who may reach the service at all). A node that cares
+installs a write guard (``Node.set_parameter_write_guard``): it sees the names and the caller
+before anything is checked or set and may refuse the whole request. On-set callbacks run by a
+remote set read the caller with :func:`current_caller`. Without a guard, rclpy's behaviour.
 """
 from __future__ import annotations
 
+import contextvars
+import logging
 from collections.abc import Callable
 from dataclasses import field
 from typing import Any, ClassVar
@@ -93,6 +101,7 @@ class GetParametersResponse(Message):
 @message(name="zenoh_robot/SetParameters_Request")
 class SetParametersRequest(Message):
     parameters: list[ParameterMsg] = field(default_factory=list)
+    client_id: str = ""      # who asks (ParameterClient: the GCS id, user@host by default)
 
 
 @message(name="zenoh_robot/SetParameters_Response")
@@ -110,6 +119,18 @@ class DescribeParametersResponse(Message):
     descriptors: list[ParameterDescriptorMsg] = field(default_factory=list)
 
 
+# (names of the request, caller's client_id) -> "" to let the request through, else why not.
+WriteGuard = Callable[[list[str], str], str]
+
+log = logging.getLogger("zenoh_robot.parameters")
+_CALLER: contextvars.ContextVar[str] = contextvars.ContextVar("zenoh_robot_parameter_caller", default="")
+
+
+def current_caller() -> str:
+    """The ``client_id`` of the remote set request this thread is serving; "" for a local set."""
+    return _CALLER.get()
+
+
 PARAMETER_SERVICES = {
     "list_parameters": (ListParametersRequest, ListParametersResponse),
     "get_parameters": (GetParametersRequest, GetParametersResponse),
@@ -121,16 +142,22 @@ PARAMETER_SERVICES = {
 class ParameterService:
     """Serves a :class:`ParameterStore` over the four parameter services (rclpy's ParameterService).
 
-    ``create_service(name, request_type, response_type, handler)`` is the node's.
+    ``create_service(name, request_type, response_type, handler)`` is the node's. The write guard
+    (optional) runs on the executor thread that serves the request, before the store is touched.
     """
 
     def __init__(self, store: ParameterStore, create_service: Callable[..., Any]) -> None:
         self._store = store
+        self._guard: WriteGuard | None = None
         handlers: dict[str, Callable[[Any], Message]] = {
             "list_parameters": self._list, "get_parameters": self._get,
             "set_parameters": self._set, "describe_parameters": self._describe}
         self.services = [create_service(f"~/{name}", req, resp, handlers[name])
                          for name, (req, resp) in PARAMETER_SERVICES.items()]
+
+    def set_write_guard(self, guard: WriteGuard | None) -> None:
+        """Judge every remote set request by its names and caller (None: accept as rclpy does)."""
+        self._guard = guard
 
     def _list(self, req: ListParametersRequest) -> ListParametersResponse:
         return ListParametersResponse(self._store.list_parameters(req.prefixes))
@@ -143,6 +170,29 @@ class ParameterService:
         return GetParametersResponse(values)
 
     def _set(self, req: SetParametersRequest) -> SetParametersResponse:
+        why = self._guarded([pm.name for pm in req.parameters], req.client_id)
+        if why:   # the whole request: a caller refused for one name is refused for all
+            return SetParametersResponse([SetParametersResultMsg(False, why) for _ in req.parameters])
+        token = _CALLER.set(req.client_id)
+        try:
+            return self._set_each(req)
+        finally:
+            _CALLER.reset(token)
+
+    def _guarded(self, names: list[str], caller: str) -> str:
+        guard = self._guard
+        if guard is None:
+            return ""
+        try:
+            why = guard(names, caller)
+        except Exception as exc:  # noqa: BLE001  (a broken guard refuses: it never lets a write through)
+            log.exception("parameter write guard raised")
+            return f"write guard raised {type(exc).__name__}: {exc}"
+        if not isinstance(why, str):
+            return f"write guard returned {why!r}, not a reason"
+        return why
+
+    def _set_each(self, req: SetParametersRequest) -> SetParametersResponse:
         results = []
         for pm in req.parameters:
             try:

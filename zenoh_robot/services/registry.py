@@ -6,7 +6,6 @@ a mapping (the CLI uses both).
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable
 from concurrent.futures import TimeoutError as FutureTimeout
 from typing import TYPE_CHECKING, Any, TypeVar
 
@@ -19,7 +18,7 @@ from .client import DISCOVERY_GRACE_S, Client
 from .errors import ServiceTimeout, ServiceUnavailable
 from .keys import DESCRIBE_PARAM, SERVICE_PREFIX, service_key
 from .retry import _DEFAULT, Retry
-from .service import Service
+from .service import Handler, Service
 
 if TYPE_CHECKING:
     from ..node import Node
@@ -86,7 +85,7 @@ class Services:
         return service_key(name, self._context.namespace, self._context.node_name)
 
     def create_service(self, name: str, request_type: type[Req], response_type: type[Resp],
-                       handler: Callable[[Req], Resp]) -> Service[Req, Resp]:
+                       handler: Handler[Req, Resp]) -> Service[Req, Resp]:
         self._context.check_open()
         srv = Service(self._context, name, self.resolve_service_name(name), request_type, response_type, handler)
         with self._lock:

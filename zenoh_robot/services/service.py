@@ -2,7 +2,10 @@
 
 Threads: the queryable and subscriber callbacks run on Zenoh's threads and only hand the request
 to the node's executor; the handler runs and replies there, then the query is dropped so the
-querier sees it finalised at once. The package doc has the wire format and the at-most-once contract.
+querier sees it finalised at once. A handler that must wait (e.g. for hardware) returns a
+``concurrent.futures.Future`` instead of the response: the executor thread is free at once and the
+reply goes out on the thread that completes the future. The package doc has the wire format and
+the at-most-once contract.
 """
 from __future__ import annotations
 
@@ -14,6 +17,7 @@ import threading
 import time
 from collections import OrderedDict
 from collections.abc import Callable
+from concurrent.futures import Future
 from typing import Any, Generic, TypeVar
 
 import msgpack
@@ -35,12 +39,21 @@ Resp = TypeVar("Resp", bound=Message)
 log = logging.getLogger("zenoh_robot.services")    # one logger for the package, whichever module logs
 MAX_REQUEST_BYTES = 16 << 20    # a request over this is refused (bad_request) before it is copied
 
+# A handler answers at once (the response) or later (a Future of it: the reply goes when it completes).
+Handler = Callable[[Req], "Resp | Future[Resp]"]
+Outcome = tuple[bool, bytes, bool]   # (ok, reply payload, whether the handler ran)
+
 
 class Service(Generic[Req, Resp]):
-    """A server: ``handler(request) -> response`` run on the node's executor, at most once per request id."""
+    """A server: ``handler(request) -> response`` run on the node's executor, at most once per request id.
+
+    The handler may return a ``Future`` of the response instead: the reply (and joined duplicates'
+    replies) go out when it completes, from the completing thread; an exception set on it is a
+    ``handler`` error reply, like one raised by the handler.
+    """
 
     def __init__(self, context: EntityContext, name: str, key: str, request_type: type[Req],
-                 response_type: type[Resp], handler: Callable[[Req], Resp]) -> None:
+                 response_type: type[Resp], handler: Handler[Req, Resp]) -> None:
         for what, t in (("request", request_type), ("response", response_type)):
             require_message_type(t, f"create_service {name!r}: {what} type")
         if not callable(handler):
@@ -204,11 +217,26 @@ class Service(Generic[Req, Resp]):
 
     def _run(self, key: bytes, data: bytes, respond: Responder) -> None:
         try:
-            ok, reply, executed = self._execute(data)
+            outcome = self._execute(data)
         except Exception as exc:   # never kill the executor, never leave joined duplicates hanging
-            ok, reply, executed = False, _error_payload("handler", f"internal error: {exc}"), False
+            outcome = False, _error_payload("handler", f"internal error: {exc}"), False
+        if isinstance(outcome, Future):   # answered later, by whoever completes the future
+            outcome.add_done_callback(lambda done: self._finish(key, respond, self._settled(done)))
+            return
+        self._finish(key, respond, outcome)
+
+    def _finish(self, key: bytes, respond: Responder, outcome: Outcome) -> None:
+        ok, reply, executed = outcome
         for waiter in [respond, *self.cache.finish(key, (ok, reply), keep=executed)]:
             waiter(ok, reply)
+
+    def _settled(self, done: Future[Outcome]) -> Outcome:
+        try:
+            return done.result()
+        except BaseException as exc:  # noqa: BLE001  (cancelled or failed: the caller still gets an answer)
+            with self._lock:
+                self.errors += 1
+            return False, _error_payload("handler", f"{type(exc).__name__}: {exc}"), True
 
     def describe(self) -> dict[str, Any]:
         return {"service": service_name_of_key(self.key), "node": self.context.fully_qualified_name,
@@ -226,8 +254,8 @@ class Service(Generic[Req, Resp]):
             except Exception:
                 pass
 
-    def _execute(self, data: bytes) -> tuple[bool, bytes, bool]:
-        """(ok, reply payload, whether the handler ran) for one request's bytes."""
+    def _execute(self, data: bytes) -> Outcome | Future[Outcome]:
+        """(ok, reply payload, whether the handler ran) for one request's bytes, or a Future of it."""
         try:
             env = envelope.unpack(data)
         except envelope.MalformedSample as exc:
@@ -254,20 +282,40 @@ class Service(Generic[Req, Resp]):
             self.executions += 1
         try:
             response = self.handler(request)
+        except Exception as exc:
+            return self._handler_error(exc)
+        if not isinstance(response, Future):
+            return self._encoded(response, env.seq, dict_form)
+        later: Future[Outcome] = Future()
+
+        def encode(done: Future[Resp]) -> None:   # the thread that completed the handler's future
+            try:
+                later.set_result(self._encoded(done.result(), env.seq, dict_form))
+            except BaseException as exc:  # noqa: BLE001  (cancelled too: the caller hears it)
+                later.set_result(self._handler_error(exc))
+        response.add_done_callback(encode)
+        return later
+
+    def _encoded(self, response: object, seq: int, dict_form: bool) -> Outcome:
+        resp_t = self._resp
+        try:
             if not isinstance(response, self.response_type):
                 raise TypeError(f"handler returned {type(response).__name__}, "
                                 f"not {resp_t.name}")
             body = response.to_dict() if dict_form else resp_t.encode(response)
         except Exception as exc:
-            with self._lock:
-                self.errors += 1
-            self._rlog.warning("handler", "service %s: handler raised %s: %s", self.service_name,
-                               type(exc).__name__, exc)
-            return False, _error_payload("handler", f"{type(exc).__name__}: {exc}"), True
+            return self._handler_error(exc)
         with self._lock:
             self.served += 1
-        return True, envelope.pack(resp_t.name, resp_t.hash, self.server_id, env.seq, time.time_ns(), body,
+        return True, envelope.pack(resp_t.name, resp_t.hash, self.server_id, seq, time.time_ns(), body,
                                    {"form": "dict"} if dict_form else None), True
+
+    def _handler_error(self, exc: BaseException) -> Outcome:
+        with self._lock:
+            self.errors += 1
+        self._rlog.warning("handler", "service %s: handler raised %s: %s", self.service_name,
+                           type(exc).__name__, exc)
+        return False, _error_payload("handler", f"{type(exc).__name__}: {exc}"), True
 
     def _bad_request(self, why: str) -> bytes:
         with self._lock:

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from zenoh_robot.acl import ROLES, KeysError, NodeEntry, acl_config, check_name, domain_prefix, load_roles, save_roles  # noqa: F401 - re-exported for the CLI
+from zenoh_robot.acl import ROLES, KeysError, NodeEntry, acl_config, check_name, domain_prefix, load_roles, save_roles
 
 try:
     from cryptography import x509
@@ -35,6 +35,10 @@ try:
     from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 except ImportError as exc:   # pragma: no cover - depends on the install
     raise ImportError("zenoh-robot keys needs the 'secure' extra: pip install 'zenoh-robot[secure]'") from exc
+
+# The access rules of zenoh_robot.acl are part of this module's interface (the CLI and scripts use them here).
+__all__ = ["CA_DAYS", "NODE_DAYS", "ROLES", "CertInfo", "KeysError", "NodeEntry", "acl_config", "check_name",
+           "domain_prefix", "init_ca", "issue", "list_certs", "load_roles", "save_roles", "write_node_config"]
 
 CA_DAYS = 5 * 365           # the CA outlives a fleet's certificates; rotating it means re-issuing all
 NODE_DAYS = 365             # a year: a lost vehicle's certificate stops working on its own

@@ -509,7 +509,7 @@ class LaunchRunner:
 
     # -- the run loop ---------------------------------------------------------------------
     def run(self, duration: float | None = None, handle_signals: bool = True) -> int:
-        previous: dict[int, Any] = {}
+        previous: dict[signal.Signals, Any] = {}
         if handle_signals and threading.current_thread() is threading.main_thread():
             for sig in (signal.SIGINT, signal.SIGTERM):
                 previous[sig] = signal.signal(sig, lambda s, f: self.request_stop(

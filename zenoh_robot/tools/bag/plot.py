@@ -37,7 +37,7 @@ def load(path: str | Path) -> tuple[dict[str, list[tuple[float, float, float, fl
         elif type_name.endswith("Setpoint") and not data.get("is_velocity"):
             xyz = (data.get("x"), data.get("y"), data.get("z"))
             if all(isinstance(v, (int, float)) and math.isfinite(v) for v in xyz):
-                setpoints.setdefault(rec.channel.topic, []).append((t, *xyz))   # type: ignore[arg-type]
+                setpoints.setdefault(rec.channel.topic, []).append((t, *xyz))
     return states, setpoints
 
 

@@ -64,7 +64,8 @@ def plan(quick: bool = False, only: list[str] | None = None) -> list[Cell]:
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+        port: int = s.getsockname()[1]
+        return port
 
 
 def run_pair(mode: str, cell: Cell, timeout: float, rss_every: float = 0.0) -> Figures:
@@ -76,6 +77,7 @@ def run_pair(mode: str, cell: Cell, timeout: float, rss_every: float = 0.0) -> F
     sub = subprocess.Popen(worker + ["sub", mode, *common, "--timeout", str(timeout), "--rss-every", str(rss_every)],
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
+        assert sub.stdout is not None and sub.stderr is not None   # both are PIPEs
         if sub.stdout.readline().strip() != "READY":
             return Figures(error=f"subscriber did not start: {sub.stderr.read()[-300:]}")
         pub = subprocess.run(worker + ["pub", mode, *common, "--rate", str(cell.rate)], capture_output=True,

@@ -18,7 +18,7 @@ from typing import Any
 import msgpack
 import zenoh
 
-from zenoh_robot import Node, QoSProfile, SessionConfig
+from zenoh_robot import HistoryPolicy, Node, QoSProfile, ReliabilityPolicy, SessionConfig
 from zenoh_robot.message import type_support
 
 from . import payloads
@@ -48,7 +48,8 @@ def _config(args: argparse.Namespace) -> SessionConfig:
 
 def _qos(throughput: bool) -> QoSProfile:
     # Throughput: reliable and KEEP_ALL (BLOCK), so nothing may be lost; latency: keep last 100.
-    return QoSProfile(reliability="reliable", history="keep_all" if throughput else "keep_last",
+    return QoSProfile(reliability=ReliabilityPolicy.RELIABLE,
+                      history=HistoryPolicy.KEEP_ALL if throughput else HistoryPolicy.KEEP_LAST,
                       depth=0 if throughput else 100)
 
 
@@ -138,10 +139,10 @@ def run_pub(args: argparse.Namespace) -> dict[str, Any]:
             session.close()
     else:
         with Node("bench_pub", config=cfg) as node:
-            pub = node.create_publisher(type(msg), "/" + KEY, _qos(args.throughput))
+            node_pub = node.create_publisher(type(msg), "/" + KEY, _qos(args.throughput))
             time.sleep(args.settle)
             cpu0 = _cpu()
-            sent, elapsed = _loop(lambda: pub.publish(msg), args.count, period)
+            sent, elapsed = _loop(lambda: node_pub.publish(msg), args.count, period)
             cpu = _cpu() - cpu0
             time.sleep(0.5)   # let the tail leave before the session closes
         return {"sent": sent, "elapsed_s": elapsed, "cpu_s": cpu}

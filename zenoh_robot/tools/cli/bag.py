@@ -19,7 +19,7 @@ if TYPE_CHECKING:
     pass
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("bag", help="record, inspect and replay flight logs (MCAP, opens in Foxglove)")
     add_session_arguments(p)
     ops = p.add_subparsers(dest="op", metavar="OP", required=True)
@@ -146,7 +146,11 @@ def _play(args: argparse.Namespace) -> int:
             raise CliError(str(exc)) from None
         stop = threading.Event()
         _stop_on_sigterm(stop)
-        threading.Thread(target=lambda: (stop.wait(), player.stop()), daemon=True).start()
+
+        def stop_player() -> None:
+            stop.wait()
+            player.stop()
+        threading.Thread(target=stop_player, daemon=True).start()
         try:
             c = player.play(args.duration)
         except OSError as exc:

@@ -5,7 +5,7 @@ import argparse
 from pathlib import Path
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("bench", help="latency, throughput and CPU against raw zenoh-python")
     p.add_argument("--quick", action="store_true", help="a tenth of the messages (a smoke run)")
     p.add_argument("--only", help="comma-separated payloads: setpoint,sensor,image,jpeg")

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 from .main import CliError
 
 if TYPE_CHECKING:
+    from zenoh_robot.message import Message
     from zenoh_robot.node import Node
     from zenoh_robot.session_config import SessionConfig
 
@@ -44,11 +45,12 @@ def add_duration_arg(parser: argparse.ArgumentParser) -> None:
 
 
 def deadline_of(args: argparse.Namespace) -> float | None:
-    if args.duration is None:
+    duration: float | None = args.duration
+    if duration is None:
         return None
-    if not args.duration > 0:
-        raise CliError(f"--duration must be > 0 seconds, got {args.duration:g}")
-    return time.monotonic() + args.duration
+    if not duration > 0:
+        raise CliError(f"--duration must be > 0 seconds, got {duration:g}")
+    return time.monotonic() + duration
 
 
 def quiet_exit(fn: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
@@ -149,7 +151,7 @@ def is_msg_file(name: str) -> bool:
     return name.endswith(".msg")
 
 
-def load_msg_file(path: str, package: str = "msg") -> type:
+def load_msg_file(path: str, package: str = "msg") -> type[Message]:
     from zenoh_robot.msg_loader import MsgParseError, load_msg
 
     if not Path(path).is_file():
@@ -160,7 +162,7 @@ def load_msg_file(path: str, package: str = "msg") -> type:
         raise CliError(str(exc)) from None
 
 
-def lookup_type(name: str) -> type:
+def lookup_type(name: str) -> type[Message]:
     """A registered type by name (``Setpoint``, ``std_msgs/String``), or a ``.msg`` file's."""
     from zenoh_robot import msgs  # noqa: F401  registers the standard types
     from zenoh_robot.message import lookup

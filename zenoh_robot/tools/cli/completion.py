@@ -8,7 +8,7 @@ import argparse
 import shlex
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("completion", help="print a shell completion script (bash)",
                        description="print a shell completion script: source <(zenoh-robot completion bash)")
     p.add_argument("shell", choices=("bash",))

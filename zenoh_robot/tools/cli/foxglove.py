@@ -13,7 +13,7 @@ from .common import cli_node, quiet_exit
 from .main import CliError
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("foxglove", help="serve every topic live to Foxglove (WebSocket protocol)")
     add_session_arguments(p)
     p.add_argument("topics", nargs="*", metavar="TOPIC", help="only these topics (default: all, as they appear)")

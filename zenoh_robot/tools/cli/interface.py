@@ -12,17 +12,20 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import re
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from .common import did_you_mean, is_msg_file, load_msg_file, lookup_type, quiet_exit
 from .main import CliError
+
+if TYPE_CHECKING:
+    from zenoh_robot.message import Message
 
 _REQ, _RESP = "_Request", "_Response"
 _CONSTANT = re.compile(r"^[A-Za-z0-9_/]+\s+[A-Z][A-Z0-9_]*\s*=")   # `uint8 NUM_JOINTS=28`
 _MAX_SHOWN_ARRAY = 8           # a longer default array prints as its length: 28 zeros say nothing
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("interface", help="list the message types known here and show their fields")
     ops = p.add_subparsers(dest="op", metavar="OP", required=True)
     o = ops.add_parser("list", help="every known message and service type")
@@ -39,7 +42,7 @@ def run(args: argparse.Namespace) -> int:
     return _list(args) if args.op == "list" else _show(args)
 
 
-def known_types() -> dict[str, type]:
+def known_types() -> dict[str, type[Message]]:
     """Every registered message type by full name (the library's, and the entry points')."""
     from zenoh_robot import msgs  # noqa: F401  importing msgs registers the standard types
     from zenoh_robot.message import _REGISTRY  # no public iterator; read-only here
@@ -50,7 +53,7 @@ def known_types() -> dict[str, type]:
     return {cls._type_name: cls for cls in list(_REGISTRY.values())}
 
 
-def _services(types: dict[str, type]) -> list[str]:
+def _services(types: dict[str, type[Message]]) -> list[str]:
     return sorted(name[:-len(_REQ)] for name in types
                   if name.endswith(_REQ) and name[:-len(_REQ)] + _RESP in types)
 
@@ -94,18 +97,20 @@ def _show(args: argparse.Namespace) -> int:
     return 0
 
 
-def render(cls: type, expand: bool = True, depth: int = 0) -> list[str]:
+def render(cls: type[Message], expand: bool = True, depth: int = 0) -> list[str]:
     """``ros2 interface show``'s lines for a type's fields; nested types indented by a tab."""
     indent = "\t" * depth
     lines: list[str] = []
-    defaults = {f.name: _default(f) for f in dataclasses.fields(cls)}
+    defaults: dict[str, Any] = {}
+    if dataclasses.is_dataclass(cls):   # always (@message makes one); the check tells the type checker so
+        defaults = {f.name: _default(f) for f in dataclasses.fields(cls)}
     for spec in cls._fields_spec:
         line = f"{indent}{spec.ros_type()} {spec.name}"
         default = defaults.get(spec.name)
         if not spec.is_message and default is not None and _worth_showing(default):
             line += f" {_literal(default)}"
         lines.append(line)
-        if spec.is_message and expand:
+        if expand and not isinstance(spec.base, str):   # a nested message (spec.is_message)
             lines.extend(render(spec.base, expand, depth + 1))
     return lines
 

@@ -10,7 +10,7 @@ from .main import CliError
 DEFAULT_DIR = "keys"
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("keys", help="make a CA and node certificates for --secure sessions")
     ops = p.add_subparsers(dest="keys_action", required=True, metavar="ACTION")
     init = ops.add_parser("init", help="create the CA in DIR (default ./keys)")
@@ -55,8 +55,8 @@ def run(args: argparse.Namespace) -> int:
             else:
                 for r in rows:
                     warn = "" if r["key_mode"] == "0o600" else "  (key not 0600!)"
-                    drones = f" -> {','.join(r['drones'])}" if r["drones"] else ""
-                    print(f"{r['name']:<16} {r['role']:<7} expires {r['expires']}  key {r['key_mode']}{drones}{warn}")
+                    controls = f" -> {','.join(r['drones'])}" if r["drones"] else ""
+                    print(f"{r['name']:<16} {r['role']:<7} expires {r['expires']}  key {r['key_mode']}{controls}{warn}")
     except (keys.KeysError, OSError) as exc:
         raise CliError(str(exc)) from None
     return 0

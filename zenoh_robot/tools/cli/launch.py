@@ -5,10 +5,10 @@ import argparse
 import shlex
 
 from ..launch import LaunchError, LaunchRunner, load_launch, parse_launch_args
-from .main import CliError
+from .main import CliError, Parser
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("launch", help="start a set of processes from a YAML launch file")
     p.add_argument("file", help="launch file (YAML)")
     p.add_argument("launch_args", nargs="*", metavar="NAME:=VALUE", help="launch arguments ($(arg NAME))")
@@ -20,7 +20,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="seconds between SIGTERM and SIGKILL when stopping (default 3)")
     p.set_defaults(func=run)
     # `launch demo.yaml --show duration:=20`: NAME:=VALUE after an option is still an argument.
-    p.intermixed = "launch_args"
+    if isinstance(p, Parser):   # only the CLI's own parser knows intermixed
+        p.intermixed = "launch_args"
 
 
 def run(args: argparse.Namespace) -> int:

@@ -22,7 +22,7 @@ if TYPE_CHECKING:
     from zenoh_robot.node import Node
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("node", help="list nodes and show what a node publishes, subscribes and serves")
     add_session_arguments(p)
     ops = p.add_subparsers(dest="op", metavar="OP", required=True)

@@ -1,6 +1,8 @@
 """``zenoh-robot param list|get|set|describe|dump NODE ...``: another node's parameters, remotely.
 
 NODE is the node's fully qualified name (``/uav1/companion``); the node must be spinning.
+Changes carry ``--client-id`` (default ``user@host``, the id a GCS uses): a node may accept
+some only from one client (the companion: safety limits only from the GCS in control).
 """
 from __future__ import annotations
 
@@ -29,10 +31,13 @@ _LABEL = {ParameterType.BOOL: "Boolean", ParameterType.INTEGER: "Integer", Param
           ParameterType.STRING_ARRAY: "String values"}
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("param", help="list, get and set a running node's parameters")
     add_session_arguments(p)
     p.add_argument("--timeout", type=float, default=3.0, help="seconds to find and wait for the node (default 3)")
+    p.add_argument("--client-id", default=None,
+                   help="id sent with changes (default user@host, the GCS's): the node may accept some only "
+                        "from the client in control")
     ops = p.add_subparsers(dest="op", metavar="OP", required=True)
     o = ops.add_parser("list", help="names of the node's parameters")
     o.add_argument("node", help="fully qualified node name, e.g. /uav1/companion")
@@ -71,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
     target = _node_name(args.node)
     with Node(f"_zr_param_{secrets.token_hex(3)}", config=session_config(args)) as node:
         try:
-            client = ParameterClient(node, target, timeout=args.timeout)
+            client = ParameterClient(node, target, timeout=args.timeout, client_id=args.client_id)
         except ValueError as exc:
             raise CliError(f"bad node name {args.node!r}: {exc}") from None
         if not client.wait_for_node(args.timeout):
@@ -205,10 +210,11 @@ def file_parameters(path: str, target: str) -> dict[str, Any]:
         body = data.get(section)
         if body is None:
             continue
-        if not isinstance(body, dict) or not isinstance(body.get("ros__parameters", body.get("params")), dict):
+        params = body.get("ros__parameters", body.get("params")) if isinstance(body, dict) else None
+        if not isinstance(params, dict):
             raise CliError(f"{path}: section {section!r} needs a 'ros__parameters:' (or 'params:') mapping")
         matched = True
-        out.update(_flatten(body.get("ros__parameters", body.get("params")), ""))
+        out.update(_flatten(params, ""))
     if not matched:
         raise CliError(f"{path}: no section for {target} (nor '/**'); sections: {', '.join(map(str, data))}")
     return out

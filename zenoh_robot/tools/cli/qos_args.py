@@ -78,8 +78,14 @@ def qos_from_args(args: argparse.Namespace) -> "QoSProfile | None":
         return None
     if args.qos_profile and args.qos_file:
         raise CliError("give --qos-profile or --qos FILE, not both")
+    name: str | None = args.qos_profile or default
     try:
-        base = _from_file(args.qos_file) if args.qos_file else preset(args.qos_profile or default)
+        if args.qos_file:
+            base = _from_file(args.qos_file)
+        elif name is not None:
+            base = preset(name)
+        else:   # echo adapts its QoS to the publishers only with no flag at all: a lone flag has no base
+            raise CliError("a --qos-POLICY flag needs a base: give --qos-profile NAME or --qos FILE")
     except QoSError as exc:
         raise CliError(str(exc)) from None
     overrides: dict[str, Any] = {}

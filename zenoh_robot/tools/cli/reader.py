@@ -17,7 +17,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from zenoh_robot.message import type_support
+from zenoh_robot.message import Message, type_support
 
 from .common import load_msg_file, lookup_type
 from .main import CliError
@@ -116,7 +116,7 @@ def choose_type(key: str, pubs: list["TopicEndpointInfo"], wanted: type | None) 
     return name, {p.topic_type_hash for p in pubs if p.topic_type == name}
 
 
-def _local_type(type_name: str, hashes: set[str], msg_file: str | None) -> type | None:
+def _local_type(type_name: str, hashes: set[str], msg_file: str | None) -> type[Message] | None:
     """The class for these samples, None when unknown here or of another version."""
     if msg_file:
         # Named as the publishers name it, so the hash can match theirs.
@@ -194,7 +194,7 @@ def open_reader(node: "Node", key: str, wanted_type: str | None, deadline: float
         if raw.type_name != type_name:
             return     # another type on the same key (--type chose one)
         value: Any = RawSample(raw.type_name, raw.fields)
-        if decode is not None and raw.type_hash == type_support(cls).hash:   # type: ignore[union-attr]
+        if decode is not None and raw.type_hash == type_support(cls).hash:
             try:
                 value = decode(raw.fields)
             except (TypeError, ValueError):

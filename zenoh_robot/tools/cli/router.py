@@ -22,7 +22,7 @@ DEFAULT_LISTEN = "tcp/0.0.0.0:7447"
 DEFAULT_SECURE_LISTEN = "tls/0.0.0.0:7447"
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("router", help="run a Zenoh router (the secure system's ACL enforcer)")
     p.add_argument("--listen", "-l", action="append", default=[], metavar="ENDPOINT",
                    help=f"listen endpoint, repeatable (default {DEFAULT_LISTEN}, or {DEFAULT_SECURE_LISTEN} "

@@ -18,7 +18,7 @@ from .main import CliError
 from .values import build_message, parse_values, render_data
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("service", help="list and call services")
     add_session_arguments(p)
     ops = p.add_subparsers(dest="op", metavar="OP", required=True)

@@ -46,7 +46,7 @@ LEGEND = ("lost: samples that never arrived (gaps in the publisher's sequence nu
           "% of one core, /budget when set, red when over")
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("stats", help="live table of topic statistics (age, period, rate, lost, cpu %)")
     p.add_argument("topic", nargs="?", help="only statistics of this measured topic, e.g. /uav1/setpoint")
     add_session_arguments(p)
@@ -85,9 +85,10 @@ def decode(data: bytes) -> "TopicStatistics | None":
     if env.type_hash != type_support(TopicStatistics).hash:
         return None
     try:
-        return type_support(TopicStatistics).decode(env.body)
+        stats: TopicStatistics = type_support(TopicStatistics).decode(env.body)
     except (TypeError, ValueError):
         return None
+    return stats
 
 
 def _same_topic(a: str, b: str) -> bool:

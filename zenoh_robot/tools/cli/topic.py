@@ -48,7 +48,7 @@ GRAPH_QUIET = 0.5             # seconds without a new graph entry: discovery has
 
 
 # -- registration ---------------------------------------------------------------------------
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("topic", help="list, inspect, echo, measure and publish topics")
     add_session_arguments(p)
     ops = p.add_subparsers(dest="op", metavar="OP", required=True)
@@ -101,7 +101,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _op_parser(ops: argparse._SubParsersAction, name: str, help: str) -> argparse.ArgumentParser:
+def _op_parser(ops: argparse._SubParsersAction[argparse.ArgumentParser], name: str,
+               help: str) -> argparse.ArgumentParser:
     o = ops.add_parser(name, help=help, description=help)
     add_session_arguments(o)
     return o
@@ -498,6 +499,7 @@ def _pub(args: argparse.Namespace) -> int:
     cls = lookup_type(args.type)
     msg, auto_header = build_message(cls, parse_values(args.values))
     qos = qos_from_args(args)
+    assert qos is not None   # pub's parser has a default profile (system_default)
     with cli_node("topic", args) as node:
         pub = node.create_publisher(cls, "/" + key, qos)
         if plan.times is not None:

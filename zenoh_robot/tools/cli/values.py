@@ -9,7 +9,7 @@ from typing import Any
 
 import yaml
 
-from zenoh_robot.message import type_support
+from zenoh_robot.message import Message, type_support
 
 from .common import one_line
 from .main import CliError
@@ -103,7 +103,7 @@ def check_fields(msg: Any) -> None:
             setattr(msg, spec.name, _coerce_field(spec, value, where))
 
 
-def build_message(cls: type, data: dict[str, Any]) -> tuple[Any, bool]:
+def build_message(cls: type[Message], data: dict[str, Any]) -> tuple[Any, bool]:
     """The message, and whether its header is to be stamped at each publish (``header: auto``)."""
     auto_header = data.get("header") == "auto" and any(s.name == "header" for s in cls._fields_spec)
     if auto_header:
