@@ -18,7 +18,7 @@ from typing import Any
 from drone_contract.messages import VehicleState
 from px4_link import Px4Link
 from px4_link.commands import CommandError, CommandTimeout, NotConnected
-from px4_link.telemetry import Attitude, Battery, Imu, LocalPosition
+from px4_link.telemetry import Attitude, Battery, Imu, LocalPosition, SysStatus
 from px4_link.wire import message_id
 from zenoh_robot.msgs import Header, SensorCombined
 from zenoh_robot.publisher import PublisherClosed
@@ -140,6 +140,7 @@ class TelemetryBridge:
         pos = link.telemetry.latest(LocalPosition)
         att = link.telemetry.latest(Attitude)
         batt = link.telemetry.latest(Battery)
+        sys_status = link.telemetry.latest(SysStatus)
         sent = self._state_pub.publish(VehicleState(
             Header.now(), st.mode, st.armed, bool(st.landed), link.connected, link.offboard.streaming,
             [pos.x, pos.y, pos.z] if pos else [math.nan] * 3,
@@ -147,7 +148,8 @@ class TelemetryBridge:
             [att.roll, att.pitch, att.yaw] if att else [math.nan] * 3,
             batt.remaining_pct / 100.0 if batt else math.nan, batt.voltage_v if batt else math.nan,
             failsafe, setpoints_rejected, offboard_state, controller,
-            self.sensor_rate_hz(), self.sensor_rate_requested, commands_refused))
+            self.sensor_rate_hz(), self.sensor_rate_requested, commands_refused,
+            bool(st.armed or (sys_status is not None and sys_status.armable))))
         self._sent_state.record(sent.seq, sent.stamp_ns)
 
     # -- what PX4 sends --------------------------------------------------------------

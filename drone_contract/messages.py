@@ -42,6 +42,7 @@ class VehicleState(Message):
     sensor_rate_hz: float = ros_field("float32", default=float("nan"))            # HIGHRES_IMU rate PX4 delivers
     sensor_rate_requested_hz: float = ros_field("float32", default=float("nan"))  # what the companion asked
     commands_refused: int = 0
+    armable: bool = False            # PX4's pre-arm checks pass (SYS_STATUS PREARM_CHECK health bit)
 
     def __post_init__(self) -> None:
         if self.header is None:

@@ -24,6 +24,8 @@ from typing import Any
 from .app import DroneView, Gcs
 
 ON_FAILURE = ("continue", "hold")
+# PX4 SITL passes its pre-arm checks ~4 s after boot; a real vehicle's GPS fix can take longer.
+ARMABLE_TIMEOUT_S = 30.0
 
 
 class MissionFailed(Exception):
@@ -136,6 +138,12 @@ def _fly(gcs: Gcs, drone: DroneView, duration: float, out: dict[str, Any], log: 
          "--take-control)" if not drone.may_stream else "")
     time.sleep(0.3)   # a few setpoints from the drone's position reach the companion first
     command("offboard_start")
+    # Like an operator: arm once PX4's pre-arm checks pass (real PX4 refuses for ~4 s after boot,
+    # "Preflight Fail: heading estimate not stable"), not at once and not after a fixed sleep.
+    armable = until(lambda: bool(drone.state and drone.state.armable), ARMABLE_TIMEOUT_S)
+    step("armable", armable, "" if armable else
+         f"PX4's pre-arm checks did not pass within {ARMABLE_TIMEOUT_S:g} s (mode "
+         f"{drone.state.mode if drone.state else '?'}): see the drone's log for PX4's reason")
     command("arm")
     alt = gcs.config.altitude
     climbed = until(lambda: bool(drone.state and -drone.state.position[2] > 0.8 * alt), 30.0)

@@ -44,6 +44,7 @@ class RateLimiter:
         self.overflow = 0    # occurrences whose key found no room (counted, never reported)
         self._windows: dict[tuple[str, ...], _Window] = {}
         self._lock = threading.Lock()
+        self._swept = float("-inf")
 
     def admit(self, *key: str) -> Admitted | None:
         """Count one occurrence of ``key``; an :class:`Admitted` if it may be reported, else None."""
@@ -51,7 +52,7 @@ class RateLimiter:
         with self._lock:
             w = self._windows.get(key)
             if w is None:
-                if len(self._windows) >= self.MAX_KEYS:
+                if len(self._windows) >= self.MAX_KEYS and not self._sweep(now):
                     self.overflow += 1
                     return None
                 w = self._windows[key] = _Window(now)
@@ -65,6 +66,18 @@ class RateLimiter:
                 return None
             w.lines += 1
             return Admitted(w.count, suppressed)
+
+    def _sweep(self, now: float) -> bool:
+        """Under the lock, with the table full: drop the windows that ended with nothing left to say.
+        A key dropped so comes back with the budget its next window would have given it anyway, so a
+        forger gains nothing; a flood of live keys is swept at most four times per interval."""
+        if now - self._swept < self.interval / 4:
+            return False
+        self._swept = now
+        done = [k for k, w in self._windows.items() if now - w.start >= self.interval and not w.suppressed]
+        for k in done:
+            del self._windows[k]
+        return bool(done)
 
     def hit(self, *key: str) -> int:
         """Count one occurrence; the key's running count when it may be reported, else 0."""

@@ -16,6 +16,9 @@ Vec3 = tuple[float, float, float]
 
 # MAV_LANDED_STATE
 LANDED_STATE_NAMES = {0: "UNDEFINED", 1: "ON_GROUND", 2: "IN_AIR", 3: "TAKEOFF", 4: "LANDING"}
+# MAV_SYS_STATUS_PREARM_CHECK: PX4 sets it in onboard_control_sensors_health while its pre-arm
+# checks pass (HealthAndArmingChecks; real SITL: from ~4.1 s after boot, never in present).
+PREARM_CHECK = 0x10000000
 # MAV_STATE
 SYSTEM_STATUS_NAMES = {0: "UNINIT", 1: "BOOT", 2: "CALIBRATING", 3: "STANDBY", 4: "ACTIVE",
                        5: "CRITICAL", 6: "EMERGENCY", 7: "POWEROFF", 8: "FLIGHT_TERMINATION"}
@@ -167,6 +170,11 @@ class SysStatus:
             m.current_battery / 100.0 if m.current_battery != -1 else math.nan,
             float(m.battery_remaining) if m.battery_remaining != -1 else math.nan,
             m.drop_rate_comm / 100.0, m.errors_comm, system_id=m.get_srcSystem())
+
+    @property
+    def armable(self) -> bool:
+        """PX4's pre-arm checks pass (the PREARM_CHECK health bit)."""
+        return bool(self.sensors_health & PREARM_CHECK)
 
 
 @dataclass(frozen=True, slots=True)

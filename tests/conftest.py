@@ -50,6 +50,19 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
             item.add_marker(pytest.mark.serial)
 
 
+@pytest.fixture(autouse=True)
+def no_simulator_internal_error() -> Iterator[None]:
+    """A fault inside an in-process px4_link Simulator fails the test that caused it: the simulator
+    records it (and answers no ACK) instead of passing it off as PX4 refusing something."""
+    sim_mod = sys.modules.get("px4_link.sim.simulator")
+    before = len(sim_mod.INTERNAL_ERRORS) if sim_mod is not None else 0
+    yield
+    sim_mod = sys.modules.get("px4_link.sim.simulator")
+    if sim_mod is not None:
+        new = sim_mod.INTERNAL_ERRORS[before:]
+        assert not new, "simulator internal error(s):\n" + "\n".join(new)
+
+
 @pytest.fixture
 def ns() -> str:
     """A namespace no other test (or earlier run) uses."""

@@ -32,10 +32,25 @@ class EventLog:
         return self.names().count(name)
 
 
+# PX4's pre-arm checks pass ~4.1 s after boot; a margin for a loaded machine.
+ARMABLE_TIMEOUT_S = 15.0
+
+
+def wait_armable(link: Px4Link, timeout: float = ARMABLE_TIMEOUT_S) -> None:
+    """Wait, as an operator would, until PX4 says it can arm (SYS_STATUS PREARM_CHECK health bit,
+    what a GCS reads); never a fixed sleep. Fails saying what PX4 last reported."""
+    from px4_link.telemetry import SysStatus
+
+    ok = wait_for(lambda: (s := link.telemetry.latest(SysStatus)) is not None and s.armable, timeout)
+    assert ok, f"PX4 not armable after {timeout:g} s (last STATUSTEXT context: {link.state.mode})"
+
+
 @contextmanager
 def sim_and_link(sysid: int = 1, params: dict | None = None, link_kwargs: dict | None = None,
-                 sim_kwargs: dict | None = None) -> Iterator[tuple[Simulator, Px4Link, EventLog]]:
-    """A simulator sending to a link bound on an ephemeral localhost port, connected."""
+                 sim_kwargs: dict | None = None,
+                 armable: bool = True) -> Iterator[tuple[Simulator, Px4Link, EventLog]]:
+    """A simulator sending to a link bound on an ephemeral localhost port, connected; with
+    ``armable`` (the default) also past PX4's estimator warm-up, so tests that arm can at once."""
     events = EventLog()
     kw = {"on_event": events, **(link_kwargs or {})}
     with Px4Link("udpin:127.0.0.1:0", **kw) as link:
@@ -43,6 +58,8 @@ def sim_and_link(sysid: int = 1, params: dict | None = None, link_kwargs: dict |
                        params={**FAST_PARAMS, **(params or {})}, seed=sysid,
                        **(sim_kwargs or {})) as sim:
             assert link.wait_connected(5.0), "link never saw the simulator's heartbeat"
+            if armable:
+                wait_armable(link)
             yield sim, link, events
 
 

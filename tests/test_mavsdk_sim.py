@@ -1,16 +1,18 @@
 """A standard MAVLink SDK (MAVSDK-Python, gRPC wrapper with mavsdk_server) flies the
-simulator as it would fly PX4: health, arm, offboard position, land. Loopback only."""
+simulator as it would fly PX4: health, arm, offboard position, land. Loopback only.
+
+MAVSDK's documented offboard start is ``set_position_ned`` then ``offboard.start()`` at once; real
+PX4 SITL starts OFFBOARD on it (commander/HealthAndArmingChecks/checks/offboardCheck.cpp: a setpoint
+within COM_OF_LOSS_T is enough, no warm-up), so the simulator must too: no sleep in between."""
 from __future__ import annotations
 
 import asyncio
 import socket
 import warnings
 
-import pytest
 
 with warnings.catch_warnings():
     warnings.simplefilter("ignore", FutureWarning)
-    mavsdk = pytest.importorskip("mavsdk")
     from mavsdk import System
     from mavsdk.offboard import PositionNedYaw
 
@@ -33,8 +35,8 @@ async def _fly(udp_port: int, grpc_port: int, sim: Simulator) -> None:
         if health.is_armable and health.is_global_position_ok:
             break
     await drone.action.arm()
+    # MAVSDK's documented way, exactly: set, then start at once (no sleep PX4 does not need).
     await drone.offboard.set_position_ned(PositionNedYaw(2.0, 1.0, -3.0, 0.0))
-    await asyncio.sleep(1.3)   # MAVSDK streams at 20 Hz; the sim wants > 1 s of signal first
     await drone.offboard.start()
     async for pos in drone.telemetry.position_velocity_ned():
         p = pos.position
@@ -50,10 +52,12 @@ async def _fly(udp_port: int, grpc_port: int, sim: Simulator) -> None:
     drone._stop_mavsdk_server()
 
 
-def test_mavsdk_arms_flies_offboard_and_lands_the_simulator() -> None:
+def test_mavsdk_set_position_then_offboard_start_at_once_flies_and_lands() -> None:
     udp_port, grpc_port = _free_port(), _free_port(socket.SOCK_STREAM)
     params = {"MPC_LAND_SPEED": 2.0, "MPC_TKO_SPEED": 3.0}
     with Simulator(1, port=0, target_port=udp_port, params=params) as sim:
         asyncio.run(asyncio.wait_for(_fly(udp_port, grpc_port, sim), timeout=55))
         assert not sim.armed and sim.landed
         assert "OFFBOARD" in [c.new for c in sim.mode_log]
+        # offboard.start() right after the first set_position_ned: accepted the first time.
+        assert [r for _, c, r in sim.command_log if c == 176][:1] == [0]

@@ -7,7 +7,7 @@ import socket
 import time
 
 import pytest
-from px4_helpers import FAST_PARAMS, EventLog, sim_and_link, wait_for
+from px4_helpers import FAST_PARAMS, EventLog, sim_and_link, wait_armable, wait_for
 
 from px4_link import (
     Attitude,
@@ -101,10 +101,8 @@ def test_offboard_refused_without_stream_accepted_with_one() -> None:
             link.action.set_mode("OFFBOARD")
         assert "offboard" in str(e.value).lower()
         assert sim.mode == "AUTO.LOITER"
-        # A single setpoint is not a stream: PX4 wants ~1 s of > 2 Hz first.
+        # No warm-up (offboardCheck.cpp): a setpoint within COM_OF_LOSS_T makes OFFBOARD available.
         link.offboard.set_setpoint(PositionTarget(0, 0, -2.0, yaw=0.0))
-        with pytest.raises(CommandTemporarilyRejected):
-            link.action.set_mode("OFFBOARD")
         link.offboard.start()
         assert sim.mode == "OFFBOARD" and link.state.mode == "OFFBOARD"
         sp = sim.last_setpoint
@@ -193,10 +191,12 @@ def test_invalid_setpoints_rejected_and_never_reach_vehicle() -> None:
 
 def test_command_errors_raise_the_right_exception() -> None:
     with sim_and_link() as (sim, link, events):
-        with pytest.raises(CommandTemporarilyRejected):
-            link.action.set_mode("POSCTL")            # no RC: PX4 refuses manual modes
-        with pytest.raises(CommandTemporarilyRejected):
-            link.action.set_mode("MISSION")           # no mission uploaded
+        # Disarmed, PX4 accepts any mode (UserModeIntention.cpp) and refuses arming in one that
+        # cannot run (HealthAndArmingChecks): no RC for POSCTL, no mission for MISSION.
+        for mode in ("POSCTL", "MISSION"):
+            link.action.set_mode(mode)
+            with pytest.raises(CommandTemporarilyRejected):
+                link.action.arm()
         with pytest.raises(CommandDenied):
             link.send_command(185, 1)          # DO_FLIGHTTERMINATION while disarmed
         with pytest.raises(CommandUnsupported):
@@ -212,7 +212,8 @@ def test_command_errors_raise_the_right_exception() -> None:
         with pytest.raises(CommandTimeout):
             link.send_command(400, 0, timeout=0.2, retries=2)
         assert time.monotonic() - t0 >= 0.5
-        results = [r for _, c, r in sim.command_log if c == 176]
+        assert {r for _, c, r in sim.command_log if c == 176} == {0}    # every mode accepted disarmed
+        results = [r for _, c, r in sim.command_log if c == 400]
         assert 1 in results and 0 in results
 
 
@@ -274,6 +275,7 @@ def test_two_simulators_one_port_link_picks_its_system_id() -> None:
             assert link.wait_connected(5)
             assert link.system_id == 2
             assert wait_for(lambda: link.stats.other_system_messages > 50, 3)
+            wait_armable(link)
             link.action.arm()
             assert sim2.armed and not sim1.armed
             assert link.telemetry.wait(Imu, 1).system_id == 2

@@ -181,3 +181,143 @@ def test_failsafe_helper_catches_every_failsafe_mode(action: int, mode: str) -> 
         assert sim.wait_for(lambda s: s.mode == mode, 2.0), sim.mode
         with pytest.raises(AssertionError, match="failsafe"):
             assert_no_px4_failsafe(sim)
+
+
+# ---------------------------------------------------------------- issue #25: as strict as PX4
+def _statustexts(events) -> list[str]:
+    return [d["text"] for _, name, d in events.events if name == "statustext"]
+
+
+def test_prearm_warmup_length_bits_and_refusal_like_px4() -> None:
+    """Row: arming right after boot. PX4: commander/HealthAndArmingChecks/checks/estimatorCheck.cpp
+    ("Preflight Fail: heading estimate not stable") and Commander.cpp arm() ("Arming denied: Resolve
+    system health failures first", TEMPORARILY_REJECTED) until the estimator is ready."""
+    rx, _, t0 = _trace()
+    # PX4's boot time from SYSTEM_TIME; the first SYS_STATUS with the PREARM_CHECK health bit.
+    st = next(m for m in rx if m.get_type() == "SYSTEM_TIME")
+    boot = _t(st, t0) - st.time_boot_ms / 1000.0
+    sys_status = [m for m in rx if m.get_type() == "SYS_STATUS"]
+    ready = next(_t(m, t0) for m in sys_status if m.onboard_control_sensors_health & 0x10000000) - boot
+    assert 3.8 < ready < 4.5, ready
+    warming = [m for m in sys_status if 2.5 < _t(m, t0) - boot < ready - 0.3]
+    assert {(m.onboard_control_sensors_present, m.onboard_control_sensors_health) for m in warming} \
+        == {(0x0300400F, 0x0320883F)}
+
+    with sim_and_link(armable=False) as (sim, link, events):
+        from px4_link.commands import CommandTemporarilyRejected
+        from px4_link.telemetry import SysStatus
+        with pytest.raises(CommandTemporarilyRejected, match="Resolve system health failures"):
+            link.action.arm()
+        assert not sim.armed and not sim.armable
+        assert sim.wait_for(lambda s: s.commander.since_boot() > 3.0, 5)
+        s = link.telemetry.wait(SysStatus, 1.0)
+        assert s is not None and not s.armable
+        assert (s.sensors_present & ~0x10000000, s.sensors_health) == (0x0300400F, 0x0320883F)
+        assert sim.wait_for(lambda s: s.armable, 3.0)
+        sim_ready = sim.commander.since_boot()
+        assert abs(sim_ready - ready) < 0.4, (sim_ready, ready)
+        assert link.telemetry.wait(SysStatus, 1.0, lambda m: m.armable) is not None
+        texts = _statustexts(events)
+        assert "Preflight Fail: heading estimate not stable" in texts
+        assert texts.index("Preflight Fail: heading estimate not stable") < texts.index("Ready for takeoff!")
+        link.action.arm()
+        assert sim.armed
+        refused = [r for _, c, r in sim.command_log if c == 400]
+        assert refused == [1, 0]
+
+
+def test_offboard_available_from_the_first_recent_setpoint_like_px4() -> None:
+    """Row: MAVSDK's set-then-start. PX4: commander/HealthAndArmingChecks/checks/offboardCheck.cpp:
+    available while offboard_control_mode is within COM_OF_LOSS_T and the estimate is valid; no warm-up."""
+    with sim_and_link() as (sim, link, _):
+        link.action.arm()
+        from px4_link.commands import CommandTemporarilyRejected
+        with pytest.raises(CommandTemporarilyRejected):   # armed: OFFBOARD must be able to run
+            link.action.set_mode("OFFBOARD")
+        link.offboard.set_setpoint(PositionTarget(0, 0, -2.0))
+        link.offboard.start()                              # at once: accepted
+        assert sim.mode == "OFFBOARD"
+        assert [r for _, c, r in sim.command_log if c == 176][-1] == 0
+
+
+def test_disarmed_mode_requests_accepted_and_arming_checks_the_mode_like_px4() -> None:
+    """Row: mode requests disarmed. PX4: commander/UserModeIntention.cpp change() always allows a
+    mode while disarmed; arming then checks it (HealthAndArmingChecks canArm, mode_requirements.cpp).
+    Zenoh variants trace (px4_zenoh_traces/variants): OFFBOARD with the stream stopped -> ACCEPTED,
+    nav_state stays OFFBOARD, ARM -> TEMPORARILY_REJECTED."""
+    from px4_link.commands import CommandTemporarilyRejected
+    with sim_and_link() as (sim, link, _):
+        link.action.set_mode("OFFBOARD")                   # no setpoint ever: still accepted
+        time.sleep(1.5)
+        assert sim.mode == "OFFBOARD" and not sim.armable  # no fallback while disarmed
+        with pytest.raises(CommandTemporarilyRejected):
+            link.action.arm()
+        for mode in ("AUTO.RTL", "AUTO.LAND"):             # mode_req_prevent_arming
+            link.action.set_mode(mode)
+            assert sim.mode == mode and not sim.armable
+            with pytest.raises(CommandTemporarilyRejected, match="not possible"):
+                link.action.arm()
+        link.action.hold()
+        assert sim.armable
+        assert_no_px4_failsafe(sim)
+
+
+def test_armed_mode_requests_need_the_mode_to_run_like_px4() -> None:
+    """Row: mode requests armed. PX4: UserModeIntention.cpp -> canRun (failsafe/framework.cpp
+    modeCanRun, ModeUtil/mode_requirements.cpp): POSCTL needs manual control (no RC here),
+    OFFBOARD a recent setpoint; Commander.cpp answers TEMPORARILY_REJECTED. LAND is forced."""
+    from px4_link.commands import CommandTemporarilyRejected
+    with sim_and_link() as (sim, link, _):
+        link.action.arm()
+        for mode in ("POSCTL", "OFFBOARD", "MISSION"):
+            with pytest.raises(CommandTemporarilyRejected):
+                link.action.set_mode(mode)
+        assert sim.mode == "AUTO.LOITER" and sim.armed
+        link.action.set_mode("AUTO.LAND")                  # Commander.cpp: LAND always allowed
+        assert sim.mode == "AUTO.LAND"
+        assert sim.wait_for(lambda s: not s.armed, 8.0)    # LAND while landed: land detector disarms
+
+
+def test_nav_takeoff_in_flight_never_restarts_from_the_ground_like_px4() -> None:
+    """Row: NAV_TAKEOFF in flight. PX4: navigator/takeoff.cpp set_takeoff_position: a takeoff
+    altitude below the current one holds it ("Already higher than takeoff altitude")."""
+    with sim_and_link() as (sim, link, events):
+        link.offboard.set_setpoint(PositionTarget(0, 0, -6.0))
+        link.offboard.start()
+        link.action.arm()
+        assert sim.wait_for(lambda s: s.altitude > 5.5, 15)
+        link.offboard.stop_stream()
+        link.action.hold()
+        link.action.takeoff(2.0)                           # AMSL home + 2 m, below us
+        assert sim.mode in ("AUTO.TAKEOFF", "AUTO.LOITER")
+        time.sleep(1.5)
+        assert sim.altitude > 5.3, sim.altitude
+        assert "Already higher than takeoff altitude" in _statustexts(events)
+        assert_no_px4_failsafe(sim)
+
+
+def test_loiter_unlim_is_unsupported_like_px4() -> None:
+    """Row: NAV_LOITER_UNLIM. PX4: Commander.cpp handle_command has no case for it -> default:
+    UNSUPPORTED (navigator only uses it inside missions)."""
+    from px4_link.commands import CommandUnsupported
+    with sim_and_link(armable=False) as (sim, link, _):
+        with pytest.raises(CommandUnsupported):
+            link.send_command(17, 0, 0, 0, math.nan, math.nan, math.nan, math.nan)
+
+
+def test_internal_error_is_no_ack_and_is_recorded() -> None:
+    """Row: an internal simulator error. Never a FAILED ACK a test could take for a refusal: no
+    ACK at all (the sender times out) and an entry the autouse fixture in conftest.py fails on."""
+    from px4_link.commands import CommandTimeout
+    from px4_link.sim import simulator as sim_mod
+    before = len(sim_mod.INTERNAL_ERRORS)
+    with sim_and_link(armable=False) as (sim, link, _):
+        def broken(*a, **kw):
+            raise RuntimeError("simulator bug")
+        sim.commander.handle_command = broken              # type: ignore[method-assign]
+        with pytest.raises(CommandTimeout):
+            link.send_command(400, 1, timeout=0.3, retries=1)
+        assert not [r for _, c, r in sim.command_log if c == 400]
+        assert len(sim.internal_errors) >= 1 and "simulator bug" in sim.internal_errors[0]
+    assert len(sim_mod.INTERNAL_ERRORS) > before
+    del sim_mod.INTERNAL_ERRORS[before:]                   # seen here on purpose: not this test's failure

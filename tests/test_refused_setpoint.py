@@ -46,7 +46,7 @@ def test_a_nan_setpoint_from_the_holder_is_counted_and_reported_to_it(ns: str) -
 
 
 def test_the_holder_still_hears_after_a_peer_filled_the_reporter_with_forged_ids(ns: str) -> None:
-    """The refusal reporter's table of (kind, client, reason) is bounded and never evicts (so a
+    """The refusal reporter's table of (kind, client, reason) is bounded and never evicts a live window (so a
     forger gains no fresh budget); once a flood of invented client ids fills it, a new key is
     counted but never reported. The GCS in control must still hear of its refused setpoints."""
     with rig(ns) as r:

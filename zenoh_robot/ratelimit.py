@@ -2,11 +2,13 @@
 
 One mechanism, :class:`RateLimiter`: each key may report at most ``burst`` times per ``interval``
 seconds, then stays silent until its window ends; every occurrence is counted. The table of keys
-is bounded: when it is full a new key is refused (counted in ``overflow``), never let in by
-evicting an old one, because keys may carry ids a peer forges and an eviction would hand each
-forged id a fresh budget. :class:`RateLimitedLog` is that limiter in front of a logger: the first
-line after a silence says how many were suppressed. Library keys are kinds of failure
-(``"malformed"``, ``"callback"``); applications may key by client id, bounded as above.
+is bounded: when it is full, windows that ended with nothing suppressed are dropped (their key's
+next window would grant the same budget), and a new key that still finds no room is refused
+(counted in ``overflow``), never let in by evicting a live window, because keys may carry ids a
+peer forges and such an eviction would hand each forged id a fresh budget. :class:`RateLimitedLog`
+is that limiter in front of a logger: the first line after a silence says how many were suppressed.
+Library keys are kinds of failure (``"malformed"``, ``"callback"``); applications may key by client
+id, bounded as above.
 
 Thread safe: both classes are called from Zenoh-fed executors and from worker threads at once.
 """
@@ -48,6 +50,7 @@ class RateLimiter:
         self.overflow = 0    # occurrences whose key found no room (counted, never reported)
         self._windows: dict[tuple[str, ...], _Window] = {}
         self._lock = threading.Lock()
+        self._swept = float("-inf")
 
     def admit(self, *key: str) -> Admitted | None:
         """Count one occurrence of ``key``; an :class:`Admitted` if it may be reported, else None."""
@@ -55,7 +58,7 @@ class RateLimiter:
         with self._lock:
             w = self._windows.get(key)
             if w is None:
-                if len(self._windows) >= self.MAX_KEYS:
+                if len(self._windows) >= self.MAX_KEYS and not self._sweep(now):
                     self.overflow += 1
                     return None
                 w = self._windows[key] = _Window(now)
@@ -69,6 +72,18 @@ class RateLimiter:
                 return None
             w.lines += 1
             return Admitted(w.count, suppressed)
+
+    def _sweep(self, now: float) -> bool:
+        """Under the lock, with the table full: drop the windows that ended with nothing left to say.
+        A key dropped so comes back with the budget its next window would have given it anyway, so a
+        forger gains nothing; a flood of live keys is swept at most four times per interval."""
+        if now - self._swept < self.interval / 4:
+            return False
+        self._swept = now
+        done = [k for k, w in self._windows.items() if now - w.start >= self.interval and not w.suppressed]
+        for k in done:
+            del self._windows[k]
+        return bool(done)
 
     def hit(self, *key: str) -> int:
         """Count one occurrence; the key's running count when it may be reported, else 0."""

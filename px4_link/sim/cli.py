@@ -7,6 +7,7 @@ import signal
 import sys
 from collections.abc import Sequence
 
+from .faults import parse_ekf_reset, parse_estimate_loss, parse_low_battery
 from .protocol import DEFAULT_RATES_HZ
 from .simulator import DEFAULT_HOME, Simulator
 
@@ -50,6 +51,15 @@ def build_parser(p: argparse.ArgumentParser | None = None) -> argparse.ArgumentP
                    help="home position (default PX4 SITL's Zurich)")
     p.add_argument("--physics-hz", type=float, default=100.0, help="physics rate (default 100)")
     p.add_argument("--seed", type=int, default=None, help="noise seed")
+    p.add_argument("--estimate-loss", type=parse_estimate_loss, action="append", default=[],
+                   metavar="AT:DURATION", help="fault: the position estimate is lost AT s after start "
+                   "for DURATION s (repeatable)")
+    p.add_argument("--ekf-reset", type=parse_ekf_reset, action="append", default=[],
+                   metavar="AT:NORTH[,EAST[,DOWN]]", help="fault: an estimator reset AT s after start "
+                   "makes the local position jump by the given metres (repeatable)")
+    p.add_argument("--low-battery", type=parse_low_battery, action="append", default=[],
+                   metavar="AT:LEVEL", help="fault: the battery reads LEVEL (0..1) from AT s after start "
+                   "(repeatable)")
     p.add_argument("--log-level", default="WARNING")
     return p
 
@@ -71,7 +81,8 @@ def run(args: argparse.Namespace) -> int:
         sim = Simulator(args.sysid, compid=args.compid, port=args.port, bind_host=args.bind,
                         target_host=args.target_host, target_port=args.target_port,
                         params=dict(args.param), rates=dict(args.rate), home=args.home,
-                        physics_hz=args.physics_hz, seed=args.seed)
+                        physics_hz=args.physics_hz, seed=args.seed,
+                        faults=[*args.estimate_loss, *args.ekf_reset, *args.low_battery])
     except KeyError as e:
         print(f"unknown parameter or stream: {e}", file=sys.stderr)
         return 2

@@ -6,20 +6,28 @@ failsafe/failsafe.cpp):
   it returns to the last mode the user selected that does not prevent arming
   (UserModeIntention's nav_state_after_disarming): OFFBOARD after an offboard mission, so
   a vehicle landed from OFFBOARD sits disarmed in OFFBOARD (real SITL trace: 50.8 s).
-- Mode changes and arming that PX4 would refuse are answered TEMPORARILY_REJECTED
-  (PX4 maps every TRANSITION_DENIED of DO_SET_MODE, NAV_TAKEOFF, NAV_RTL and
-  COMPONENT_ARM_DISARM to that result); LAND is always allowed ("emergency mode").
-- OFFBOARD can only be entered after ~1 s of setpoints at > 2 Hz, and in OFFBOARD a gap
-  longer than COM_OF_LOSS_T (plus PX4's detection latency, ~0.4 s) triggers the
-  COM_OBL_RC_ACT failsafe. PX4's default (0) is Position mode, which needs RC: without RC
+- Mode requests follow commander/UserModeIntention.cpp: while disarmed every mode PX4 knows is
+  accepted (the user intention changes; whether the mode can run is checked at arming), while
+  armed a mode must be able to run (commander/ModeUtil/mode_requirements.cpp, checked as
+  failsafe/framework.cpp modeCanRun does), else TEMPORARILY_REJECTED; LAND is always allowed
+  ("emergency mode"), nothing leaves TERMINATION.
+- OFFBOARD is available as soon as a setpoint is recent (within COM_OF_LOSS_T) and the estimate
+  it needs is valid (commander/HealthAndArmingChecks/checks/offboardCheck.cpp): no warm-up. In
+  OFFBOARD a gap longer than COM_OF_LOSS_T (plus PX4's detection latency, ~0.4 s) triggers the
+  COM_OBL_RC_ACT failsafe when armed. PX4's default (0) is Position mode, which needs RC: without RC
   the failsafe framework falls back to Return (AUTO.RTL), status CRITICAL. COM_FAIL_ACT_T's
-  hold only applies when a user could take over with RC, so never here.
+  hold only applies when a user could take over with RC, so never here. Disarmed, nothing
+  happens (framework.cpp getSelectedAction: no action while disarmed; real PX4 stays in OFFBOARD).
+- Pre-arm: the estimator needs ``estimator_warmup_s`` after boot (PX4 SITL: 4.1 s to "Ready for
+  takeoff"); until then "Preflight Fail: heading estimate not stable"
+  (HealthAndArmingChecks/checks/estimatorCheck.cpp) and arming is refused with
+  "Arming denied: Resolve system health failures first" (Commander.cpp arm()).
 - Takeoff: motors spool up for COM_SPOOLUP_TIME, then the climb-rate limit ramps over
   MPC_TKO_RAMP_T (SITL: arm -> 4 m in ~5.5-6 s). Land detection takes ~3 s of ground
   contact, then COM_DISARM_LAND.
 - When AUTO.LAND starts, the navigator asks the gimbal manager to point neutral: three
   COMMAND_LONGs to component 0 of our own system, the first resent up to 3x unanswered.
-- Manual modes are refused: the simulator has no RC / joystick input.
+- Manual modes cannot run (and a vehicle in one cannot arm): the simulator has no RC input.
 - Disarming in the air needs the force magic (param2 = 21196); auto-disarm after
   COM_DISARM_PRFLT without takeoff and COM_DISARM_LAND after landing.
 - Unknown commands get UNSUPPORTED; DO_FLIGHTTERMINATION while disarmed gets DENIED.
@@ -33,6 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..modes import MAIN_AUTO, decode_main_sub
+from .failsafe import offboard_loss_action
 from .params import ParamStore
 from .physics import Limits, PointMassQuad, Target
 
@@ -48,8 +57,13 @@ CMD_COMPONENT_ARM_DISARM = 400
 # MAV_LANDED_STATE
 ON_GROUND, IN_AIR, TAKING_OFF, LANDING = 1, 2, 3, 4
 
-OFFBOARD_MIN_RATE_GAP_S = 0.5     # "> 2 Hz": a gap above 0.5 s restarts the proof of life
-OFFBOARD_WARMUP_S = 1.0           # PX4 docs: the signal must be present for > 1 s
+# Boot -> pre-arm checks pass in real PX4 SITL (SIH): EVENT "arming checks ok" at 4.13 s after boot
+# and SYS_STATUS's PREARM_CHECK health bit from 4.1-4.3 s (px4_traces/px4_to_companion.tlog);
+# vehicle_status.pre_flight_checks_pass at 3.81 s in the Zenoh ground trace.
+PX4_ESTIMATOR_WARMUP_S = 4.1
+# Boot -> GPS and the estimator's first outputs (SYS_STATUS present bits, trace: ~2.2 s after boot);
+# PX4 prints its first health report's failure then.
+SENSORS_UP_S = 2.2
 # COM_OF_LOSS_T is checked against the offboard_control_mode timestamp, and the failsafe
 # state machine reacts a few cycles later: PX4 SITL switches ~1.4 s after the last setpoint.
 OFFBOARD_LOSS_LATENCY_S = 0.4
@@ -61,10 +75,11 @@ LAND_DETECT_S = 3.5
 TAKEOFF_RAMP_DEAD_S = 1.2
 MANUAL_MODES = {"MANUAL", "ALTCTL", "POSCTL", "POSCTL.ORBIT", "POSCTL.SLOW", "ACRO",
                 "STABILIZED", "RATTITUDE"}
+# Modes a user may select in the simulator (while disarmed any of them is accepted, as PX4 does).
+KNOWN_MODES = MANUAL_MODES | {"OFFBOARD", "AUTO.LOITER", "AUTO.TAKEOFF", "AUTO.LAND", "AUTO.RTL",
+                              "AUTO.MISSION"}
 HOLDING_MODES = {"AUTO.LOITER", "POSCTL", "ALTCTL", "STABILIZED"}
 NO_ARM_MODES = {"AUTO.LAND", "AUTO.RTL", "TERMINATION"}
-OBL_ACTIONS = {0: "POSCTL", 1: "ALTCTL", 2: "STABILIZED", 3: "AUTO.RTL", 4: "AUTO.LAND",
-               5: "AUTO.LOITER", 6: "TERMINATION", 7: "DISARM"}
 # Every mode PX4's failsafe framework may put the vehicle in (incl. fallbacks).
 FAILSAFE_MODES = frozenset({"POSCTL", "ALTCTL", "STABILIZED", "AUTO.RTL", "AUTO.LAND",
                             "AUTO.LOITER", "TERMINATION", "AUTO.PRECLAND"})
@@ -143,11 +158,15 @@ class Commander:
     outgoing: list[OutgoingCommand] = field(default_factory=list)
     landed_at: float | None = None           # last auto/commanded disarm on the ground
     setpoints_since_landed: int = 0
+    estimator_warmup_s: float = PX4_ESTIMATOR_WARMUP_S
+    estimate_lost: bool = False    # an injected estimate loss (sim/faults.py)
 
     def __post_init__(self) -> None:
         self._lock = threading.RLock()
+        self._boot = self.now
+        self._health_reported = False     # the first health report (a failure) was printed
+        self._ready_reported = False      # "Ready for takeoff!" was printed
         self._sp_last: float | None = None
-        self._sp_stream_start: float | None = None
         self._armed_at: float | None = None
         self._took_off = False
         self._landed_since: float | None = self.now
@@ -217,23 +236,61 @@ class Commander:
     def on_command_ack(self, command: int) -> None:
         with self._lock:
             self.outgoing = [c for c in self.outgoing if c.command != command or c.confirmation == 0]
+    # ------------------------------------------------------------ health
+    def since_boot(self) -> float:
+        return self.now - self._boot
+
+    def sensors_up(self) -> bool:
+        """GPS and the estimator's first outputs are there (SYS_STATUS present bits)."""
+        return self.since_boot() >= min(SENSORS_UP_S, self.estimator_warmup_s)
+
+    def estimate_valid(self) -> bool:
+        """Local/global position, velocity and heading usable (EKF2 aligned, heading stable)."""
+        return self.since_boot() >= self.estimator_warmup_s and not self.estimate_lost
+
+    def preflight_failure(self) -> str | None:
+        """What PX4's health and arming checks report now, disarmed (None: all pass)."""
+        if not self.estimate_valid():
+            # HealthAndArmingChecks/checks/estimatorCheck.cpp checkEstimatorStatus
+            return "Preflight Fail: heading estimate not stable"
+        return None
+
+    def _report_health(self) -> None:
+        # Commander prints the first failing report and, once everything passes,
+        # "Ready for takeoff!" (Commander.cpp, health report changes; the SITL console shows both).
+        if not self._health_reported and self.sensors_up():
+            self._health_reported = True
+            failure = self.preflight_failure()
+            if failure is not None:
+                self._say(failure, 2)
+        if not self._ready_reported and self.preflight_failure() is None:
+            self._ready_reported = True
+            self._health_reported = True
+            self._say("Ready for takeoff!", 6)
+
     def offboard_signal_ok(self) -> bool:
-        """PX4's offboard availability: a fresh setpoint, streamed for > 1 s."""
-        if self._sp_last is None or self._sp_stream_start is None:
+        """commander/HealthAndArmingChecks/checks/offboardCheck.cpp: a setpoint within COM_OF_LOSS_T,
+        and the estimate a position / velocity setpoint needs is valid. No warm-up."""
+        if self._sp_last is None:
             return False
-        fresh = self.now - self._sp_last <= min(OFFBOARD_MIN_RATE_GAP_S,
-                                                float(self.params["COM_OF_LOSS_T"]))
-        return fresh and self.now - self._sp_stream_start >= OFFBOARD_WARMUP_S
+        recent = self.now < self._sp_last + float(self.params["COM_OF_LOSS_T"])
+        return recent and self.estimate_valid()
 
     def _can_run(self, mode: str) -> str | None:
-        """None if PX4 would allow switching to ``mode`` now, else the reason."""
-        if mode == "OFFBOARD":
+        """None if ``mode`` can run now, else why: commander/ModeUtil/mode_requirements.cpp's
+        requirements, checked as failsafe/framework.cpp modeCanRun does."""
+        if mode == "OFFBOARD":   # mode_req_offboard_signal (+ attitude)
             return None if self.offboard_signal_ok() else "No offboard signal"
-        if mode in MANUAL_MODES:
+        if mode in MANUAL_MODES:   # mode_req_manual_control: the simulator has no RC
             return "No manual control input"
-        if mode in ("AUTO.LOITER", "AUTO.TAKEOFF", "AUTO.LAND", "AUTO.RTL"):
-            return None
-        if mode == "AUTO.MISSION":
+        if mode in ("AUTO.LOITER", "AUTO.TAKEOFF", "AUTO.RTL"):
+            # LOITER/RTL: mode_req_global_position + local_position; TAKEOFF (rotary wing):
+            # mode_req_local_position + local_alt; RTL also mode_req_home_position, which the
+            # simulator has whenever its estimate is valid (home = the boot position).
+            return None if self.estimate_valid() else "No valid position estimate"
+        if mode == "AUTO.LAND":   # mode_req_local_position_relaxed + local_alt
+            return None if self.estimate_valid() else "No valid position estimate"
+        if mode == "AUTO.MISSION":   # mode_req_mission
             return "No valid mission available"
         return f"{mode} not supported by the simulator"
 
@@ -244,14 +301,29 @@ class Commander:
             if self.landed_at is not None and not self.armed:
                 self.setpoints_since_landed += 1
             self.last_setpoint = sp
-            if self._sp_last is None or sp.time - self._sp_last > OFFBOARD_MIN_RATE_GAP_S:
-                self._sp_stream_start = sp.time
             self._sp_last = sp.time
+
+    def arming_refusal(self) -> str | None:
+        """Why PX4's canArm(nav_state) would fail now (None: it can arm), disarmed.
+        HealthAndArmingChecks: every check, plus the current mode's requirements and
+        mode_req_prevent_arming (mode_requirements.cpp)."""
+        if self.preflight_failure() is not None:
+            return "Arming denied: Resolve system health failures first"
+        if self.landed_state != ON_GROUND:
+            return "Arming denied: not landed"
+        if self.mode in NO_ARM_MODES:
+            return f"Arming denied: not possible in {self.mode}"
+        if self.mode == "OFFBOARD" and not self.offboard_signal_ok():
+            return "Arming denied: no offboard signal"
+        why = self._can_run(self.mode)
+        if why is not None:
+            return f"Arming denied: {why}"
+        return None
 
     def armable(self) -> bool:
         """What PX4's pre-arm checks would say now (SYS_STATUS PREARM_CHECK health)."""
         with self._lock:
-            return self.armed or (self.landed_state == ON_GROUND and self.mode not in NO_ARM_MODES)
+            return self.armed or self.arming_refusal() is None
 
     def handle_command(self, command: int, p: list[float], now: float | None = None) -> CommandResult:
         with self._lock:
@@ -262,18 +334,22 @@ class Commander:
             if command == CMD_DO_SET_MODE:
                 return self._do_set_mode(p)
             if command == CMD_NAV_TAKEOFF:
-                alt = float(self.params["MIS_TAKEOFF_ALT"])
-                if math.isfinite(p[6]):
-                    alt = max(p[6] - self.home_alt, 1.0)
-                self._takeoff_alt = alt
-                if self.mode == "AUTO.TAKEOFF":
-                    self._enter("AUTO.TAKEOFF")
-                return self._request_mode("AUTO.TAKEOFF", "command")
+                r = self._request_mode("AUTO.TAKEOFF", "command")   # Commander.cpp NAV_TAKEOFF
+                if r.result == ACCEPTED:
+                    self._set_takeoff_altitude(p[6])
+                return r
             if command == CMD_NAV_LAND:
-                self._set_mode("AUTO.LAND", "command")   # PX4 forces LAND: always available
+                # Commander.cpp NAV_LAND: forced, always available ("emergency mode"); only
+                # TERMINATION is never left (UserModeIntention.cpp).
+                if self.mode == "TERMINATION":
+                    return CommandResult(TEMPORARILY_REJECTED)
+                self._set_mode("AUTO.LAND", "command")
                 return CommandResult(ACCEPTED, "Landing at current position")
             if command == CMD_NAV_RETURN_TO_LAUNCH:
-                return self._request_mode("AUTO.RTL", "command")
+                r = self._request_mode("AUTO.RTL", "command")   # Commander.cpp NAV_RETURN_TO_LAUNCH
+                if r.result == ACCEPTED:
+                    r.text = "Returning to launch"
+                return r
             if command == CMD_DO_FLIGHTTERMINATION:
                 if p[0] > 0.5 and self.armed:
                     self._set_mode("TERMINATION", "command")
@@ -282,8 +358,31 @@ class Commander:
                 return CommandResult(DENIED)
             return CommandResult(UNSUPPORTED)
 
+    def _set_takeoff_altitude(self, amsl: float) -> None:
+        """navigator/takeoff.cpp set_takeoff_position: param7 (AMSL) or, when NaN, the current
+        altitude + MIS_TAKEOFF_ALT; never lower than now ("Already higher than takeoff
+        altitude"), so a NAV_TAKEOFF in flight climbs or holds, never restarts from the ground."""
+        current = -float(self.vehicle.pos[2])
+        if math.isfinite(amsl):
+            alt = max(amsl - self.home_alt, 1.0)
+        else:
+            alt = current + float(self.params["MIS_TAKEOFF_ALT"])
+            self._say(f"Using default takeoff altitude: {float(self.params['MIS_TAKEOFF_ALT']):.1f} m", 6)
+        if alt < current:
+            self._say("Already higher than takeoff altitude", 2)
+            alt = current
+        self._takeoff_alt = alt
+        self._enter("AUTO.TAKEOFF")
+
     def _request_mode(self, mode: str, reason: str) -> CommandResult:
-        why = self._can_run(mode)
+        """commander/UserModeIntention.cpp change(): always allowed while disarmed, else the mode
+        must be able to run; never out of TERMINATION."""
+        if self.mode == "TERMINATION":
+            return CommandResult(TEMPORARILY_REJECTED, f"{mode} rejected: in TERMINATION")
+        if mode not in KNOWN_MODES:   # the simulator cannot fly it: refused in any state
+            why: str | None = f"{mode} not supported by the simulator"
+        else:
+            why = self._can_run(mode) if self.armed else None
         if why is not None:
             # PX4 prints "Switching to <mode> is currently not available"; STATUSTEXT holds
             # 50 characters, so keep the reason instead.
@@ -293,17 +392,19 @@ class Commander:
 
     def _do_set_mode(self, p: list[float]) -> CommandResult:
         base_mode, main, sub = int_param(p[0]), int_param(p[1]), int_param(p[2])
+        # Commander.cpp DO_SET_MODE: the mode asked, then UserModeIntention::change; anything it
+        # cannot map is TRANSITION_DENIED, i.e. TEMPORARILY_REJECTED.
         if not base_mode & 1:   # not MAV_MODE_FLAG_CUSTOM_MODE_ENABLED: standard flags
-            if base_mode & 64:  # MANUAL_INPUT_ENABLED -> a stick mode
-                return CommandResult(TEMPORARILY_REJECTED, "No manual control input")
             if base_mode & 4:   # AUTO_ENABLED -> mission
                 return self._request_mode("AUTO.MISSION", "command")
-            return CommandResult(ACCEPTED)  # PX4: nothing to change
+            if base_mode & 64:  # MANUAL_INPUT_ENABLED -> a stick mode
+                stick = "POSCTL" if base_mode & 8 else "STABILIZED" if base_mode & 16 else "MANUAL"
+                return self._request_mode(stick, "command")
+            return CommandResult(TEMPORARILY_REJECTED, "Unsupported base mode")
         name = decode_main_sub(main, sub if main == MAIN_AUTO or main == 3 else 0)
         if name.startswith("UNKNOWN"):
-            # PX4 would ACK this without changing anything; refusing is more useful.
-            return CommandResult(DENIED, f"Unknown mode {main}.{sub}")
-        if name == "AUTO.LAND":
+            return CommandResult(TEMPORARILY_REJECTED, f"Unsupported mode {main}.{sub}")
+        if name == "AUTO.LAND" and self.mode != "TERMINATION":   # forced, as NAV_LAND
             self._set_mode(name, "command")
             return CommandResult(ACCEPTED)
         return self._request_mode(name, "command")
@@ -314,14 +415,13 @@ class Commander:
         if action == 1:
             if self.armed:
                 return CommandResult(ACCEPTED)
-            if not forced:
-                if self.landed_state != ON_GROUND:
-                    return CommandResult(TEMPORARILY_REJECTED, "Arming denied: not landed")
-                if self.mode in NO_ARM_MODES:
-                    return CommandResult(TEMPORARILY_REJECTED,
-                                         f"Arming denied: not possible in {self.mode}")
-                if self.mode == "OFFBOARD" and not self.offboard_signal_ok():
-                    return CommandResult(TEMPORARILY_REJECTED, "Arming denied: no offboard signal")
+            if not forced:   # Commander.cpp arm(): canArm(nav_state), else TRANSITION_DENIED
+                refusal = self.arming_refusal()
+                if refusal is not None:
+                    failure = self.preflight_failure()
+                    if failure is not None:   # the report's failures are printed first
+                        self._say(failure, 2)
+                    return CommandResult(TEMPORARILY_REJECTED, refusal)
             self.armed = True
             self._armed_at = self.now
             self._took_off = False
@@ -361,6 +461,7 @@ class Commander:
         """Run the state machine at time ``now``; return what the airframe should do."""
         with self._lock:
             self.now = now
+            self._report_health()
             self._update_landed()
             self._check_offboard_loss()
             if self._pending is not None and now >= self._pending[0]:
@@ -399,23 +500,48 @@ class Commander:
         if silent <= float(self.params["COM_OF_LOSS_T"]) + OFFBOARD_LOSS_LATENCY_S:
             return
         if not self.armed:
-            # Disarmed, PX4 only falls back to a mode that can run; no failsafe action.
-            self._set_mode("AUTO.LOITER", "mode fallback: no offboard signal")
+            # failsafe/framework.cpp getSelectedAction: no action while disarmed; PX4 stays in
+            # OFFBOARD (Zenoh variants trace V5b/V7: nav_state 14, arming then refused).
             return
-        action = OBL_ACTIONS.get(int(self.params["COM_OBL_RC_ACT"]), "POSCTL")
-        if action in MANUAL_MODES:   # needs RC sticks, and the simulator has no RC
-            action = "AUTO.RTL"
-        self._say(f"Failsafe: no offboard signal, action {action}", severity=2)
-        self.failsafe = True
-        self.failsafe_log.append(FailsafeEvent(self.now, "offboard loss", action))
-        if action == "TERMINATION":
-            self._set_mode("TERMINATION", "failsafe: offboard loss")
-            self._disarm("termination")
-        elif action == "DISARM":
-            self._set_mode("AUTO.LOITER", "failsafe: offboard loss")
-            self._disarm("failsafe")
-        else:
-            self._set_mode(action, "failsafe: offboard loss")
+        # COM_OBL_RC_ACT; its stick modes fall back to NAV_RCL_ACT without RC (sim/failsafe.py)
+        action = offboard_loss_action(self.params)
+        self.failsafe_action("offboard loss", action, f"Failsafe: no offboard signal, action {action}")
+
+    # ------------------------------------------------------------ hooks of sim/failsafe.py and sim/faults.py
+    def say(self, text: str, severity: int = 4) -> None:
+        self._say(text, severity)
+
+    def failsafe_action(self, cause: str, mode: str, text: str, delay_s: float = 0.0) -> None:
+        """Enter a failsafe: ``mode`` (or "TERMINATION" / "DISARM"), after ``delay_s`` of Hold
+        (COM_FAIL_ACT_T, failsafe/framework.cpp) when > 0."""
+        with self._lock:
+            self._say(text, severity=2)
+            self.failsafe = True
+            self.failsafe_log.append(FailsafeEvent(self.now, cause, mode))
+            if mode == "TERMINATION":
+                self._set_mode("TERMINATION", f"failsafe: {cause}")
+                self._disarm("termination")
+            elif mode == "DISARM":
+                self._set_mode("AUTO.LOITER", f"failsafe: {cause}")
+                self._disarm("failsafe")
+            elif delay_s > 0:
+                self._set_mode("AUTO.LOITER", f"failsafe: {cause}, hold first")
+                self._pending = (self.now + delay_s, mode)
+            else:
+                self._set_mode(mode, f"failsafe: {cause}")
+
+    def restore_mode(self, mode: str, reason: str) -> None:
+        """A mode fallback cleared: back to the user's mode (failsafe/framework.cpp)."""
+        with self._lock:
+            self.failsafe = False
+            self._set_mode(mode, reason)
+
+    def on_position_reset(self, delta: np.ndarray) -> None:
+        """An EKF reset moved the local frame by ``delta``: PX4's flight tasks shift their hold
+        setpoints with it (flight_mode_manager FlightTask::_checkEkfResetCounters), so a holding
+        vehicle stays where it is; an OFFBOARD setpoint is the companion's and is not shifted."""
+        with self._lock:
+            self._hold_pos = self._hold_pos + np.asarray(delta, dtype=float)
 
     def _auto_disarm(self) -> None:
         if not self.armed or self.landed_state != ON_GROUND or self._landed_since is None:

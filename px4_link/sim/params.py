@@ -4,6 +4,12 @@ Defaults checked against PX4-Autopilot (commander_params.yaml, mc_pos_control pa
 COM_OF_LOSS_T 1.0 s, COM_OBL_RC_ACT 0 (Position mode), COM_DISARM_PRFLT 10 s,
 COM_DISARM_LAND 2 s, COM_FAIL_ACT_T 5 s, MIS_TAKEOFF_ALT 2.5 m, COM_SPOOLUP_TIME 1 s,
 MPC_TKO_RAMP_T 3 s.
+Failsafe parameters (px4_link/sim/failsafe.py), from commander_params.c, navigator/geofence_params.c
+and lib/battery/module.yaml: GF_ACTION 2 (Hold), GF_MAX_HOR_DIST / GF_MAX_VER_DIST 0 (off),
+BAT_LOW_THR 0.15, BAT_CRIT_THR 0.07, BAT_EMERGEN_THR 0.05, COM_LOW_BAT_ACT 0 (warning),
+COM_DL_LOSS_T 10 s, NAV_DLL_ACT 0 (off), NAV_RCL_ACT 2 (Return), COM_DLL_EXCEPT / COM_RCL_EXCEPT 0.
+COM_RC_IN_MODE is SITL's 1 (MAVLink only; PX4's firmware default is 3): ground/px4_params.txt of
+the Zenoh traces.
 """
 from __future__ import annotations
 
@@ -43,6 +49,23 @@ PX4_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("MPC_LAND_SPEED", 0.7, REAL32, "landing descent rate (m/s)"),
     ParamSpec("MPC_YAWRAUTO_MAX", 45.0, REAL32, "max yaw rate in auto/offboard (deg/s)"),
     ParamSpec("RTL_RETURN_ALT", 60.0, REAL32, "RTL return altitude above home (m)"),
+    ParamSpec("GF_ACTION", 2, INT32, "geofence breach action: 0 none, 1 warning, 2 hold, 3 return, "
+              "4 terminate, 5 land"),
+    ParamSpec("GF_MAX_HOR_DIST", 0.0, REAL32, "max horizontal distance from home (m), 0 off"),
+    ParamSpec("GF_MAX_VER_DIST", 0.0, REAL32, "max height above home (m), 0 off"),
+    ParamSpec("BAT_LOW_THR", 0.15, REAL32, "battery low threshold (fraction)"),
+    ParamSpec("BAT_CRIT_THR", 0.07, REAL32, "battery critical threshold (fraction)"),
+    ParamSpec("BAT_EMERGEN_THR", 0.05, REAL32, "battery emergency threshold (fraction)"),
+    ParamSpec("COM_LOW_BAT_ACT", 0, INT32, "battery failsafe: 0 warning, 2 land, 3 return at critical, "
+              "land at emergency"),
+    ParamSpec("COM_DL_LOSS_T", 10, INT32, "GCS connection loss timeout (s)"),
+    ParamSpec("NAV_DLL_ACT", 0, INT32, "GCS connection loss action: 0 off, 1 hold, 2 return, 3 land, "
+              "5 terminate, 6 disarm"),
+    ParamSpec("COM_DLL_EXCEPT", 0, INT32, "modes without GCS loss failsafe: bit 0 mission, 1 auto, 2 offboard"),
+    ParamSpec("NAV_RCL_ACT", 2, INT32, "manual control loss action: 1 hold, 2 return, 3 land, 5 terminate, "
+              "6 disarm"),
+    ParamSpec("COM_RCL_EXCEPT", 0, INT32, "modes without RC loss failsafe: bit 0 mission, 1 auto, 2 offboard"),
+    ParamSpec("COM_RC_IN_MODE", 1, INT32, "manual control input: 0 RC, 1 MAVLink, 2-3 either, 4 none, ..."),
     ParamSpec("MAV_SYS_ID", 1, INT32, "MAVLink system id (read-only here: set with --sysid)"),
 )
 

@@ -30,6 +30,26 @@ class Limits:
 
 
 @dataclass(slots=True)
+class Battery:
+    """State of charge (0..1) of the 4S pack, draining ~1 %/min from boot: enough for a GCS to show
+    something alive. ``set_level`` is the low-battery fault: the pack reads ``level`` from then on
+    and keeps draining from there (PX4's lib/battery estimate is what the failsafe reads)."""
+    remaining: float = 1.0
+    drain_per_s: float = 0.01 / 60.0
+
+    def step(self, dt: float) -> None:
+        self.remaining = max(0.0, self.remaining - self.drain_per_s * dt)
+
+    def set_level(self, level: float) -> None:
+        self.remaining = min(max(level, 0.0), 1.0)
+
+    @property
+    def percent(self) -> int:
+        """BATTERY_STATUS / SYS_STATUS battery_remaining: whole percent, 100 until the first 1 % is used."""
+        return max(0, min(100, math.ceil(self.remaining * 100 - 1e-6)))
+
+
+@dataclass(slots=True)
 class Target:
     """What the flight controller asks of the airframe this step."""
     position: np.ndarray | None = None   # NED m
@@ -92,9 +112,16 @@ class PointMassQuad:
         self.gyro_noise, self.accel_noise = gyro_noise, accel_noise
         self.mag_noise, self.baro_noise = mag_noise, baro_noise
         self.gyro_bias = rng.normal(0.0, 0.002, 3)
+        self.battery = Battery()
+
+    def reset_position(self, delta: np.ndarray) -> None:
+        """An estimator reset: the local frame moves by ``delta`` (NED m). The vehicle stays where it
+        is in the world; what PX4 reports (LOCAL_POSITION_NED, GLOBAL_POSITION_INT) jumps by delta."""
+        self.pos = self.pos + np.asarray(delta, dtype=float)
 
     def step(self, dt: float, target: Target | None, limits: Limits) -> None:
         """Advance by dt. target None = motors off (disarmed): gravity only."""
+        self.battery.step(dt)
         if target is None:
             acc = np.array([0.0, 0.0, G]) if not self.on_ground else np.zeros(3)
             self._acc_cmd_filtered = np.zeros(3)

@@ -10,6 +10,7 @@ import errno
 import math
 import socket
 import time
+import traceback
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -55,6 +56,10 @@ SOURCE_RATES_HZ: dict[str, float] = {"HIGHRES_IMU": 247.0, "ATTITUDE": 247.0}
 SENSORS_PRESENT = 0x0300402F
 SENSORS_ENABLED = 0x0301402F
 SENSORS_HEALTH = 0x0320C83F
+# Before (trace, first 1.8 s: ~2.2 s after boot): nothing present or enabled yet.
+BOOT_PRESENT, BOOT_ENABLED, BOOT_HEALTH = 0, 0, 0x0321C83F
+# Then until the estimator is ready: no GPS yet, XY position control not healthy.
+WARMUP_PRESENT, WARMUP_ENABLED, WARMUP_HEALTH = 0x0300400F, 0x0301400F, 0x0320883F
 PREARM_CHECK = 0x10000000   # MAV_SYS_STATUS_PREARM_CHECK: healthy = the vehicle can arm
 
 MAV_MODE_FLAG_SAFETY_ARMED = 128
@@ -164,7 +169,8 @@ class SimProtocol:
     def __init__(self, sock: socket.socket, target: tuple[str, int], sysid: int, compid: int,
                  commander: Commander, vehicle: PointMassQuad, params: ParamStore,
                  streams: StreamTable, home: tuple[float, float, float], boot_time: float,
-                 on_log: Callable[[str], None] | None = None) -> None:
+                 on_log: Callable[[str], None] | None = None,
+                 on_internal_error: Callable[[str], None] | None = None) -> None:
         self.sock = sock
         self.dest = target
         self._locked = False
@@ -176,7 +182,10 @@ class SimProtocol:
         self._parser = Parser()
         self.enc = Encoder(self._write, sysid, compid)
         self._on_log = on_log or (lambda s: None)
+        self._on_internal_error = on_internal_error or self._on_log
         self._last_msg_type = ""
+        # (MAV_TYPE, source system, time) of every HEARTBEAT heard: the failsafe's GCS link check
+        self.on_heartbeat: Callable[[int, int, float], None] | None = None
 
     # ---------------------------------------------------------------- io
     def _write(self, data: bytes) -> None:
@@ -210,8 +219,8 @@ class SimProtocol:
                 self.stats.messages_received += 1
                 try:
                     self._handle(m, now)
-                except Exception as e:  # a malformed request must not stop the vehicle
-                    self._on_log(f"error handling {m.get_type()}: {e!r}")
+                except Exception:   # a simulator bug: recorded so the test that caused it fails
+                    self._on_internal_error(f"handling {m.get_type()}: {traceback.format_exc()}")
 
     def boot_ms(self, now: float) -> int:
         return int((now - self.boot_time) * 1000) & 0xFFFFFFFF
@@ -247,6 +256,9 @@ class SimProtocol:
         elif t == "COMMAND_ACK":
             if m.target_system in (0, self.sysid):
                 self.commander.on_command_ack(m.command)
+        elif t == "HEARTBEAT":
+            if self.on_heartbeat is not None:
+                self.on_heartbeat(m.type, m.get_srcSystem(), now)
         elif t == "TIMESYNC" and m.tc1 == 0:
             self.send(self.enc.timesync_encode(int(time.monotonic() * 1e9), m.ts1))
 
@@ -268,10 +280,10 @@ class SimProtocol:
     def _on_command(self, m: Any, now: float) -> None:
         try:
             self._run_command(m, now)
-        except Exception as e:  # PX4 always answers; a request we cannot parse is FAILED
-            self._on_log(f"command {m.command} failed: {e!r}")
-            self._ack(m, m.command, FAILED)
-            self.stats.commands.append((now, m.command, FAILED))
+        except Exception:
+            # A simulator bug, never an answer: a FAILED ACK would pass for a refusal in a test
+            # that expects one. No ACK; recorded as an internal error (tests/conftest.py fails on it).
+            self._on_internal_error(f"command {m.command}: {traceback.format_exc()}")
 
     def _run_command(self, m: Any, now: float) -> None:
         p = [m.param1, m.param2, m.param3, m.param4, m.param5, m.param6, m.param7]
@@ -294,6 +306,7 @@ class SimProtocol:
         else:
             r = self.commander.handle_command(cmd, p, now)
             result, text = r.result, r.text
+            self.flush_statustexts()   # what the commander printed on the way comes first, as in PX4
         if text:
             sev = mavlink2.MAV_SEVERITY_INFO if result == ACCEPTED else mavlink2.MAV_SEVERITY_CRITICAL
             self.statustext(sev, text)
@@ -329,6 +342,12 @@ class SimProtocol:
         else:
             wire, ptype = float(value), mavlink2.MAV_PARAM_TYPE_REAL32
         self.send(self.enc.param_value_encode(name.encode(), wire, ptype, count, index))
+
+    def flush_statustexts(self) -> None:
+        """Send what the commander printed (caller holds the simulator's lock)."""
+        for sev, text in self.commander.statustexts:
+            self.statustext(sev, text)
+        self.commander.statustexts.clear()
 
     def statustext(self, severity: int, text: str) -> None:
         self.send(self.enc.statustext_encode(severity, text.encode()[:50]))
@@ -402,9 +421,7 @@ class SimProtocol:
             int(v.vel[2] * 100), hdg)
 
     def _battery(self, now: float) -> tuple[float, float, int]:
-        # 4S pack draining ~1 %/min when armed: enough for a GCS to show something alive.
-        t = now - self.boot_time
-        remaining = max(0, 100 - int(t / 60))
+        remaining = self.vehicle.battery.percent   # physics.Battery: the failsafe reads the same pack
         current = 12.0 if self.commander.armed else 0.5
         return 16.8 - 0.02 * (100 - remaining), current, remaining
 
@@ -417,11 +434,21 @@ class SimProtocol:
 
     def _build_sys_status(self, now: float) -> Any:
         volts, amps, remaining = self._battery(now)
+        c = self.commander
+        if not c.sensors_up():
+            present, enabled, health = BOOT_PRESENT, BOOT_ENABLED, BOOT_HEALTH
+        elif not c.estimate_valid():
+            present, enabled, health = WARMUP_PRESENT, WARMUP_ENABLED, WARMUP_HEALTH
+        else:
+            present, enabled, health = SENSORS_PRESENT, SENSORS_ENABLED, SENSORS_HEALTH
         # Real PX4 sets PREARM_CHECK only in health; MAVSDK and QGC-alikes read it from
-        # present/enabled first, so it is set in all three while the vehicle can arm.
-        prearm = PREARM_CHECK if self.commander.armable() else 0
-        present, enabled = SENSORS_PRESENT | PREARM_CHECK, SENSORS_ENABLED | PREARM_CHECK
-        return self.enc.sys_status_encode(present, enabled, SENSORS_HEALTH | prearm, 150,
+        # present/enabled first, so once sensors are up it is set there too, and in health
+        # while the vehicle can arm.
+        if c.sensors_up():
+            present, enabled = present | PREARM_CHECK, enabled | PREARM_CHECK
+        if c.armable():
+            health |= PREARM_CHECK
+        return self.enc.sys_status_encode(present, enabled, health, 150,
                                           int(volts * 1000),
                                           int(amps * 100), remaining, 0, 0, 0, 0, 0, 0)
 

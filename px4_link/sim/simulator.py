@@ -11,12 +11,15 @@ import select
 import socket
 import threading
 import time
-from collections.abc import Callable
+import traceback
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 
-from .commander import ON_GROUND, Commander, FailsafeEvent, ModeChange, ReceivedSetpoint
+from .commander import ON_GROUND, PX4_ESTIMATOR_WARMUP_S, Commander, FailsafeEvent, ModeChange, ReceivedSetpoint
+from .failsafe import Failsafes
+from .faults import EkfReset, EstimateLoss, EstimateRestored, Fault, FaultSchedule, LowBattery, Step
 from .params import ParamStore
 from .physics import PointMassQuad
 from .protocol import SimProtocol, StreamTable
@@ -25,6 +28,10 @@ log = logging.getLogger(__name__)
 
 # PX4 SITL's default home (Zurich), also what Gazebo/jMAVSim use.
 DEFAULT_HOME = (47.397742, 8.545594, 488.0)
+
+# Internal errors of every Simulator in this process (a bug in the simulator, never PX4 behaviour):
+# tests/conftest.py fails the test during which one was recorded.
+INTERNAL_ERRORS: list[str] = []
 
 
 class Simulator:
@@ -39,7 +46,8 @@ class Simulator:
                  bind_host: str = "127.0.0.1", params: dict[str, float | int] | None = None,
                  rates: dict[str, float] | None = None,
                  home: tuple[float, float, float] = DEFAULT_HOME, physics_hz: float = 100.0,
-                 seed: int | None = None) -> None:
+                 seed: int | None = None, estimator_warmup_s: float = PX4_ESTIMATOR_WARMUP_S,
+                 faults: Sequence[Fault] = ()) -> None:
         if not 1 <= sysid <= 255:
             raise ValueError("sysid must be 1..255")
         self.sysid, self.compid = sysid, compid
@@ -51,7 +59,16 @@ class Simulator:
         self.streams = StreamTable(rates)
         self.vehicle = PointMassQuad(np.random.default_rng(seed))
         self._boot = time.monotonic()
-        self.commander = Commander(self.params, self.vehicle, self._boot, home_alt=home[2])
+        # estimator_warmup_s: boot -> pre-arm checks pass (PX4 SITL: 4.1 s); shorten it only where
+        # arming is not what is tested.
+        self.commander = Commander(self.params, self.vehicle, self._boot, home_alt=home[2],
+                                   estimator_warmup_s=estimator_warmup_s)
+        self.failsafes = Failsafes(self.params, self.commander)
+        # faults (sim/faults.py): times from the start of this simulator
+        self.faults = FaultSchedule()
+        for f in faults:
+            self.faults.add(f, self._boot)
+        self.internal_errors: list[str] = []
         self._lock = threading.RLock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -69,7 +86,9 @@ class Simulator:
         self._sock = sock
         self.protocol = SimProtocol(sock, self.target, self.sysid, self.compid, self.commander,
                                     self.vehicle, self.params, self.streams, self.home,
-                                    self._boot, on_log=lambda s: log.debug("sim%d: %s", self.sysid, s))
+                                    self._boot, on_log=lambda s: log.debug("sim%d: %s", self.sysid, s),
+                                    on_internal_error=self._internal_error)
+        self.protocol.on_heartbeat = self.failsafes.on_heartbeat
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, name=f"px4sim-{self.sysid}", daemon=True)
         self._thread.start()
@@ -114,22 +133,22 @@ class Simulator:
                         proto.drain(now)
                     steps = 0
                     while next_phys <= now and steps < 20:
+                        self._apply_faults(next_phys)
                         target = self.commander.update(next_phys)
+                        self.failsafes.update(next_phys, self.vehicle.pos, self.vehicle.battery.remaining)
                         self.vehicle.step(self.physics_dt, target, self.commander.limits())
                         next_phys += self.physics_dt
                         steps += 1
                     if next_phys <= now:  # far behind (process was stopped): resync
                         next_phys = now + self.physics_dt
-                    for sev, text in self.commander.statustexts:
-                        proto.statustext(sev, text)
-                    self.commander.statustexts.clear()
+                    proto.flush_statustexts()
                     if now >= next_hb:
                         proto.heartbeat()
                         next_hb = now + 1.0
                     proto.send_commands()
                     proto.send_streams(now)
                 except Exception:
-                    log.exception("simulator loop error")
+                    self._internal_error(f"loop: {traceback.format_exc()}")
                 self.loop_iterations += 1
             wake = min(next_phys, next_hb, self.streams.next_due() or next_phys)
             timeout = max(0.0, wake - time.monotonic())
@@ -138,7 +157,53 @@ class Simulator:
             except (OSError, ValueError):
                 break
 
+    def _apply_faults(self, now: float) -> None:
+        for step in self.faults.due(now):
+            self._apply(step)
+
+    def _apply(self, step: Step) -> None:
+        if isinstance(step, EstimateLoss):
+            self.commander.estimate_lost = True
+        elif isinstance(step, EstimateRestored):
+            self.commander.estimate_lost = False
+        elif isinstance(step, EkfReset):
+            delta = np.array(step.jump, dtype=float)
+            self.vehicle.reset_position(delta)
+            self.commander.on_position_reset(delta)
+        elif isinstance(step, LowBattery):
+            self.vehicle.battery.set_level(step.level)
+
+    def inject(self, fault: Fault) -> None:
+        """Schedule ``fault`` with its time counted from now (0: at the next physics step)."""
+        with self._lock:
+            self.faults.add(fault, time.monotonic())
+
+    @property
+    def faults_applied(self) -> list[tuple[float, Step]]:
+        """(monotonic time, fault or its end) of every injected fault so far."""
+        with self._lock:
+            return list(self.faults.applied)
+
+    @property
+    def gcs_connection_lost(self) -> bool:
+        """PX4's vehicle_status.gcs_connection_lost: no MAV_TYPE_GCS heartbeat (true from boot)."""
+        return self.failsafes.gcs_connection_lost
+
+    @property
+    def battery_remaining(self) -> float:
+        return self.vehicle.battery.remaining
+
+    def _internal_error(self, text: str) -> None:
+        log.error("sim%d internal error: %s", self.sysid, text)
+        self.internal_errors.append(text)
+        INTERNAL_ERRORS.append(f"sim{self.sysid}: {text}")
+
     # ---------------------------------------------------------------- introspection
+    @property
+    def armable(self) -> bool:
+        """PX4's pre-arm checks pass now (SYS_STATUS health PREARM_CHECK)."""
+        return self.commander.armable()
+
     @property
     def port(self) -> int:
         """The UDP port we send from / listen on."""

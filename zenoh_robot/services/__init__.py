@@ -59,11 +59,16 @@ At-least-once delivery, at-most-once execution (lossy links):
   On a multicast session, without discovery, a call that gets no answer ends in ServiceTimeout
   (never ServiceUnavailable), and ``service_is_ready()`` is True once a server has answered.
 
+ROS 2's wire: on a node whose wire format is ROS 2's, a service whose types are the halves of a
+ROS 2 service type (``ros2_service_type("example_interfaces/srv/AddTwoInts").request/.response``)
+speaks rmw_zenoh's service protocol instead (ros2.py has it); other types keep the envelope.
+
 Modules, one job each: errors (the exceptions, the error payload), keys (service keys, the
 verbatim chunks), retry (RetryPolicy, AdaptiveRetry, the presets), scheduler (the retry thread),
 idempotency (the server's cache of recent requests), multicast (the put-carried transport's
 attachments and publishers), service (Service), client (Client and its calls), registry (a node's
-Services, describe_services, call_dict).
+Services, describe_services, call_dict; the seam picking a service's wire), ros2_types (ROS 2 service
+types: .srv -> message types, RIHS01 hash, CDR), ros2 (rmw_zenoh's service protocol, SS/SC tokens).
 """
 from __future__ import annotations
 
@@ -82,6 +87,8 @@ from .retry import (
     RetryPolicy,
     command_retry,
 )
+from .ros2 import Ros2Client, Ros2Service, Ros2ServiceInfo, parse_service_token, ros2_services, service_data_key
+from .ros2_types import KNOWN_SERVICES, Ros2ServiceType, Ros2TypeError, ros2_service_type
 from .service import MAX_REQUEST_BYTES, Service
 
 __all__ = [
@@ -100,10 +107,16 @@ __all__ = [
     "AdaptiveRetry",
     "Client",
     "IdempotencyCache",
+    "KNOWN_SERVICES",
     "Reply",
     "Responder",
     "Retry",
     "RetryPolicy",
+    "Ros2Client",
+    "Ros2Service",
+    "Ros2ServiceInfo",
+    "Ros2ServiceType",
+    "Ros2TypeError",
     "Service",
     "ServiceCallError",
     "ServiceError",
@@ -114,6 +127,10 @@ __all__ = [
     "command_retry",
     "decode_error",
     "describe_services",
+    "parse_service_token",
+    "ros2_service_type",
+    "ros2_services",
+    "service_data_key",
     "service_key",
     "service_name_of_key",
 ]

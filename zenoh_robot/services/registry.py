@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import threading
 from concurrent.futures import TimeoutError as FutureTimeout
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar, cast
 
 import msgpack
 import zenoh
@@ -18,6 +18,8 @@ from .client import DISCOVERY_GRACE_S, Client
 from .errors import ServiceTimeout, ServiceUnavailable
 from .keys import DESCRIBE_PARAM, SERVICE_PREFIX, service_key
 from .retry import _DEFAULT, Retry
+from .ros2 import Ros2Client, Ros2Service
+from .ros2_types import Ros2ServiceType, service_type_of
 from .service import Handler, Service
 
 if TYPE_CHECKING:
@@ -77,8 +79,17 @@ class Services:
     def __init__(self, context: EntityContext) -> None:
         self._context = context
         self._lock = threading.Lock()
-        self.services: list[Service[Any, Any]] = []
+        self.services: list[Service[Any, Any]] = []     # a Ros2Service among them is typed as one too
         self.clients: list[Client[Any, Any]] = []
+
+    # The seam: the node's wire format decides how a service travels. The envelope's services are
+    # Service/Client (this package's doc); on ROS 2's wire, rmw_zenoh's (ros2.py).
+    def _ros2_service(self, what: str, name: str, request_type: Any, response_type: Any) -> Ros2ServiceType | None:
+        """The ROS 2 service type whose halves these are, on a ROS 2 node; else None: other types (the
+        parameter service, the drone contract's commands) keep the envelope on every node."""
+        if getattr(self._context.wire, "name", "") != "ros2":
+            return None
+        return service_type_of(request_type, response_type)
 
     def resolve_service_name(self, name: str) -> str:
         """The Zenoh key of service ``name``: ``arm`` in ``uav1`` -> ``@srv/uav1/arm``."""
@@ -86,7 +97,15 @@ class Services:
 
     def create_service(self, name: str, request_type: type[Req], response_type: type[Resp],
                        handler: Handler[Req, Resp]) -> Service[Req, Resp]:
+        """On a ROS 2 node with a ROS 2 service type's halves, the server is a Ros2Service (rmw_zenoh's
+        wire, the same surface less the envelope's retry counters); typed as Service for the callers."""
         self._context.check_open()
+        ros2 = self._ros2_service("create_service", name, request_type, response_type)
+        if ros2 is not None:
+            server = cast("Service[Req, Resp]", Ros2Service(self._context, name, ros2, handler))
+            with self._lock:
+                self.services.append(server)
+            return server
         srv = Service(self._context, name, self.resolve_service_name(name), request_type, response_type, handler)
         with self._lock:
             self.services.append(srv)
@@ -98,6 +117,13 @@ class Services:
         self._context.check_open()
         if not (isinstance(response_type, type) and issubclass(response_type, Message)):
             raise TypeError(f"create_client {name!r}: response type {response_type!r} is not a message type")
+        ros2 = self._ros2_service("create_client", name, request_type, response_type)
+        if ros2 is not None:
+            # call/call_async/service_is_ready/wait_for_service/destroy as Client's
+            ros2_client = cast("Client[Req, Resp]", Ros2Client(self._context, name, ros2))
+            with self._lock:
+                self.clients.append(ros2_client)
+            return ros2_client
         client = Client(self._context, name, self.resolve_service_name(name), request_type, response_type,
                         retry=retry)
         with self._lock:
