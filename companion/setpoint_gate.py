@@ -7,9 +7,16 @@ the vehicle is doing now; inside an operator-requested offboard session it goes 
 stream (offboard_session.py), outside one it is kept as the sender's candidate, where an
 ``offboard_start`` begins. Every refusal is counted and reported as an event (rate-limited).
 
+Latest wins: inside a session a setpoint older (by its source stamp, then sequence number) than
+the holder's last forwarded one is never forwarded, only counted (``stale``): a delayed copy or a
+sample recovered from the redundancy history after a fade must not turn the vehicle back towards
+an older target. A session starts from the candidate's stamp, so a GCS whose clock stepped back
+is held (its setpoints stale, the deadline failsafe HOLDs) until an operator starts a new session.
+
 Threads: ``on_setpoint`` runs on the node's executor (any of its threads: the companion's is
 multi-threaded); ``offboard_start`` on the PX4 worker. The candidates table is bounded
-(a forger can invent client ids) and guarded by a lock.
+(a forger can invent client ids) and guarded by a lock; the stale check and the hand-off to the
+session are one step under ``_forward_lock``, so two threads cannot forward out of order.
 """
 from __future__ import annotations
 
@@ -42,6 +49,7 @@ class Candidate:
     sp: Target | None
     at: float
     refused: str = ""        # why the latest one was refused, "" when it passed the checks
+    stamp: tuple[int, int] = (0, 0)   # (source stamp ns, seq): where a session started from it begins
 
 
 def to_target(msg: DroneSetpoint) -> Target:
@@ -65,6 +73,10 @@ class SetpointGate:
         self.rejected = 0
         self.rejected_by_reason: Counter[str] = Counter()   # refused after the control check, by reason
         self.ignored = 0                  # valid but outside a session: kept as candidate only
+        self.stale = 0                    # older than the holder's last forwarded one: dropped (latest wins)
+        # (client, source stamp ns, seq) of the last setpoint handed to the session (or its start).
+        self._last_forwarded: tuple[str, int, int] | None = None
+        self._forward_lock = threading.Lock()
         # The holder's refusals have a limiter of their own: the shared one is keyed by client id and
         # full (new keys counted, never reported) once a peer has forged enough ids.
         self._holder_reports = RateLimiter(interval=config().report_interval_s)
@@ -88,6 +100,10 @@ class SetpointGate:
             self._events.refused("setpoint_rejected", client, "not_in_control", why)
             return
         self._control.seen(client)
+        stamp = (info.source_stamp_ns, info.seq)
+        if self._is_stale(client, stamp):
+            self.stale += 1
+            return
         now = time.monotonic()
         cfg = self._config()
         try:
@@ -97,9 +113,14 @@ class SetpointGate:
             self._remember(client, None, now, f"{exc}")
             self._refuse(client, exc.reason, f"setpoint refused: {exc}")
             return
-        self._remember(client, sp, now, "")
+        self._remember(client, sp, now, "", stamp)
         try:
-            self._lifecycle.forward(sp)
+            with self._forward_lock:
+                if self._is_stale(client, stamp):   # a newer one was forwarded meanwhile (another thread)
+                    self.stale += 1
+                    return
+                self._lifecycle.forward(sp)
+                self._last_forwarded = (client, *stamp)
         except TargetRefused as exc:
             if exc.reason == "no_session":   # valid, kept as the candidate, never sent
                 self.ignored += 1
@@ -111,6 +132,12 @@ class SetpointGate:
             return
         self._flying = client
         self._failsafe.fed(now)
+
+    def _is_stale(self, client: str, stamp: tuple[int, int]) -> bool:
+        """Inside a session: not newer than what this client last had forwarded."""
+        last = self._last_forwarded
+        return (last is not None and last[0] == client and self._lifecycle.in_session
+                and stamp <= (last[1], last[2]))
 
     def _on_link_event(self, name: str, details: dict[str, Any]) -> None:   # px4_link's thread: never block
         """px4_link cut the velocity it streams at the fence, or let it expire: tell its sender."""
@@ -133,12 +160,13 @@ class SetpointGate:
         if count:
             self._events.event("setpoint_rejected", detail, "refused", client, count)
 
-    def _remember(self, client: str, sp: Target | None, now: float, refused: str) -> None:
+    def _remember(self, client: str, sp: Target | None, now: float, refused: str,
+                  stamp: tuple[int, int] = (0, 0)) -> None:
         with self._lock:
             if client not in self._candidates and len(self._candidates) >= self.MAX_CANDIDATES:
                 oldest = min(self._candidates, key=lambda c: self._candidates[c].at)
                 del self._candidates[oldest]
-            self._candidates[client] = Candidate(sp, now, refused)
+            self._candidates[client] = Candidate(sp, now, refused, stamp)
         if (not refused and self._config().resume_on_setpoints and client == self._control.holder
                 and self._lifecycle.state is OffboardState.FAILSAFE_HOLD
                 and now - self._resume_tried > self.RESUME_EVERY_S):
@@ -168,6 +196,8 @@ class SetpointGate:
         except TargetRefused as exc:
             raise TargetRefused(exc.reason, f"setpoints refused: {exc}") from None
         self._flying = client
+        with self._forward_lock:    # the session begins at the candidate: nothing older follows it
+            self._last_forwarded = (client, *cand.stamp)
         self._lifecycle.start(cand.sp)
         self._failsafe.rearm()
         return "OFFBOARD"

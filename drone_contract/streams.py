@@ -121,11 +121,12 @@ PROFILES: dict[str, StreamProfile] = {
     "resilient": StreamProfile(
         "resilient",
         "setpoints carry their last 8 samples and the newest is re-sent over 400 ms, 16 to 64 times as "
-        "the measured loss requires (loss feedback; 64 until the first report); state "
+        "the measured loss and its fades require (loss feedback; 64 until the first report); state "
         "and events carry their last samples and go out 4 times 3 ms apart; sensors best "
         "effort with one delayed copy; images as one JPEG per frame in one-datagram shares plus "
         "Reed-Solomon parity sized from the measured loss (whole or absent, latest frame wins); "
-        "UDP multicast transport (no handshake to lose), joins every 250 ms, keep-alives every 100 ms",
+        "UDP multicast transport (no handshake to lose), joins every 250 ms, keep-alives every 100 ms; "
+        "unicast or routed: short handshake tries retried at once, UDP links first",
         {
             # Deadline-driven copies: the newest setpoint re-sent 64 times over 0.8 x the 500 ms
             # deadline, a newer one replacing them: ~170 packets/s at 10 Hz, so a gap over 500 ms
@@ -140,7 +141,10 @@ PROFILES: dict[str, StreamProfile] = {
             "events": RESILIENT.replace(depth=10, priority=Priority.INTERACTIVE_HIGH),
         },
         image_mode="fec", jpeg_quality=60, loss_feedback=True,
-        transport={"batch_size": 1300, "lease_s": 10.0, "keep_alive": 100}, transport_kind="auto",
+        # Unicast or routed: the handshake and links the lossy-link experiment found to form and survive
+        # (SessionConfig.lossy: fast open, UDP first); every kind: batches under the MTU, a 10 s lease
+        # held by keep-alives every 100 ms.
+        transport={"batch_size": 1300, "lease_s": 10.0, "keep_alive": 100, "lossy": True}, transport_kind="auto",
     ),
 }
 # The resilient streams on the multicast transport, which they are measured on (docs/lossy-link.md):

@@ -30,6 +30,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="comma-separated: default (each profile's own: multicast for resilient), unicast "
                         "(resilient over a UDP/TCP peer-to-peer session with fast open retries), router "
                         "(resilient through a Zenoh router in the GCS namespace, both apps its clients)")
+    p.add_argument("--loss-model", default="uniform",
+                   help="comma-separated: uniform (independent drops, the thesis) and/or bursty (a two-state "
+                        "channel at the same mean: 95 %% fades of 100 ms - 2 s, mean --burst-mean)")
+    p.add_argument("--burst-mean", type=float, default=0.3, help="mean fade of the bursty model, s (default 0.3)")
     p.add_argument("--out", type=Path, default=Path("results/experiment"))
     p.add_argument("--resume", action="store_true",
                    help="keep finished cells of an earlier run in --out (cells flagged invalid run again)")
@@ -60,7 +64,14 @@ def run(args: argparse.Namespace) -> int:
         from drone_lab.experiment.cell import TRANSPORTS
         if any(t not in TRANSPORTS for t in transports):
             raise CliError(f"unknown transport in {transports}; transports: {', '.join(TRANSPORTS)}")
-        cells = [CellSpec(p, loss, s, args.duration, args.warmup, t) for s in starts for p in profiles
+        from drone_lab.experiment.cell import LOSS_MODELS
+        models = [m for m in args.loss_model.split(",") if m]
+        if not models or any(m not in LOSS_MODELS for m in models):
+            raise CliError(f"unknown loss model in {models}; loss models: {', '.join(LOSS_MODELS)}")
+        if not 0.1 <= args.burst_mean <= 2.0:
+            raise CliError(f"--burst-mean {args.burst_mean:g}: fades last 0.1-2 s")
+        cells = [CellSpec(p, loss, s, args.duration, args.warmup, t, loss_model=m, burst_mean_s=args.burst_mean)
+                 for m in models for s in starts for p in profiles
                  for t in transports if t == "default" or p == "resilient" for loss in args.loss]
         console.print(f"{len(cells)} cells of {args.duration:g} s (+{args.warmup:g} s warm-up): "
                       f"about {len(cells) * (args.duration + args.warmup + 4) / 60:.0f} min; results in {out}")

@@ -41,8 +41,17 @@ def wait_armable(link: Px4Link, timeout: float = ARMABLE_TIMEOUT_S) -> None:
     what a GCS reads); never a fixed sleep. Fails saying what PX4 last reported."""
     from px4_link.telemetry import SysStatus
 
-    ok = wait_for(lambda: (s := link.telemetry.latest(SysStatus)) is not None and s.armable, timeout)
-    assert ok, f"PX4 not armable after {timeout:g} s (last STATUSTEXT context: {link.state.mode})"
+    # A sample newer than now: after a PX4 restart the last one may be the old process's.
+    ok = link.telemetry.wait(SysStatus, timeout, lambda s: s.armable) is not None
+    assert ok, f"PX4 not armable after {timeout:g} s (mode {link.state.mode})"
+
+
+def wait_state_armable(view: object, timeout: float = ARMABLE_TIMEOUT_S) -> None:
+    """The same wait seen from a GCS: ``view.state`` (the drone's VehicleState over Zenoh) says
+    ``armable``, as gcs/mission.py waits before its ``arm``."""
+    ok = wait_for(lambda: (st := getattr(view, "state", None)) is not None and st.armable, timeout)
+    st = getattr(view, "state", None)
+    assert ok, f"drone not armable after {timeout:g} s (mode {st.mode if st else '?'})"
 
 
 @contextmanager

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 import pytest
 from conftest import linked_configs, wait_for
+from px4_helpers import wait_state_armable
 
 from companion.app import Companion
 from companion.config import CompanionConfig
@@ -103,6 +104,7 @@ def _take_off(r: Rig, alt: float = 2.5) -> None:
     time.sleep(0.5)
     res = r.op.command("offboard_start")
     assert res.success, res.message
+    wait_state_armable(r.op)
     assert r.op.command("arm").success
     assert wait_for(lambda: r.sim.altitude > alt * 0.8, 20), f"altitude {r.sim.altitude:.1f}"
 

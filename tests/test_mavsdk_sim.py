@@ -10,7 +10,6 @@ import asyncio
 import socket
 import warnings
 
-
 with warnings.catch_warnings():
     warnings.simplefilter("ignore", FutureWarning)
     from mavsdk import System

@@ -275,7 +275,9 @@ def test_armed_mode_requests_need_the_mode_to_run_like_px4() -> None:
         assert sim.mode == "AUTO.LOITER" and sim.armed
         link.action.set_mode("AUTO.LAND")                  # Commander.cpp: LAND always allowed
         assert sim.mode == "AUTO.LAND"
-        assert sim.wait_for(lambda s: not s.armed, 8.0)    # LAND while landed: land detector disarms
+        link.action.disarm()                               # landed: disarming is allowed
+        # UserModeIntention::onDisarm: back to the last mode that does not prevent arming
+        assert not sim.armed and sim.wait_for(lambda s: s.mode == "AUTO.LOITER", 1.0)
 
 
 def test_nav_takeoff_in_flight_never_restarts_from_the_ground_like_px4() -> None:

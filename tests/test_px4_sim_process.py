@@ -5,7 +5,7 @@ import signal
 import subprocess
 
 import pytest
-from px4_helpers import EventLog, sim_process, wait_for
+from px4_helpers import EventLog, sim_process, wait_armable, wait_for
 
 from px4_link import Px4Link
 from px4_link.sim.cli import build_parser
@@ -24,6 +24,7 @@ def test_simulator_killed_and_restarted_link_reconnects() -> None:
         try:
             assert link.wait_connected(15), first.stdout.read() if first.poll() is not None else ""
             assert link.system_id == 7
+            wait_armable(link)
             link.action.arm()
             assert link.wait_until(lambda: link.state.armed, 3)
         finally:
@@ -36,6 +37,7 @@ def test_simulator_killed_and_restarted_link_reconnects() -> None:
             assert link.stats.reconnects == 1 and events.count("connected") == 2
             # A restarted PX4 is disarmed; and our commands reach the NEW process.
             assert link.wait_until(lambda: not link.state.armed, 3)
+            wait_armable(link)
             link.action.arm()
             assert link.wait_until(lambda: link.state.armed, 3)
         finally:

@@ -20,10 +20,11 @@ import zenoh
 from conftest import free_port, kill_process, python_proc, wait_for
 
 from zenoh_robot import Node
-from zenoh_robot.services import ServiceError, parse_service_token, ros2_service_type, ros2_services, service_data_key
-from zenoh_robot.services.ros2 import AttachmentError, pack_attachment, parse_attachment
+from zenoh_robot.ros2 import ros2_service_type
+from zenoh_robot.services import ServiceError, parse_service_token, ros2_services, service_data_key
 from zenoh_robot.session_config import SessionConfig
-from zenoh_robot.wire.ros2 import ros2_wire
+from zenoh_robot.wire import MalformedSample
+from zenoh_robot.wire.ros2 import LegacyAttachment, pack_attachment, ros2_wire, unpack_attachment
 
 ADD = "example_interfaces/srv/AddTwoInts"
 ADD_HASH = "RIHS01_e118de6bf5eeb66a2491b5bda11202e7b68f198d6f67922cf30364858239c81a"   # rmw_zenoh's docs
@@ -123,16 +124,15 @@ def test_attachment_layout_and_legacy_detected():
     att = pack_attachment(7, 1_700_000_000_000_000_000, gid)
     assert len(att) == 33 and att[16] == 16
     assert att[:16] == struct.pack("<qq", 7, 1_700_000_000_000_000_000)
-    assert parse_attachment(att) == (7, 1_700_000_000_000_000_000, gid)
+    assert unpack_attachment(att) == (7, 1_700_000_000_000_000_000, gid)
     # Jazzy <= 0.2.3 labelled its fields (zenoh's serializer: length-prefixed names and values).
     legacy = b"\x0fsequence_number\x08" + struct.pack("<q", 7) + b"\x10source_timestamp\x08" + bytes(8) \
         + b"\x0asource_gid\x10" + gid
-    with pytest.raises(AttachmentError) as exc:
-        parse_attachment(legacy)
-    assert exc.value.legacy and "0.2.3" in str(exc.value)
-    with pytest.raises(AttachmentError) as exc:
-        parse_attachment(b"\x01\x02")
-    assert not exc.value.legacy
+    with pytest.raises(LegacyAttachment, match="0.2.3"):
+        unpack_attachment(legacy)
+    with pytest.raises(MalformedSample) as exc:
+        unpack_attachment(b"\x01\x02")
+    assert not isinstance(exc.value, LegacyAttachment)
 
 
 def test_humble_service_token_is_named():
@@ -227,7 +227,7 @@ def test_legacy_or_missing_attachment_gets_an_error_not_silence(router, caplog):
                                             attachment=pack_attachment(9, time.time_ns(), gid), timeout=5.0))
         assert len(replies) == 1 and replies[0].ok is not None
         assert srv.decode_response(replies[0].ok.payload.to_bytes()) == srv.response(sum=3)
-        seq, _stamp, echoed = parse_attachment(replies[0].ok.attachment.to_bytes())
+        seq, _stamp, echoed = unpack_attachment(replies[0].ok.attachment.to_bytes())
         assert (seq, echoed) == (9, gid) and server.served == 1
 
 

@@ -40,6 +40,29 @@ def test_rihs01_hash_of_std_msgs_string_is_ros2s() -> None:
     assert ros2_type("std_msgs/String") is String
 
 
+# rosidl_generator_c's std_msgs/msg/Char (Kilted, char__description.c: FIELD_TYPE_UINT8 "data"; the
+# bytes of std_msgs__msg__Char__get_type_hash). rosbags alone hashes the char as FIELD_TYPE_CHAR and
+# gives RIHS01_8914cecc..., which no ROS 2 node would match.
+CHAR_HASH = "RIHS01_3ad2d04dd29ba19d04b16659afa3ccaedd691914b02a64e82e252f2fa6a586a9"
+
+
+def test_char_field_hashes_as_rosidl_uint8() -> None:
+    Char = ros2_type("std_msgs/msg/Char")
+    assert type_support(Char).hash == CHAR_HASH
+    assert type_support(load_ros2_msg("char data", "zr_test/msg/MyChar")).hash != CHAR_HASH   # the name counts
+    payload = cdr_codec(Char).serialize(type_support(Char).encode(Char(data=65)))
+    assert payload == b"\x00\x01\x00\x00A"
+
+
+def test_srv_half_definitions_are_named_as_ros2_names_them() -> None:
+    """rosbags files a .srv half under pkg/srv/msg/X and its relative types under pkg/srv/msg/T; ROS 2
+    says pkg/srv/X and pkg/msg/T (the hash depends on it)."""
+    load_ros2_msg("float64 x", "zr_test/msg/Point1")
+    Req = load_ros2_msg("Point1 p\ngeometry_msgs/Point q", "zr_test/srv/Go_Request")
+    assert type_support(Req).name == "zr_test/srv/Go_Request"
+    assert type_support(type(Req().p)).name == "zr_test/msg/Point1"
+
+
 def test_data_key_and_cdr_payload_bytes() -> None:
     String = ros2_type("std_msgs/msg/String")
     wire = ros2_wire(3)

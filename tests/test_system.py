@@ -18,7 +18,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from conftest import python_proc, stop_process, wait_for
-from px4_helpers import assert_no_px4_failsafe
+from px4_helpers import assert_no_px4_failsafe, wait_state_armable
 
 from drone_contract.messages import Command, CommandResult, DroneSetpoint, FailsafeEvent, VehicleState
 from drone_contract.streams import SETPOINT_DEADLINE, stream_profile
@@ -112,6 +112,7 @@ def test_gcs_killed_companion_holds_then_resumes(ns: str) -> None:
         try:
             assert wait_for(lambda: obs.state is not None and obs.state.connected, 20), "no state from the drone"
             assert wait_for(lambda: obs.command("offboard_start").success, 15, interval=0.5)
+            wait_state_armable(obs)
             assert obs.command("arm").success
             assert wait_for(lambda: sim.mode == "OFFBOARD" and sim.altitude > 1.0, 20)
             gcs.send_signal(signal.SIGKILL)

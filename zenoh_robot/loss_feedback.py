@@ -17,6 +17,17 @@ window and a fall only once the long window agrees. Bounded: at most ``max_peers
 (least recently heard forgotten), ``max_peers`` reports per probe, a peer silent for
 ``forget_s`` is dropped (a drone that left must not hold the link at "90 %" forever).
 
+Bursts: Wi-Fi loss comes in fades (100 ms to seconds), and copies sized from the mean as if
+drops were independent leave a fade with no packet for longer than a deadline. Each peer's probe
+sequence numbers give the runs of consecutive losses; :meth:`LossMonitor.burst` reports, over the
+long window, their mean and longest length and the loss that follows a loss (1 - runs / lost: for
+independent loss it equals the mean, in fades it is near the fade's own loss). The probes measure
+the incoming direction only; the outgoing one is taken to fade alike (a radio fade is both ways).
+:func:`repeat_plan` sizes copies for the larger of the mean and that conditional loss: copies of the
+newest sample go out at a steady rate while samples flow (a newer one replaces the older copies),
+so the rate, not the window, decides whether a packet crosses a fade within the deadline, and the
+first packet after a fade carries the newest sample.
+
 Cost: O(1) amortised per peer per tick. Each window keeps its own deque of the arrival times
 still inside it, trimmed from the left as the window slides (arrivals are stamped under the
 lock, so each deque is sorted); its length is the count. A rescan of every arrival twice per
@@ -59,6 +70,23 @@ class LinkProbe(Message):
 
 
 MAX_ARRIVALS = 2048   # per window: a peer probing faster than it claims saturates the count, not memory
+MAX_RUNS = 1024       # loss runs remembered per peer (the long window's, at most)
+MAX_RUN = 100_000     # a longer jump of a probe's seq is a restart of the peer, not a loss run
+
+
+@dataclass(frozen=True)
+class BurstEstimate:
+    """Runs of consecutive lost probes over the long window (worst peer); zeros when none was lost."""
+    mean_run: float = 0.0         # probes lost in a row, on average
+    longest_run: int = 0          # probes lost in a row, at most
+    mean_run_s: float = 0.0       # the same in seconds (the peer's probe period)
+    longest_run_s: float = 0.0
+    loss_after_loss: float = 0.0  # P(a probe is lost | the previous one was): 1 - runs / lost
+
+    def as_dict(self) -> dict[str, float]:
+        return {"mean_run": round(self.mean_run, 2), "longest_run": self.longest_run,
+                "mean_run_s": round(self.mean_run_s, 3), "longest_run_s": round(self.longest_run_s, 3),
+                "loss_after_loss": round(self.loss_after_loss, 3)}
 
 
 @dataclass
@@ -71,6 +99,33 @@ class _Peer:
     long: deque[float] = field(default_factory=lambda: deque(maxlen=MAX_ARRIVALS))
     reported: float = math.nan                # the loss this peer sees on our probes
     reported_at: float = 0.0
+    last_seq: int | None = None               # highest probe seq heard (loss runs)
+    runs: deque[tuple[float, int]] = field(default_factory=lambda: deque(maxlen=MAX_RUNS))  # (ended at, length)
+
+    def sequence(self, seq: int, t: float) -> None:
+        """A probe's seq: the gap since the last one is a run of lost probes (late ones are ignored)."""
+        if self.last_seq is None:
+            self.last_seq = seq
+            return
+        ahead = (seq - self.last_seq) & 0xFFFFFFFF
+        if ahead == 0 or ahead >= 1 << 31:
+            return                                # a duplicate or a late probe
+        if ahead > MAX_RUN:
+            self.runs.clear()                     # the peer restarted its count
+        elif ahead > 1:
+            self.runs.append((t, ahead - 1))
+        self.last_seq = seq
+
+    def burst(self, window: float, now: float) -> BurstEstimate:
+        edge = now - window
+        while self.runs and self.runs[0][0] <= edge:
+            self.runs.popleft()
+        if not self.runs:
+            return BurstEstimate()
+        lost = sum(n for _, n in self.runs)
+        longest = max(n for _, n in self.runs)
+        mean = lost / len(self.runs)
+        return BurstEstimate(mean, longest, mean * self.period, longest * self.period, 1.0 - len(self.runs) / lost)
 
     def arrive(self, t: float) -> None:
         self.last = t
@@ -93,8 +148,12 @@ def _count_after(arrivals: deque[float], window: float, cutoff: float, now: floa
 
 
 def repeat_plan(loss: float, deadline_s: float, miss: float = 1e-6, margin: float = 0.05,
-                min_copies: int = 16, max_copies: int = 64) -> tuple[int, float]:
+                min_copies: int = 16, max_copies: int = 64, burst_loss: float = 0.0) -> tuple[int, float]:
     """(copies, window) for a deadline stream at packet loss ``loss``.
+
+    ``burst_loss`` (:attr:`BurstEstimate.loss_after_loss`) sizes for fades: the loss a packet sent
+    after a lost one meets. Consecutive copies share a fade, so the larger of the two is what
+    ``p`` must be (uniform 50 % gives 0.5 both ways; fades of 95 % at a 50 % mean give ~0.8).
 
     A gap longer than the deadline needs every packet sent in the window lost; with the
     newest sample re-sent every ``step`` (a newer sample replaces the older one's copies and
@@ -104,6 +163,7 @@ def repeat_plan(loss: float, deadline_s: float, miss: float = 1e-6, margin: floa
     feedback catches up) and never faster than one copy per REPEAT_INTERVAL_S.
     """
     window = 0.8 * deadline_s
+    loss = max(loss, burst_loss) if math.isfinite(burst_loss) else loss
     p = min(MAX_LOSS, max(0.0, loss if math.isfinite(loss) else MAX_LOSS) + margin)
     needed = math.ceil(math.log(miss) / math.log(p)) if p > 0 else 1
     step = max(REPEAT_INTERVAL_S, window / max(needed, min_copies))
@@ -111,9 +171,9 @@ def repeat_plan(loss: float, deadline_s: float, miss: float = 1e-6, margin: floa
     return copies, min(window, copies * step)
 
 
-def apply_repeat_plan(publisher: Any, loss: float) -> None:
-    """Set a deadline publisher's copies from the measured loss (see :func:`repeat_plan`)."""
-    copies, window = repeat_plan(loss, publisher.qos.deadline)
+def apply_repeat_plan(publisher: Any, loss: float, burst_loss: float = 0.0) -> None:
+    """Set a deadline publisher's copies from the measured loss and its burstiness (see :func:`repeat_plan`)."""
+    copies, window = repeat_plan(loss, publisher.qos.deadline, burst_loss=burst_loss)
     publisher.set_repeats(copies, window)
 
 
@@ -163,6 +223,7 @@ class LossMonitor:
             self._peers.move_to_end(msg.id)
             peer.period = msg.period_ms / 1000
             peer.arrive(now)
+            peer.sequence(msg.seq, now)
             self.probes_received += 1
             for pid, loss in zip(msg.peers, msg.loss, strict=True):
                 if pid == self.id and math.isfinite(loss):
@@ -184,6 +245,17 @@ class LossMonitor:
         with self._lock:
             now = time.monotonic()
             return {pid: self._incoming(p, now) for pid, p in self._peers.items()}
+
+    def burst(self) -> BurstEstimate:
+        """The burstiest peer heard (by the loss that follows a loss), over the long window."""
+        worst = BurstEstimate()
+        with self._lock:
+            now = time.monotonic()
+            for p in self._peers.values():
+                b = p.burst(self.long_window_s, now)
+                if b.loss_after_loss > worst.loss_after_loss:
+                    worst = b
+        return worst
 
     def outgoing_loss(self) -> float:
         """The worst loss towards any peer heard recently (NaN if none): what to size copies for."""

@@ -140,17 +140,19 @@ class Node:
     @overload
     def create_subscription(self, msg_type: type[M], topic: str, callback: Callable[..., Any],
                             qos: QoSProfile | int = ..., *, event_callbacks: Any = ...,
-                            topic_statistics: Any = ..., raw: bool = ...) -> Subscription[M]: ...
+                            topic_statistics: Any = ..., raw: bool = ...,
+                            receive: str | None = ...) -> Subscription[M]: ...
 
     @overload
     def create_subscription(self, msg_type: None, topic: str, callback: Callable[..., Any],
                             qos: QoSProfile | int = ..., *, event_callbacks: Any = ...,
-                            topic_statistics: Any = ..., raw: bool = ...) -> Subscription[RawMessage]: ...
+                            topic_statistics: Any = ..., raw: bool = ...,
+                            receive: str | None = ...) -> Subscription[RawMessage]: ...
 
     def create_subscription(self, msg_type: type[Any] | None, topic: str, callback: Callable[..., Any],
                             qos: QoSProfile | int = SYSTEM_DEFAULT, *,
                             event_callbacks: Any = None, topic_statistics: Any = None,
-                            raw: bool = False) -> Subscription[Any]:
+                            raw: bool = False, receive: str | None = None) -> Subscription[Any]:
         """``callback(msg)`` or ``callback(msg, info)`` (info: MessageInfo with age, seq).
 
         ``topic_statistics``: True or a ``TopicStatisticsOptions`` to publish windowed
@@ -161,11 +163,14 @@ class Node:
         :class:`~zenoh_robot.subscription.RawMessage` (type name and hash, the body's
         field values, the payload's bytes); ``msg_type`` None then takes every type.
         See the subscription module's doc.
+
+        ``receive``: ``"callback"`` (default) or ``"channel"`` (Zenoh's ring channel drained in
+        batches: the fast path for high-rate small messages; trade-offs in the subscription module's doc).
         """
         self._context.check_open()
         key = self.resolve_topic_name(topic)
         sub: Subscription[Any] = Subscription(self._context, msg_type, topic, key, callback, _qos(qos),
-                                              event_callbacks, raw=raw)
+                                              event_callbacks, raw=raw, receive=receive)
         with self._lock:
             self.subscriptions.append(sub)
         stats = self.enable_topic_statistics if topic_statistics is None else topic_statistics

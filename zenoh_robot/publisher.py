@@ -5,6 +5,7 @@ from __future__ import annotations
 import secrets
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
@@ -19,6 +20,8 @@ from .session_config import is_multicast_session
 
 M = TypeVar("M", bound=Message)
 REPEAT_WINDOW_FRACTION = 0.8
+_time_ns = time.time_ns
+_monotonic = time.monotonic
 
 
 @dataclass(frozen=True, slots=True)
@@ -69,6 +72,8 @@ class Publisher(Generic[M]):
         self._closed = False
         self._history = RedundantHistory(qos.redundancy) if qos.redundancy else None
         self._repeats = qos.repeat
+        # Fixed for the publisher's life (set_repeats needs a QoS with repeat, and keeps it >= 1).
+        self._plain = self._history is None and not self._repeats and self._attachment is None
         # With a deadline, copies are spread over most of it (see _wire/repeater.py); the rest
         # of the deadline is margin for the copy that does arrive to be processed.
         self._repeat_window = qos.deadline * REPEAT_WINDOW_FRACTION if qos.deadline and qos.repeat else None
@@ -78,7 +83,12 @@ class Publisher(Generic[M]):
         # cost is a batch flush of at most ~1 ms. The graph still shows the QoS asked for.
         wire_qos = qos.replace(express=False) if qos.express and is_multicast_session(context.session) else qos
         self.express_on_wire = wire_qos.express
+        # A sealing format (wire/sealed.py) seals every transmitted copy, repeats too, with its own nonce.
+        sealer = getattr(encoder, "sealer", None)
+        seal: Callable[[bytes], bytes] | None = sealer(self.data_key) if sealer is not None else None
         self._zpub = declare_publisher(context.session, self.data_key, wire_qos)
+        zput = self._zpub.put
+        self._put: Callable[[bytes], Any] = zput if seal is None else (lambda payload: zput(seal(payload)))
         try:
             self._token = context.declare_endpoint(EndpointType.PUBLISHER, self)
         except BaseException:
@@ -108,30 +118,37 @@ class Publisher(Generic[M]):
         with self._lock:
             if self._closed:
                 raise PublisherClosed(f"publisher on {self.topic!r} is closed")
-            self._seq += 1
-            seq = self._seq
-            stamp = time.time_ns()
-            if self._history is not None:
-                carried = self._history.extra()
-                extra = {**(extra or {}), **carried} if carried else extra
-                self._history.record(seq, stamp, body)
-            if self._repeats:
-                # Tells every subscriber, whatever its own QoS, that copies follow: deduplicate.
-                extra = {**(extra or {}), REPEAT_KEY: self._repeats}
-            payload = self._pack(seq, stamp, body, extra)
-            if self._attachment is None:
-                self._zpub.put(payload)
-            else:   # never with repeats: only formats that carry extra fields repeat (see __init__)
-                self._zpub.put(payload, attachment=self._attachment(seq, stamp))
-            if self._repeats and self._repeat_window is not None:
-                self.context.repeater.schedule_latest(self.publisher_id, self._zpub.put, payload, self._repeats,
-                                                      self._repeat_window)
-            elif self._repeats:   # loss is per packet: each later copy is another chance
-                self.context.repeater.schedule(self._zpub.put, payload, self._repeats)
+            self._seq = seq = self._seq + 1
+            stamp = _time_ns()
+            if self._plain:
+                # The common case (no history, no repeats, no attachment): pack and put, nothing else.
+                self._zpub.put(self._pack(seq, stamp, body, extra))
+            else:
+                self._put_with_extras(seq, stamp, body, extra)
             self.published += 1
             self.last_stamp_ns = stamp
-            self.last_publish_mono = time.monotonic()
+            self.last_publish_mono = _monotonic()
         return PublishInfo(seq, stamp)
+
+    def _put_with_extras(self, seq: int, stamp: int, body: Any, extra: dict[str, Any] | None) -> None:
+        # Under self._lock: redundancy history, repeats or an attachment.
+        if self._history is not None:
+            carried = self._history.extra()
+            extra = {**(extra or {}), **carried} if carried else extra
+            self._history.record(seq, stamp, body)
+        if self._repeats:
+            # Tells every subscriber, whatever its own QoS, that copies follow: deduplicate.
+            extra = {**(extra or {}), REPEAT_KEY: self._repeats}
+        payload = self._pack(seq, stamp, body, extra)
+        if self._attachment is None:
+            self._zpub.put(payload)
+        else:   # never with repeats: only formats that carry extra fields repeat (see __init__)
+            self._zpub.put(payload, attachment=self._attachment(seq, stamp))
+        if self._repeats and self._repeat_window is not None:
+            self.context.repeater.schedule_latest(self.publisher_id, self._zpub.put, payload, self._repeats,
+                                                  self._repeat_window)
+        elif self._repeats:   # loss is per packet: each later copy is another chance
+            self.context.repeater.schedule(self._zpub.put, payload, self._repeats)
 
     @property
     def repeats(self) -> int:

@@ -1,9 +1,10 @@
 """The session flags every program shares, defined once (as zenoh-python's examples do).
 
 :func:`add_session_arguments` adds ``--zenoh FILE``, ``-m/--mode``, ``-e/--connect``,
-``-l/--listen``, ``--secure DIR``, ``--cert-name NAME`` and ``--domain N`` to a parser;
-:func:`session_config_from_args` turns the parsed flags into a :class:`SessionConfig`: the
-``--zenoh`` file (or the program's default config), refined by the other flags. Every default is
+``-l/--listen``, ``--secure DIR``, ``--cert-name NAME``, ``--domain N``, ``--ros2`` and
+``--ros-domain-id N`` to a parser; :func:`session_config_from_args` turns the parsed flags into a
+:class:`SessionConfig`: the ``--zenoh`` file (or the program's default config), refined by the
+other flags; :func:`wire_from_args` into the wire format of the program's nodes. Every default is
 ``argparse.SUPPRESS``, so a command may take the flags both before and after its operation
 (``zenoh-robot topic --zenoh F echo /x`` and ``... echo /x --zenoh F``) without the absent one
 overwriting the given one.
@@ -17,6 +18,7 @@ from collections.abc import Callable
 from typing import Any
 
 from .session_config import MAX_DOMAIN, MODES, SECURE_PROTOCOLS, SessionConfig, resolve_domain
+from .wire import ENVELOPE, WireFormat, ros2_wire
 
 
 def add_session_arguments(parser: argparse.ArgumentParser) -> None:
@@ -36,6 +38,20 @@ def add_session_arguments(parser: argparse.ArgumentParser) -> None:
                        help="this node's certificate in --secure DIR (default: the node's id)")
     group.add_argument("--domain", metavar="N", default=hide,
                        help=f"domain id 0..{MAX_DOMAIN} (env ZR_DOMAIN): systems in other domains never meet")
+    group.add_argument("--ros2", action="store_true", default=hide,
+                       help="speak ROS 2's wire (rmw_zenoh: CDR, @ros2_lv graph): see and talk to ROS 2 nodes "
+                            "(docs/ros2.md)")
+    group.add_argument("--ros-domain-id", metavar="N", type=int, default=hide,
+                       help="ROS 2 domain id with --ros2 (implies it; default: env ROS_DOMAIN_ID, else 0)")
+
+
+def wire_from_args(args: argparse.Namespace) -> WireFormat:
+    """The wire format the flags ask for: ROS 2's (its domain: ``--ros-domain-id``, else env
+    ``ROS_DOMAIN_ID``, else 0) with ``--ros2`` or ``--ros-domain-id``, else the envelope."""
+    domain: int | None = getattr(args, "ros_domain_id", None)
+    if not getattr(args, "ros2", False) and domain is None:
+        return ENVELOPE
+    return ros2_wire(domain)
 
 
 def session_config_from_args(args: argparse.Namespace,

@@ -60,6 +60,13 @@ def fast_open(open_timeout_ms: int = 250, retry_init_ms: int = 50, retry_max_ms:
         keys["connect/timeout_ms"] = -1
         keys["connect/exit_on_failure"] = False
     return keys
+
+
+def udp_first(endpoints: list[str]) -> list[str]:
+    """``endpoints`` with the UDP ones first, each group in its given order."""
+    return sorted(endpoints, key=lambda e: not e.startswith("udp/"))
+
+
 _ENDPOINT = re.compile(r"^(?P<proto>[a-z-]+)/(?P<addr>[^?#]+)(?:\?(?P<meta>[^#]*))?(?:#(?P<cfg>.*))?$")
 
 
@@ -142,6 +149,11 @@ class SessionConfig:
     secure: str | None = None              # keys directory: TLS + mTLS + ACL (see the module doc)
     name: str | None = None                # this node's certificate name in ``secure``
     verify_name: bool = True               # check the dialled host against the peer's certificate SAN
+    # A unicast session across a lossy link (docs/results/transports.md): fast_open's short handshake
+    # tries retried at once (a client's open also waits and retries instead of failing), and UDP
+    # endpoints dialled before TCP ones (a client holds the first link that opens; a TCP connect
+    # under loss waits on the kernel's SYN back-off). Keys in ``extra`` still win.
+    lossy: bool = False
 
     def __post_init__(self) -> None:
         self.domain = resolve_domain(self.domain)
@@ -253,7 +265,7 @@ class SessionConfig:
         values: dict[str, Any] = {
             "mode": self.mode,
             "listen/endpoints": self.listen,
-            "connect/endpoints": self.connect,
+            "connect/endpoints": udp_first(self.connect) if self.lossy else self.connect,
             "scouting/multicast/enabled": self.multicast_scouting,
             "transport/unicast/max_links": self.max_links,
             "transport/shared_memory/enabled": self.shared_memory_enabled,
@@ -269,6 +281,8 @@ class SessionConfig:
             values["namespace"] = f"zr{self.domain}"
         if self.secure is not None:
             values.update(self._secure_values())
+        if self.lossy:
+            values.update(fast_open(client=self.mode == "client"))
         values.update(self.extra)
         return values
 

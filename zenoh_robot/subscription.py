@@ -3,7 +3,8 @@
 Zenoh's callback thread does as little as possible (copy the bytes, stamp the
 arrival, append to a bounded deque). Decoding, checks and the user callback run
 on the node's executor. KEEP_LAST(n) holds at most n unprocessed samples: the
-oldest is dropped and counted when a new one arrives.
+oldest is dropped and counted when a new one arrives; with n = 1 a batch recovered from a
+redundancy history delivers only its newest sample (the older ones count as dropped).
 
 Hostile input: nothing a peer sends can stop, blind or fool a subscription. A sample
 over ``max_sample_bytes`` is dropped before it is copied (``oversize``); the queue is
@@ -30,6 +31,30 @@ deduplication of redundant/repeated publishers, lost/expired counters, QoS event
 the graph (a raw subscription of any type announces the type hash ``any``, which
 matches every publisher). With ``None`` the type check is off: samples of every type
 are delivered, each naming its own type.
+
+Two receive paths (``Node.create_subscription(..., receive=...)``):
+
+- ``"callback"`` (the default): a Python callback on Zenoh's thread copies each sample into the
+  bounded queue above and wakes the executor. Counters are exact at arrival (``received``,
+  ``dropped``, ``oversize``), the queue is bounded by count and by bytes, ``pending`` is exact.
+- ``"channel"``: no Python on Zenoh's threads per sample. Zenoh keeps the samples in its own
+  channel and the executor drains it in batches (``try_recv`` until empty, at most
+  DRAIN_BATCH per turn). The executor is woken once per burst, not per sample: a waiter thread
+  blocks in ``recv()`` (GIL released) only while the subscription is idle, hands the sample it got
+  to the executor and waits until a drain finds the channel empty. Measured (docs/benchmarks.md):
+  small-message throughput at or above raw zenoh-python, against 0.6-0.8x for the callback path.
+  KEEP_LAST(n): a ring channel of n (``zenoh.handlers.RingChannel``, the oldest goes first).
+  KEEP_ALL: a FIFO channel of the KEEP_ALL limit (``zenoh.handlers.FifoChannel``) that, when full,
+  holds back Zenoh's receive thread for that peer instead of dropping (a reliable publisher is
+  then pushed back on, as a DDS KEEP_ALL reader does; its other topics wait too, so a KEEP_ALL
+  channel subscription must not share a peer with a setpoint stream it can fall 10,000 samples
+  behind). What it gives up: the ring's own overwrites are invisible to Python, so a sample the executor
+  was too slow to take shows as ``lost`` (a sequence gap), not ``dropped``; ``received`` and
+  ``oversize`` count at the drain; the bytes held are bounded by count x ``max_sample_bytes`` only;
+  ``pending`` counts only what Python holds (the waiter's sample, a batch being handled). KEEP_LAST(n)
+  still holds at most n waiting: the waiter's sample, older than the n in the ring, is then
+  ``dropped``. TRANSIENT_LOCAL subscriptions always use
+  the callback path.
 """
 from __future__ import annotations
 
@@ -42,11 +67,13 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Generic, TypeVar
 
+import zenoh
+
 from ._wire.redundancy import AHEAD, WINDOW, Deduplicator, check_extra
 from .context import EntityContext
 from .graph import ANY_TYPE_HASH, EndpointType, TopicEndpointInfo
 from .message import require_message_type, type_support
-from .qos import HistoryPolicy, QoSProfile
+from .qos import DurabilityPolicy, HistoryPolicy, QoSProfile
 from .qos_events import SubscriptionEvents
 from .qos_mapping import declare_subscriber
 from .ratelimit import RateLimitedLog
@@ -62,6 +89,8 @@ DRAIN_BATCH = 64  # samples per executor turn, so one busy topic cannot starve t
 MAX_SAMPLE_BYTES = 32 << 20
 MAX_QUEUED_BYTES = 128 << 20
 MAX_TRACKED_PUBLISHERS = 1024   # per-publisher tables (sequence, reported mismatches): LRU beyond this
+RECEIVE_PATHS = ("callback", "channel")
+DEFAULT_RECEIVE = "callback"    # every guarantee exact (see the module doc); "channel" is opt-in
 
 
 @dataclass(slots=True)
@@ -115,7 +144,10 @@ class Subscription(Generic[M]):
 
     def __init__(self, context: EntityContext, msg_type: type[M] | None, topic: str, key: str,
                  callback: Callable[..., Any], qos: QoSProfile, event_callbacks: Any = None,
-                 *, raw: bool = False) -> None:
+                 *, raw: bool = False, receive: str | None = None) -> None:
+        receive = DEFAULT_RECEIVE if receive is None else receive
+        if receive not in RECEIVE_PATHS:
+            raise ValueError(f"create_subscription: receive must be one of {RECEIVE_PATHS}, got {receive!r}")
         if msg_type is not None or not raw:
             require_message_type(msg_type, "create_subscription")
         if not callable(callback):
@@ -138,6 +170,9 @@ class Subscription(Generic[M]):
         self._decode = wire.decoder(ts)     # raises for a format that cannot take any type
         self._attachments = wire.uses_attachment
         self.data_key = wire.data_key(key, ts)      # what is subscribed to (self.key: the topic, for the graph)
+        keyed_decoder = getattr(wire, "keyed_decoder", None)     # a sealing format binds the key (wire/sealed.py)
+        if keyed_decoder is not None:
+            self._decode = keyed_decoder(ts, self.data_key)
         # (payload, receive stamp, attachment: None unless the wire format uses attachments)
         self._queue: deque[tuple[bytes, int, bytes | None]] = deque()
         self._dropped_unseen = 0
@@ -166,10 +201,31 @@ class Subscription(Generic[M]):
         self._statistics: Any = None   # a TopicStatisticsCollector when statistics are enabled
         # Redundant or repeated publishers send samples more than once: deliver each once, in order.
         self.dedup = Deduplicator() if (qos.redundancy or qos.repeat) else None
+        # KEEP_LAST(1): of a recovered batch only the newest is delivered (see _keep_newest).
+        self._newest_only = qos.history is HistoryPolicy.KEEP_LAST and qos.depth == 1
         self.gid = secrets.randbits(63)
         self.last_sample_mono: float | None = None
         self.events = SubscriptionEvents(context, self, event_callbacks)
-        self._zsub = declare_subscriber(context.session, self.data_key, qos, self._on_sample)
+        if qos.durability is DurabilityPolicy.TRANSIENT_LOCAL:
+            receive = "callback"    # the advanced subscriber's history replay stays on the proven path
+        self.receive = receive
+        self._closed = False
+        # Channel path: the sample the waiter thread got from recv(), and its go-ahead to block again.
+        self._first: Any = None
+        self._backlog: deque[Any] = deque()     # taken from the channel, not yet handled (executor only)
+        self._idle = threading.Event()
+        if receive == "channel":
+            self._drain_some = self._drain_channel    # type: ignore[method-assign]
+            # KEEP_ALL loses nothing: a FIFO that, full, holds Zenoh's receive back (reliable streams
+            # then push back on the publisher). KEEP_LAST: a ring that overwrites its oldest.
+            handler: Any = (zenoh.handlers.FifoChannel(self._limit) if self._take_batch
+                            else zenoh.handlers.RingChannel(max(1, self._limit)))
+            self._zsub = declare_subscriber(context.session, self.data_key, qos, handler)
+            self._idle.set()
+            self._waiter = threading.Thread(target=self._wait_loop, daemon=True, name=f"zr-recv-{topic}")
+            self._waiter.start()
+        else:
+            self._zsub = declare_subscriber(context.session, self.data_key, qos, self._on_sample)
         try:
             self._token = context.declare_endpoint(EndpointType.SUBSCRIPTION, self)
         except BaseException:
@@ -211,6 +267,24 @@ class Subscription(Generic[M]):
                 return      # the drain already queued picks this one up: one executor wake-up per drain
             self._scheduled = True
         self._executor.submit(self._drain_work)
+
+    # -- channel path: waiter thread -------------------------------------------------
+    def _wait_loop(self) -> None:
+        # Blocks in recv() only while no drain is scheduled: one executor wake-up per burst of samples.
+        recv, idle = self._zsub.recv, self._idle
+        while True:
+            idle.wait()
+            if self._closed:
+                return
+            idle.clear()
+            try:
+                sample = recv()
+            except Exception:   # undeclared (destroy, session closed): nothing more will come
+                return
+            if self._closed:
+                return
+            self._first = sample
+            self._executor.submit(self._drain_work)
 
     def _make_room(self, size: int) -> None:
         # Under self._lock (the rare path of _on_sample: the queue is full).
@@ -285,6 +359,62 @@ class Subscription(Generic[M]):
                 self._internal_error("handle", exc)
         return True
 
+    def _drain_channel(self) -> bool:
+        """Channel path: handle up to DRAIN_BATCH samples from Zenoh's channel; False once it is empty
+        (then the waiter may block in recv() again)."""
+        first, self._first = self._first, None
+        backlog, try_recv, handle = self._backlog, self._zsub.try_recv, self._handle
+        counters = self.counters
+        limit = self.max_sample_bytes
+        attachments = self._attachments
+        handled = 0
+        try:
+            if first is not None:
+                if self._take_batch:
+                    backlog.append(first)
+                else:
+                    # KEEP_LAST(n): the waiter's sample is older than all the ring holds. With n newer
+                    # ones behind it, it is the n+1-th waiting: drop it as the callback path would.
+                    while len(backlog) < self._limit:
+                        newer = try_recv()
+                        if newer is None:
+                            break
+                        backlog.append(newer)
+                    if len(backlog) >= self._limit:
+                        counters.received += 1
+                        counters.dropped += 1
+                        with self._lock:
+                            self._dropped_unseen += 1   # will show as a sequence gap: not a network loss
+                    else:
+                        backlog.appendleft(first)
+            sample = backlog.popleft() if backlog else try_recv()
+            while sample is not None:
+                counters.received += 1
+                try:
+                    payload = sample.payload
+                    size = len(payload)
+                    if size > limit:
+                        counters.oversize += 1
+                        self._rlog.warning("oversize", "sample of %d bytes on %r dropped: the limit is %d bytes "
+                                           "(Subscription.max_sample_bytes)", size, self.topic, limit)
+                    else:
+                        attachment = None
+                        if attachments:
+                            zattachment = sample.attachment
+                            attachment = None if zattachment is None else zattachment.to_bytes()
+                        handle(payload.to_bytes(), _time_ns(), attachment)
+                except Exception as exc:   # a bug or a hostile sample: count it, keep the others coming
+                    self._internal_error("handle", exc)
+                handled += 1
+                if handled >= DRAIN_BATCH:
+                    return True     # still scheduled: _drain submits the next turn, the waiter stays parked
+                sample = backlog.popleft() if backlog else try_recv()
+        except Exception as exc:    # try_recv on an undeclared subscriber: the subscription is going away
+            if not self._closed:
+                self._internal_error("receive", exc)
+        self._idle.set()
+        return False
+
     def _handle(self, data: bytes, received_ns: int, attachment: bytes | None = None) -> None:
         # The hot path: the header stays in locals (no object per sample), the common case (no
         # redundancy, the next sequence number, no lifespan) takes no extra call. With the envelope,
@@ -319,8 +449,23 @@ class Subscription(Generic[M]):
             # A redundant or repeating publisher, whatever this subscription's own QoS: from now
             # on, deliver each of its samples once.
             dedup = self.dedup = Deduplicator()
-        for fresh_seq, stamp, fresh_body in dedup.fresh(pub_id, seq, stamp_ns, body, extra, received_ns):
+        fresh = dedup.fresh(pub_id, seq, stamp_ns, body, extra, received_ns)
+        if len(fresh) > 1 and self._newest_only:
+            fresh = self._keep_newest(fresh)
+        for fresh_seq, stamp, fresh_body in fresh:
             self._deliver_sample(type_name, pub_id, fresh_seq, stamp, fresh_body, received_ns)
+
+    def _keep_newest(self, fresh: list[tuple[int, int, Any]]) -> list[tuple[int, int, Any]]:
+        # KEEP_LAST(1) applied to a batch recovered from a carried history: the batch arrived at once,
+        # as n samples would in a depth-1 queue, so only the newest is delivered and the rest count as
+        # dropped (not lost: _track_sequence excuses them). A setpoint stream must not hand a consumer
+        # targets up to k periods old, oldest first, right after a fade (issue #29).
+        newest = max(fresh, key=lambda f: (f[1], f[0]))
+        skipped = len(fresh) - 1
+        with self._lock:
+            self.counters.dropped += skipped
+            self._dropped_unseen += skipped
+        return [newest]
 
     def _type_mismatch(self, type_name: str, type_hash: str, pub_id: int) -> None:
         self.counters.type_mismatch += 1
@@ -464,6 +609,9 @@ class Subscription(Generic[M]):
 
     @property
     def pending(self) -> int:
+        """Samples waiting for the executor (channel path: only the one the waiter holds)."""
+        if self.receive == "channel":
+            return len(self._backlog) + (self._first is not None)
         with self._lock:
             return len(self._queue)
 
@@ -480,11 +628,13 @@ class Subscription(Generic[M]):
         if self.statistics is not None:
             self.statistics.destroy()
         self.events.close()
+        self._closed = True
         for handle in (self._token, self._zsub):
             try:
                 handle.undeclare()
             except Exception:
                 pass
+        self._idle.set()    # a parked waiter sees _closed and ends
 
 
 def _takes_two_args(fn: Callable[..., Any]) -> bool:

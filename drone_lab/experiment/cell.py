@@ -8,6 +8,7 @@ window, so delivered % is exact (unique sequence numbers received / sent).
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import signal
 import subprocess
@@ -18,10 +19,11 @@ from pathlib import Path
 from typing import Any, TypedDict
 
 from drone_contract.streams import stream_profile
-from zenoh_robot.session_config import RESILIENT_GROUP, SessionConfig, fast_open
+from zenoh_robot.session_config import RESILIENT_GROUP, SessionConfig
 from zenoh_robot.tools.stream_metrics import StreamRecorder, analyse
 
-from .netns import LossyLink
+from .netns import LOSS_MODELS as LOSS_MODEL_NAMES
+from .netns import BurstModel, LossyLink
 
 DRONE_ID = "uav1"
 PORT = 7447
@@ -40,39 +42,26 @@ class CellSpec:
     transport: str = "default"  # the profile's own; "unicast": resilient over a UDP/TCP peer-to-peer session;
     # "router": a Zenoh router in the GCS namespace, the GCS its client over loopback, the drone across the veth
     startup_timeout: float = STARTUP_TIMEOUT_S   # launch -> both apps up (a client's up = its session formed)
+    loss_model: str = "uniform"   # "bursty": the netns two-state channel at the same mean (netns.BurstyChannel)
+    burst_mean_s: float = 0.3     # the bursty channel's mean fade (clamped 0.1-2 s)
 
     @property
     def label(self) -> str:
-        return self.profile if self.transport == "default" else f"{self.profile}@{self.transport}"
+        label = self.profile if self.transport == "default" else f"{self.profile}@{self.transport}"
+        return label if self.loss_model == "uniform" else f"{label}~{self.loss_model}"
 
 
 TRANSPORTS = ("default", "unicast", "router", "router-udp", "router-shim")
-# A unicast session must cross a handshake: under loss, retry it fast and give each try little time
-# (zenoh 1.10 defaults: 10 s open/accept timeouts, retries backing off to 4 s). UDP is listed first:
-# a client holds one link, the first endpoint that opens, and a TCP connect under loss waits on the
-# kernel's SYN back-off (1, 2, 4 s) while a UDP try is one datagram each way (docs/results/transports.md).
-FAST_OPEN = fast_open()
-
-
-class LossyTx(TypedDict):
-    """``SessionConfig`` keywords of the transport under loss (typed, so that ``**`` checks them)."""
-    batch_size: int
-    lease_s: float
-    keep_alive: int
+LOSS_MODELS = LOSS_MODEL_NAMES
 
 
 class _Tuning(TypedDict, total=False):
-    """``SessionConfig`` keywords a cell's config shares between its two sides."""
+    """``SessionConfig`` keywords a cell's config shares between its two sides (the thesis's variants)."""
     multicast_scouting: bool
     shared_memory: bool
     accept_timeout_s: float
-    extra: dict[str, Any]
-    batch_size: int
-    lease_s: float
-    keep_alive: int
 
 
-LOSSY_TX: LossyTx = {"batch_size": 1300, "lease_s": 10.0, "keep_alive": 100}
 ROUTER_LOCAL = f"tcp/127.0.0.1:{PORT}"     # the GCS reaches its ground router over loopback
 
 
@@ -85,39 +74,37 @@ def router_cmd(link: LossyLink) -> list[str]:
 
 
 def transport_for(profile: str, link: LossyLink, side: str, transport: str = "default") -> dict[str, Any]:
-    """The Zenoh config of one side, as JSON (valid JSON5) for ``--zenoh``."""
-    if profile == "resilient" and transport in ("router", "router-udp", "router-shim"):
-        # Both clients of the ground router; a client's open blocks until its session is up and retries
-        # forever (fast_open(client=True)): the companion holds (no setpoints, PX4 never armed) meanwhile.
-        extra = fast_open(client=True)
+    """The Zenoh config of one side, as JSON (valid JSON5) for ``--zenoh``.
+
+    The resilient cells run the product's session (``stream_profile(...).session_config()``: fast open,
+    UDP first, lossy TX settings), given the endpoints a user would pass (``--listen``/``--connect``/
+    ``--mode``): what is measured is what a user gets. Only the topology is the cell's own."""
+    if profile == "resilient" and transport in ("router", "router-udp", "router-shim", "unicast"):
+        base = dataclasses.replace(stream_profile(profile).session_config(), multicast_scouting=False,
+                                   shared_memory=False)
+        gcs_endpoints = [f"udp/{link.addr('gcs')}:{PORT}", f"tcp/{link.addr('gcs')}:{PORT}"]
+        if transport == "unicast":
+            if side == "gcs":
+                return dataclasses.replace(base, listen=gcs_endpoints).to_json5()
+            return dataclasses.replace(base, listen=[], connect=gcs_endpoints).to_json5()
+        # Both clients of the ground router (a lossy client's open blocks until its session is up and
+        # retries forever): the companion holds (no setpoints, PX4 never armed) meanwhile.
+        extra: dict[str, Any] = {}
         if side == "gcs":
             connect = [ROUTER_LOCAL]
-        else:
+        elif transport == "router":
             # A client holds one link unless told to open all of a group (Zenoh >= 1.10): the TCP link
             # carries the reliable control plane (declarations, queries), the UDP link the best-effort
             # streams, which outlive the TCP link at 90 % loss (docs/lossy-link-notes.md).
-            connect = [f"udp/{link.addr('gcs')}:{PORT}", f"tcp/{link.addr('gcs')}:{PORT}"]
-            if transport == "router":
-                extra["connect/endpoints"] = [{"strategy": "allOf", "locators": connect}]
-            elif transport == "router-shim":   # one UDP link through the repeating shim (docs/results/linkshim.md)
-                connect = [f"udp/127.0.0.1:{SHIM_LOCAL}"]
-            else:   # "router-udp": one UDP link (forms fastest; the control plane then rides it unacknowledged)
-                connect = connect[:1]
-        return SessionConfig(mode="client", listen=[], connect=connect, multicast_scouting=False,
-                             shared_memory=False, accept_timeout_s=1.0, extra=extra,
-                             **LOSSY_TX).to_json5()
-    if profile == "resilient" and transport == "unicast":
-        endpoints = [f"udp/{link.addr('gcs')}:{PORT}", f"tcp/{link.addr('gcs')}:{PORT}"]
-        tuned: _Tuning = {"multicast_scouting": False, "shared_memory": False, "accept_timeout_s": 1.0,
-                         "extra": dict(FAST_OPEN), **LOSSY_TX}
-        if side == "gcs":
-            return SessionConfig(listen=endpoints, **tuned).to_json5()
-        # The companion's open waits for both links (each retried until it opens), as a client's does: it
-        # starts streaming on a formed session, and until then sends nothing (PX4 is never armed).
-        tuned["extra"] = {**FAST_OPEN, "connect/timeout_ms": -1, "connect/exit_on_failure": True}
-        return SessionConfig(listen=[], connect=endpoints, **tuned).to_json5()
+            connect = gcs_endpoints
+            extra["connect/endpoints"] = [{"strategy": "allOf", "locators": connect}]
+        elif transport == "router-shim":   # one UDP link through the repeating shim (docs/results/linkshim.md)
+            connect = [f"udp/127.0.0.1:{SHIM_LOCAL}"]
+        else:   # "router-udp": one UDP link (forms fastest; the control plane then rides it unacknowledged)
+            connect = gcs_endpoints[:1]
+        return dataclasses.replace(base, mode="client", listen=[], connect=connect, extra=extra).to_json5()
     if profile == "resilient":
-        return SessionConfig.resilient(link.dev(side), MCAST).to_json5()
+        return stream_profile(profile).session_config(link.dev(side)).to_json5()
     # The thesis's variants as a plain deployment would run them: TCP for reliable, UDP for best
     # effort, Zenoh's default lease, batch size and accept timeout; no shared memory (loss must
     # touch every byte).
@@ -172,7 +159,8 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
     from the launch then covered seconds before the apps streamed or after they had exited, and the
     analysis read that as every stream going silent at once (docs/zenoh-multicast-stall.md)."""
     workdir.mkdir(parents=True, exist_ok=True)
-    with LossyLink(loss_pct=spec.loss if spec.start == "startup" else 0.0) as link:
+    with LossyLink(loss_pct=spec.loss if spec.start == "startup" else 0.0, loss_model=spec.loss_model,
+                   burst=BurstModel(bad_mean_s=spec.burst_mean_s)) as link:
         procs = {}
         for side in ("gcs", "drone"):
             (workdir / f"{side}.json5").write_text(
@@ -205,6 +193,7 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
             time.sleep(0 if waiting else spec.duration)
             t1 = time.time_ns()
             tx1 = {side: link.tx_bytes(side) for side in link.sides}
+            channel = link.timeline_summary(t0, t1)
             apps_ran = all(procs[k].poll() is None for k in ("gcs", "drone"))
             routed = spec.transport.startswith("router") and not waiting
             command = _command_through_router(link, workdir) if routed else None
@@ -249,6 +238,10 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
         result["session_formed_s"] = None   # what arrived came with the stop (Ctrl-C ends the open's retries)
         result.pop("invalid", None)
     result["window_ns"] = [t0, t1]
+    # What the link applied in the window (the bursty channel's fades), and its raw timeline.
+    result["loss_model"] = spec.loss_model
+    result["channel"] = channel
+    (workdir / "loss_timeline.json").write_text(json.dumps(link.timeline))
     return result
 
 

@@ -2,7 +2,9 @@
 
 A generated class has ROS 2's type name (``pkg/msg/Type``) and hash (``RIHS01_<sha256>``, which
 rosbags computes from the type description as ROS 2 does), so the graph matches endpoints of
-the same ROS type and a mismatch of either means no match, as between rmw_zenoh nodes. Its
+the same ROS type and a mismatch of either means no match, as between rmw_zenoh nodes (one
+correction: rosidl reads a ``.msg`` ``char`` as ``uint8``, rosbags keeps it a char, so hashes are taken
+through :func:`rihs01`, which reads it as ROS 2 does). Its
 ``_zr_ros2`` attribute is a :class:`Ros2Codec`: the body (``TypeSupport.encode``'s field values)
 to the CDR payload rmw_zenoh sends (encapsulation header ``00 01 00 00``, little-endian XCDR1)
 and back. The bytes are rosbags' serializer's; this module only maps our body to its objects.
@@ -151,7 +153,7 @@ def _generate(name: str) -> type[Message]:
         from_convs.append(from_v)
     cls = type(name.rsplit("/", 1)[1], (Message,), namespace)
     cls = message(name=name)(cls)
-    type_hash = store.hash_rihs01(name)
+    type_hash = rihs01(name)
     names = [f for f, _ in fields]
     pairs_to = list(zip(to_convs, range(len(names)), strict=True))
 
@@ -183,14 +185,91 @@ def ros2_type(name: str) -> type[Message]:
 def load_ros2_msg(text: str, name: str) -> type[Message]:
     """Register the ``.msg`` definition ``text`` as the ROS 2 type ``name`` (``pkg/msg/Type``; service
     halves as ``pkg/srv/Srv_Request``) and return its class. Nested types must be known already."""
-    from rosbags.typesys import get_types_from_msg
-
     key = name.strip().strip("/")
     with _LOCK:
-        store = typestore()
-        store.register(get_types_from_msg(text, key))
-        _TYPES.pop(key, None)
+        register_definitions(parse_definition(text, key))
         return ros2_type(key)
+
+
+def parse_definition(text: str, name: str) -> dict[str, Any]:
+    """rosbags' field definitions of the ``.msg`` text ``text`` of type ``name``, named as ROS 2 names
+    them: rosbags files a service half under ``pkg/srv/msg/X`` and a relative nested type of a ``.srv``
+    under ``pkg/srv/msg/T``, where ROS 2 (and its hash) says ``pkg/srv/X`` and ``pkg/msg/T``."""
+    from rosbags.typesys import get_types_from_msg
+
+    pkg, kind, short = _normalise(name).split("/")
+    parsed: dict[str, Any] = get_types_from_msg(text, name)
+    if kind == "msg":
+        return parsed
+    wrong = f"{pkg}/{kind}/msg/"
+
+    def fix(typ: str) -> str:
+        if not typ.startswith(wrong):
+            return typ
+        return f"{pkg}/{kind}/{short}" if typ == wrong + short else f"{pkg}/msg/{typ[len(wrong):]}"
+
+    out: dict[str, Any] = {}
+    for typ, (consts, fields) in parsed.items():
+        out[fix(typ)] = (consts, [(f, _renamed(desc, fix)) for f, desc in fields])
+    return out
+
+
+def _renamed(desc: tuple[Any, Any], fix: Callable[[str], str]) -> tuple[Any, Any]:
+    node, arg = desc
+    if node.name == "NAME":
+        return node, fix(arg)
+    if node.name in ("ARRAY", "SEQUENCE"):
+        return node, (_renamed(arg[0], fix), arg[1])
+    return desc
+
+
+def register_definitions(defs: dict[str, Any]) -> None:
+    """Add field definitions (``parse_definition``'s) to the typestore; a type generated before from
+    an older definition of the same name is made again on next use."""
+    with _LOCK:
+        typestore().register(defs)
+        for key in defs:
+            _TYPES.pop(key, None)
+
+
+def rihs01(name: str) -> str:
+    """The RIHS01 hash of a type in the typestore, as ROS 2 computes it. rosbags' ``hash_rihs01``
+    describes a ``char`` field as FIELD_TYPE_CHAR, but rosidl maps a ``.msg`` ``char`` to ``uint8``
+    (rosidl_adapter), so ROS 2's hash of any type with a char (std_msgs/msg/Char,
+    service_msgs/msg/ServiceEventInfo and so every service) describes it as FIELD_TYPE_UINT8: rosbags'
+    hashing reads the store through a view that says so."""
+    store = typestore()
+    return str(type(store).hash_rihs01(_RosidlView(store.fielddefs), name))
+
+
+class _RosidlView:
+    """The typestore's field definitions as rosidl reads them (``char`` as ``uint8``): what rosbags'
+    ``hash_rihs01`` needs of its store (only ``fielddefs``)."""
+
+    def __init__(self, fielddefs: dict[str, Any]) -> None:
+        self.fielddefs = _CharAsUint8(fielddefs)
+
+
+class _CharAsUint8(dict[str, Any]):
+    def __init__(self, fielddefs: dict[str, Any]) -> None:
+        super().__init__()
+        self._defs = fielddefs
+
+    def __getitem__(self, typ: str) -> Any:
+        consts, fields = self._defs[typ]
+        return consts, [(f, _char_as_uint8(desc)) for f, desc in fields]
+
+    def __contains__(self, typ: object) -> bool:
+        return typ in self._defs
+
+
+def _char_as_uint8(desc: tuple[Any, Any]) -> tuple[Any, Any]:
+    node, arg = desc
+    if node.name == "BASE" and arg[0] == "char":
+        return node, ("uint8", arg[1])
+    if node.name in ("ARRAY", "SEQUENCE"):
+        return node, (_char_as_uint8(arg[0]), arg[1])
+    return desc
 
 
 def is_ros2_type(msg_type: Any) -> bool:

@@ -60,15 +60,15 @@ At-least-once delivery, at-most-once execution (lossy links):
   (never ServiceUnavailable), and ``service_is_ready()`` is True once a server has answered.
 
 ROS 2's wire: on a node whose wire format is ROS 2's, a service whose types are the halves of a
-ROS 2 service type (``ros2_service_type("example_interfaces/srv/AddTwoInts").request/.response``)
+ROS 2 service type (``zenoh_robot.ros2.ros2_service_type("example_interfaces/srv/AddTwoInts")``)
 speaks rmw_zenoh's service protocol instead (ros2.py has it); other types keep the envelope.
 
 Modules, one job each: errors (the exceptions, the error payload), keys (service keys, the
 verbatim chunks), retry (RetryPolicy, AdaptiveRetry, the presets), scheduler (the retry thread),
 idempotency (the server's cache of recent requests), multicast (the put-carried transport's
 attachments and publishers), service (Service), client (Client and its calls), registry (a node's
-Services, describe_services, call_dict; the seam picking a service's wire), ros2_types (ROS 2 service
-types: .srv -> message types, RIHS01 hash, CDR), ros2 (rmw_zenoh's service protocol, SS/SC tokens).
+Services, describe_services, call_dict; the seam picking a service's wire), ros2 (rmw_zenoh's service
+protocol over the ROS 2 wire format's attachment and tokens; the types are ``zenoh_robot.ros2``'s).
 """
 from __future__ import annotations
 
@@ -88,7 +88,6 @@ from .retry import (
     command_retry,
 )
 from .ros2 import Ros2Client, Ros2Service, Ros2ServiceInfo, parse_service_token, ros2_services, service_data_key
-from .ros2_types import KNOWN_SERVICES, Ros2ServiceType, Ros2TypeError, ros2_service_type
 from .service import MAX_REQUEST_BYTES, Service
 
 __all__ = [
@@ -107,7 +106,6 @@ __all__ = [
     "AdaptiveRetry",
     "Client",
     "IdempotencyCache",
-    "KNOWN_SERVICES",
     "Reply",
     "Responder",
     "Retry",
@@ -115,8 +113,6 @@ __all__ = [
     "Ros2Client",
     "Ros2Service",
     "Ros2ServiceInfo",
-    "Ros2ServiceType",
-    "Ros2TypeError",
     "Service",
     "ServiceCallError",
     "ServiceError",
@@ -128,7 +124,6 @@ __all__ = [
     "decode_error",
     "describe_services",
     "parse_service_token",
-    "ros2_service_type",
     "ros2_services",
     "service_data_key",
     "service_key",

@@ -19,11 +19,11 @@ from .errors import ServiceTimeout, ServiceUnavailable
 from .keys import DESCRIBE_PARAM, SERVICE_PREFIX, service_key
 from .retry import _DEFAULT, Retry
 from .ros2 import Ros2Client, Ros2Service
-from .ros2_types import Ros2ServiceType, service_type_of
 from .service import Handler, Service
 
 if TYPE_CHECKING:
     from ..node import Node
+    from ..ros2 import Ros2ServiceType
 
 Req = TypeVar("Req", bound=Message)
 Resp = TypeVar("Resp", bound=Message)
@@ -89,6 +89,8 @@ class Services:
         parameter service, the drone contract's commands) keep the envelope on every node."""
         if getattr(self._context.wire, "name", "") != "ros2":
             return None
+        from ..ros2.services import service_type_of  # only ROS 2 nodes load the ros2 package
+
         return service_type_of(request_type, response_type)
 
     def resolve_service_name(self, name: str) -> str:

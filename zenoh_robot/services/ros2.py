@@ -4,7 +4,9 @@ serves and calls, so rmw_zenoh nodes (and zenoh-ros2-sdk) call our services and 
 - Key: ``<domain>/<service without the leading slash>/<pkg>::srv::dds_::<Srv>_/RIHS01_<hash>``; a type
   or hash mismatch is a different key, so no call at all (as between two rmw_zenoh nodes).
 - A server is a complete queryable on that key; a client a Zenoh get (target ALL_COMPLETE, no
-  consolidation). Payloads are CDR with the 4-byte encapsulation header (ros2_types.py).
+  consolidation). Payloads are CDR with the 4-byte encapsulation header; the types, their codec and
+  the service hash are ``zenoh_robot.ros2``'s (``ros2_service_type``), the attachment, names and
+  tokens the ROS 2 wire format's (``zenoh_robot.wire.ros2``): this module is the protocol only.
 - Request and reply carry the 33-byte attachment: int64 LE sequence, int64 LE source stamp (ns),
   the byte 16, a 16-byte GID. The client sends its own GID and a per-client sequence; the reply
   carries the same sequence and GID (the request id) and the server's stamp.
@@ -23,12 +25,11 @@ from __future__ import annotations
 import itertools
 import logging
 import secrets
-import struct
 import threading
 import time
 from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeout
-from typing import Any, Generic, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 import zenoh
 
@@ -36,49 +37,28 @@ from .. import names
 from ..context import EntityContext
 from ..message import Message
 from ..ratelimit import RateLimitedLog
+from ..wire import MalformedSample
+from ..wire.ros2 import (
+    ADMIN_SPACE,
+    CLIENT,
+    SERVICE,
+    LegacyAttachment,
+    pack_attachment,
+    parse_any_token,
+    unpack_attachment,
+)
 from .errors import ServiceCallError, ServiceError, ServiceTimeout, ServiceUnavailable
-from .ros2_types import Ros2ServiceType, ros_service_name
+
+if TYPE_CHECKING:
+    from ..ros2 import Ros2ServiceType
 
 Req = TypeVar("Req", bound=Message)
 Resp = TypeVar("Resp", bound=Message)
 
 log = logging.getLogger("zenoh_robot.services")
 
-ADMIN_SPACE = "@ros2_lv"
-ATTACHMENT_SIZE = 33
-GID_SIZE = 16
 HUMBLE_HASH = "TypeHashNotSupported"          # what Humble's rmw_zenoh puts where the type hash goes
-_LEGACY_LABELS = (b"sequence_number", b"source_timestamp", b"source_gid")
 MAX_REQUEST_BYTES = 16 << 20
-
-
-class AttachmentError(ValueError):
-    """An attachment that is not the 33-byte form; ``legacy`` when it is rmw_zenoh <= 0.2.3's labelled one."""
-
-    def __init__(self, message: str, legacy: bool = False) -> None:
-        super().__init__(message)
-        self.legacy = legacy
-
-
-def pack_attachment(seq: int, stamp_ns: int, gid: bytes) -> bytes:
-    """The 33-byte attachment of a request or reply."""
-    if len(gid) != GID_SIZE:
-        raise ValueError(f"a GID is {GID_SIZE} bytes, got {len(gid)}")
-    return struct.pack("<qqB", seq, stamp_ns, GID_SIZE) + bytes(gid)
-
-
-def parse_attachment(data: bytes | None) -> tuple[int, int, bytes]:
-    """(seq, stamp_ns, gid) of an attachment; AttachmentError for anything else (``legacy`` for the
-    labelled format of rmw_zenoh Jazzy <= 0.2.3, which current rmw_zenoh rejects too)."""
-    if data is None:
-        raise AttachmentError("no attachment (rmw_zenoh sends seq, stamp and GID with every request)")
-    if len(data) == ATTACHMENT_SIZE and data[16] == GID_SIZE:
-        seq, stamp = struct.unpack_from("<qq", data)
-        return seq, stamp, bytes(data[17:])
-    if any(label in data for label in _LEGACY_LABELS):
-        raise AttachmentError("legacy labelled attachment of rmw_zenoh <= 0.2.3 (Jazzy); "
-                              "current rmw_zenoh uses 33 bytes: seq, stamp, 16, GID", legacy=True)
-    raise AttachmentError(f"attachment of {len(data)} bytes is not rmw_zenoh's 33-byte form")
 
 
 def service_data_key(domain_id: int, service_name: str, srv: Ros2ServiceType) -> str:
@@ -109,16 +89,11 @@ class Ros2ServiceInfo:
 
 def parse_service_token(key: str) -> Ros2ServiceInfo:
     """An ``SS``/``SC`` token back into what it announces; ValueError for any other key."""
-    parts = key.split("/")
-    if len(parts) != 13 or parts[0] != ADMIN_SPACE or parts[5] not in ("SS", "SC"):
+    token = parse_any_token(key)
+    if token.kind not in (SERVICE, CLIENT):
         raise ValueError(f"not a ROS 2 service token: {key!r}")
-    ns, node, name, dds, type_hash = parts[7], parts[8], parts[9], parts[10], parts[11]
-    try:
-        service_type = ros_service_name(dds)
-    except ValueError:
-        service_type = dds
-    return Ros2ServiceInfo(parts[5], parts[2], "/" + ns.replace("%", "/").strip("/"), node.replace("%", "/"),
-                           "/" + name.replace("%", "/").strip("/"), service_type, type_hash)
+    return Ros2ServiceInfo(token.kind, token.zid, token.namespace, token.node, token.name,
+                           token.type_name or token.raw_type, token.type_hash)
 
 
 def ros2_services(session: zenoh.Session, domain_id: int, timeout: float = 1.0) -> list[Ros2ServiceInfo]:
@@ -167,13 +142,10 @@ class _PeerWarnings:
         log.warning("%s", text)
 
 
-class Ros2Service(Generic[Req, Resp]):
-    """A server on the ROS 2 wire: ``handler(request) -> response`` (or a Future of it) on the executor."""
+class _Ros2Endpoint:
+    """What a server and a client on the ROS 2 wire both are: a service name, its type and data key."""
 
-    def __init__(self, context: EntityContext, name: str, srv: Ros2ServiceType,
-                 handler: Any) -> None:
-        if not callable(handler):
-            raise TypeError(f"create_service {name!r}: handler must be callable")
+    def __init__(self, context: EntityContext, name: str, srv: Ros2ServiceType) -> None:
         self.context = context
         self.srv = srv
         self.name = name
@@ -181,6 +153,16 @@ class Ros2Service(Generic[Req, Resp]):
         self.key = service_data_key(int(getattr(context.wire, "domain_id", 0)), self.service_name, srv)
         self.request_type = srv.request
         self.response_type = srv.response
+
+
+class Ros2Service(_Ros2Endpoint, Generic[Req, Resp]):
+    """A server on the ROS 2 wire: ``handler(request) -> response`` (or a Future of it) on the executor."""
+
+    def __init__(self, context: EntityContext, name: str, srv: Ros2ServiceType,
+                 handler: Any) -> None:
+        if not callable(handler):
+            raise TypeError(f"create_service {name!r}: handler must be callable")
+        super().__init__(context, name, srv)
         self.handler = handler
         self.served = 0
         self.errors = 0
@@ -200,13 +182,14 @@ class Ros2Service(Generic[Req, Resp]):
             return
         attachment = query.attachment
         try:
-            seq, _stamp, gid = parse_attachment(attachment.to_bytes() if attachment is not None else None)
-        except AttachmentError as exc:
+            seq, _stamp, gid = unpack_attachment(attachment.to_bytes() if attachment is not None else None)
+        except MalformedSample as exc:
+            legacy = isinstance(exc, LegacyAttachment)
             with self._lock:
                 self.bad_requests += 1
-                self.legacy_requests += int(exc.legacy)
+                self.legacy_requests += int(legacy)
             peer = str(query.key_expr)
-            self._warnings.once(peer, "legacy" if exc.legacy else "attachment",
+            self._warnings.once(peer, "legacy" if legacy else "attachment",
                                 f"service {self.service_name}: a request with {exc}: not answered with data")
             self._reply_err(query, f"service {self.service_name}: {exc}")
             return
@@ -299,17 +282,11 @@ class Ros2Service(Generic[Req, Resp]):
                 pass   # already closed with the session
 
 
-class Ros2Client(Generic[Req, Resp]):
+class Ros2Client(_Ros2Endpoint, Generic[Req, Resp]):
     """A client on the ROS 2 wire: ``call(request, timeout)`` -> response, or a ServiceCallError subclass."""
 
     def __init__(self, context: EntityContext, name: str, srv: Ros2ServiceType) -> None:
-        self.context = context
-        self.srv = srv
-        self.name = name
-        self.service_name = names.resolve_topic(name, context.namespace, context.node_name)
-        self.key = service_data_key(int(getattr(context.wire, "domain_id", 0)), self.service_name, srv)
-        self.request_type = srv.request
-        self.response_type = srv.response
+        super().__init__(context, name, srv)
         self._seq = itertools.count(1)
         self.attempts = 0
         self.bad_replies = 0
@@ -370,9 +347,9 @@ class Ros2Client(Generic[Req, Resp]):
             sample = reply.ok
             attachment = sample.attachment
             try:
-                got_seq, _stamp, got_gid = parse_attachment(attachment.to_bytes() if attachment is not None else None)
+                got_seq, _stamp, got_gid = unpack_attachment(attachment.to_bytes() if attachment is not None else None)
                 if (got_seq, got_gid) != (seq, self.gid):
-                    raise AttachmentError(f"reply to request {got_seq}, not {seq}")
+                    raise MalformedSample(f"reply to request {got_seq}, not {seq}")
                 result: Any = self.srv.decode_response(sample.payload.to_bytes())
             except Exception as exc:
                 self.bad_replies += 1

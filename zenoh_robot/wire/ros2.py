@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 from .._wire.envelope import MalformedSample
 from ..graph import ANY_TYPE_HASH, EndpointType, NodeInfo, TopicEndpointInfo
 from ..qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSProfile, ReliabilityPolicy
-from .format import Decoder, Header
+from .format import Decoder, GraphFormat, Header
 
 if TYPE_CHECKING:
     from ..message import TypeSupport
@@ -85,15 +85,29 @@ def ros_type_name(dds_name: str) -> str:
 # -- attachment and GIDs ------------------------------------------------------------------------
 def pack_attachment(seq: int, stamp_ns: int, gid: bytes) -> bytes:
     """The 33-byte attachment rmw_zenoh puts on every sample, query and reply."""
+    if len(gid) != 16:
+        raise ValueError(f"a GID is 16 bytes, got {len(gid)}")
     return ATTACHMENT.pack(seq, stamp_ns, 16, gid)
+
+
+class LegacyAttachment(MalformedSample):
+    """The labelled attachment of rmw_zenoh Jazzy <= 0.2.3, which current rmw_zenoh rejects too."""
+
+
+_LEGACY_LABELS = (b"sequence_number", b"source_timestamp", b"source_gid")
 
 
 def unpack_attachment(data: bytes | None) -> tuple[int, int, bytes]:
     """(seq, stamp_ns, gid) of an attachment; MalformedSample for anything but the 33-byte form
-    (none, or the labelled one of rmw_zenoh <= 0.2.3)."""
-    if data is None or len(data) != ATTACHMENT_SIZE or data[16] != 16:
-        size = "none" if data is None else f"{len(data)} bytes"
-        raise MalformedSample(f"no rmw_zenoh attachment (seq, stamp, gid; 33 bytes): got {size}")
+    (LegacyAttachment for the labelled one of rmw_zenoh <= 0.2.3: a peer to name, not just drop)."""
+    if data is None:
+        raise MalformedSample("no attachment (rmw_zenoh sends seq, stamp and GID: 33 bytes)")
+    if len(data) != ATTACHMENT_SIZE or data[16] != 16:
+        if any(label in data for label in _LEGACY_LABELS):
+            raise LegacyAttachment("legacy labelled attachment of rmw_zenoh <= 0.2.3 (Jazzy); "
+                                   "current rmw_zenoh uses 33 bytes: seq, stamp, 16, GID")
+        raise MalformedSample(f"attachment of {len(data)} bytes is not rmw_zenoh's 33-byte form "
+                              "(seq, stamp, gid)")
     seq, stamp, _, gid = ATTACHMENT.unpack(data)
     return int(seq), int(stamp), bytes(gid)
 
@@ -332,7 +346,8 @@ class Ros2WireFormat:
             raise ValueError(f"ROS domain id {domain_id} out of 0..232")
         self.domain_id = int(domain_id)
         self.gids = GidTable()
-        self.graph = Ros2Graph(self.domain_id, self.gids)
+        # Typed as the seam's (WireFormat.graph is a GraphFormat); isinstance gives back Ros2Graph.
+        self.graph: GraphFormat = Ros2Graph(self.domain_id, self.gids)
 
     def data_key(self, topic_key: str, type_support: TypeSupport | None) -> str:
         if type_support is None:

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import socket
 import subprocess
 import sys
@@ -40,11 +41,15 @@ class Figures:
 
 @dataclass
 class CellResult:
+    """One cell: the median figures of its repetitions, and each repetition's ratios (their spread)."""
     cell: Cell
     framework: Figures
     raw: Figures
     payload_bytes: int
-    ratios: dict[str, float] = field(default_factory=dict)
+    ratios: dict[str, float] = field(default_factory=dict)     # medians over the repetitions
+    runs: list[dict[str, float]] = field(default_factory=list)  # per repetition: ratios and the load average
+    load: tuple[float, float] = (math.nan, math.nan)            # 1-minute load average: min, max over the cell
+    receive: str = "default"
 
 
 def plan(quick: bool = False, only: list[str] | None = None) -> list[Cell]:
@@ -68,9 +73,11 @@ def _free_port() -> int:
         return port
 
 
-def run_pair(mode: str, cell: Cell, timeout: float, rss_every: float = 0.0) -> Figures:
+def run_pair(mode: str, cell: Cell, timeout: float, rss_every: float = 0.0, receive: str | None = None) -> Figures:
     port = _free_port()
     common = [cell.payload, "--count", str(cell.count), "--port", str(port)]
+    if receive is not None and mode == "framework":
+        common += ["--receive", receive]
     if cell.kind == "throughput":
         common.append("--throughput")
     worker = [sys.executable, "-m", "zenoh_robot.tools.bench.worker"]
@@ -102,14 +109,7 @@ def run_pair(mode: str, cell: Cell, timeout: float, rss_every: float = 0.0) -> F
     return f
 
 
-def run_cell(cell: Cell) -> CellResult:
-    from . import payloads
-    msg = payloads.make(cell.payload)
-    size = len(__import__("msgpack").packb(type_support(type(msg)).encode(msg), use_bin_type=True))
-    timeout = max(30.0, cell.count / cell.rate * 2 + 20) if cell.rate else 90.0
-    fw, raw = run_pair("framework", cell, timeout), run_pair("raw", cell, timeout)
-    for f in (fw, raw):
-        f.mb_per_s = f.msgs_per_s * size / 1e6 if cell.kind == "throughput" else math.nan
+def _ratios(cell: Cell, fw: Figures, raw: Figures) -> dict[str, float]:
     ratios = {}
     if cell.kind == "latency":
         ratios["p50"] = fw.p50_ms / raw.p50_ms if raw.p50_ms else math.nan
@@ -117,7 +117,51 @@ def run_cell(cell: Cell) -> CellResult:
     else:
         ratios["throughput"] = fw.msgs_per_s / raw.msgs_per_s if raw.msgs_per_s else math.nan
     ratios["cpu_sub"] = fw.cpu_us_per_msg_sub / raw.cpu_us_per_msg_sub if raw.cpu_us_per_msg_sub else math.nan
-    return CellResult(cell, fw, raw, size, ratios)
+    return ratios
+
+
+def _median_figures(runs: list[Figures]) -> Figures:
+    """Each figure's median over the repetitions (counts: the worst, so a loss is never hidden)."""
+    ok = [f for f in runs if not f.error] or runs
+    out = Figures(received=min(f.received for f in ok), sent=max(f.sent for f in ok),
+                  error=next((f.error for f in runs if f.error), ""))
+    for name in ("p50_ms", "p99_ms", "msgs_per_s", "mb_per_s", "cpu_us_per_msg_pub", "cpu_us_per_msg_sub",
+                 "rss_growth_mb"):
+        values = [getattr(f, name) for f in ok if math.isfinite(getattr(f, name))]
+        setattr(out, name, float(np.median(values)) if values else math.nan)
+    return out
+
+
+def run_cell(cell: Cell, reps: int = 1, receive: str | None = None) -> CellResult:
+    """``reps`` alternating repetitions (framework, raw, framework, raw, ...): load that comes and
+    goes on a shared machine then falls on both sides alike. Ratios are medians of each
+    repetition's own ratio; ``runs`` keeps them all (the spread) with the load average of each."""
+    from . import payloads
+    msg = payloads.make(cell.payload)
+    size = len(__import__("msgpack").packb(type_support(type(msg)).encode(msg), use_bin_type=True))
+    timeout = max(30.0, cell.count / cell.rate * 2 + 20) if cell.rate else 90.0
+    fws: list[Figures] = []
+    raws: list[Figures] = []
+    runs: list[dict[str, float]] = []
+    for _ in range(max(1, reps)):
+        fw = run_pair("framework", cell, timeout, receive=receive)
+        raw = run_pair("raw", cell, timeout)
+        for f in (fw, raw):
+            f.mb_per_s = f.msgs_per_s * size / 1e6 if cell.kind == "throughput" else math.nan
+        fws.append(fw)
+        raws.append(raw)
+        runs.append({**_ratios(cell, fw, raw), "load1": os.getloadavg()[0]})
+    ratios = {k: float(np.median([r[k] for r in runs if math.isfinite(r[k])] or [math.nan]))
+              for k in runs[0] if k != "load1"}
+    loads = [r["load1"] for r in runs]
+    return CellResult(cell, _median_figures(fws), _median_figures(raws), size, ratios, runs,
+                      (min(loads), max(loads)), receive or "default")
+
+
+def spread(result: CellResult, key: str) -> tuple[float, float]:
+    """The lowest and highest per-repetition ratio ``key`` of a cell."""
+    values = [r[key] for r in result.runs if key in r and math.isfinite(r[key])]
+    return (min(values), max(values)) if values else (math.nan, math.nan)
 
 
 def run_soak(minutes: float, rate: float = 1000.0) -> dict[str, Any]:
@@ -127,12 +171,13 @@ def run_soak(minutes: float, rate: float = 1000.0) -> dict[str, Any]:
             "rss_growth_mb": f.rss_growth_mb, "p50_ms": f.p50_ms, "p99_ms": f.p99_ms, "error": f.error}
 
 
-def run_all(cells: list[Cell], progress: Callable[[Cell], None] | None = None) -> list[CellResult]:
+def run_all(cells: list[Cell], progress: Callable[[Cell], None] | None = None, reps: int = 1,
+            receive: str | None = None) -> list[CellResult]:
     results = []
     for cell in cells:
         if progress:
             progress(cell)
-        results.append(run_cell(cell))
+        results.append(run_cell(cell, reps, receive))
     return results
 
 

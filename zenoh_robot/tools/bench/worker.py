@@ -94,7 +94,7 @@ def run_sub(args: argparse.Namespace) -> dict[str, Any]:
     else:
         with Node("bench_sub", config=cfg) as node:
             node.create_subscription(type(msg), "/" + KEY, lambda m, info: record(info.source_stamp_ns),
-                                     _qos(args.throughput))
+                                     _qos(args.throughput), receive=args.receive)
             spinner = threading.Thread(target=node.spin, daemon=True)
             spinner.start()
             print("READY", flush=True)
@@ -172,6 +172,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--timeout", type=float, default=60.0)
     p.add_argument("--settle", type=float, default=1.0)
     p.add_argument("--rss-every", type=float, default=0.0)
+    p.add_argument("--receive", choices=("callback", "channel"), default=None,
+                   help="the framework subscription's receive path (default: the library's)")
     args = p.parse_args(argv)
     zenoh.init_log_from_env_or("error")
     out = run_sub(args) if args.role == "sub" else run_pub(args)

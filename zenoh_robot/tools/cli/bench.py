@@ -12,6 +12,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--soak", action="store_true", help="also a soak at 1 kHz measuring memory growth")
     p.add_argument("--soak-minutes", type=float, default=10.0)
     p.add_argument("--out", type=Path, default=Path("results/bench"))
+    p.add_argument("--ros2", action="store_true",
+                   help="the ROS 2 wire: CDR codec per type, and end to end beside the envelope and raw zenoh")
+    p.add_argument("--reps", type=int, default=5, help="alternating framework/raw repetitions per cell (medians)")
+    p.add_argument("--receive", choices=("callback", "channel"), help="the framework's receive path")
     p.set_defaults(func=run)
 
 
@@ -22,6 +26,8 @@ def run(args: argparse.Namespace) -> int:
     from ..bench.runner import plan, run_all, run_soak, to_json
     from .main import CliError
 
+    if args.ros2:
+        return _ros2(args)
     only = [p for p in (args.only or "").split(",") if p]
     cells = plan(args.quick, only)
     if not cells:
@@ -29,7 +35,8 @@ def run(args: argparse.Namespace) -> int:
     console = Console()
     with console.status("") as status:
         results = run_all(cells, lambda c: status.update(
-            f"{c.payload} {c.kind} {c.rate:g} Hz x{c.count}: framework, then raw zenoh-python"))
+            f"{c.payload} {c.kind} {c.rate:g} Hz x{c.count}: framework and raw zenoh-python, {args.reps} times"),
+            reps=args.reps, receive=args.receive)
         soak = None
         if args.soak:
             status.update(f"soak: {args.soak_minutes:g} min at 1 kHz")
@@ -41,4 +48,15 @@ def run(args: argparse.Namespace) -> int:
     to_json(results, soak, args.out / "bench.json")
     (args.out / "bench.md").write_text(md + "\n")
     console.print(f"bench: {args.out / 'bench.json'}, {args.out / 'bench.md'}")
+    return 0
+
+
+def _ros2(args: argparse.Namespace) -> int:
+    from ..bench.ros2 import codec_figures, end_to_end, markdown
+
+    print("bench --ros2: codec per type, then latency and throughput: ros2, envelope, raw zenoh-python", flush=True)
+    md = markdown(codec_figures(), end_to_end(args.quick))
+    print(md)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "ros2.md").write_text(md + "\n")
     return 0

@@ -21,6 +21,7 @@ if TYPE_CHECKING:
     from zenoh_robot.message import Message
     from zenoh_robot.node import Node
     from zenoh_robot.session_config import SessionConfig
+    from zenoh_robot.wire import WireFormat
 
 HIDDEN_PREFIX = "_zr_"        # the CLI's own nodes: left out of list/info unless --all
 
@@ -38,6 +39,21 @@ def session_config(args: argparse.Namespace) -> "SessionConfig":
         return session_config_from_args(args)
     except SessionConfigError as exc:
         raise CliError(one_line(str(exc))) from None
+
+
+def wire_of(args: argparse.Namespace) -> "WireFormat":
+    """The wire format of ``--ros2`` / ``--ros-domain-id`` (else the envelope); a bad one is a CliError."""
+    from zenoh_robot.session_args import wire_from_args
+
+    try:
+        return wire_from_args(args)
+    except ValueError as exc:
+        raise CliError(f"--ros-domain-id: {exc}") from None
+
+
+def is_ros2(node: "Node") -> bool:
+    """Whether ``node`` speaks ROS 2's wire (its types are then ROS 2 types: ``ros2_type``)."""
+    return node.wire.name == "ros2"
 
 
 def add_duration_arg(parser: argparse.ArgumentParser) -> None:
@@ -75,8 +91,9 @@ def cli_node(kind: str, args: argparse.Namespace) -> Iterator["Node"]:
     from zenoh_robot.session_config import SessionConfigError
 
     config = session_config(args)
+    wire = wire_of(args)
     try:
-        node = Node(f"{HIDDEN_PREFIX}{kind}_{secrets.token_hex(3)}", config=config)
+        node = Node(f"{HIDDEN_PREFIX}{kind}_{secrets.token_hex(3)}", config=config, wire=wire)
     except SessionConfigError as exc:
         raise CliError(one_line(str(exc))) from None
     try:
@@ -162,11 +179,14 @@ def load_msg_file(path: str, package: str = "msg") -> type[Message]:
         raise CliError(str(exc)) from None
 
 
-def lookup_type(name: str) -> type[Message]:
-    """A registered type by name (``Setpoint``, ``std_msgs/String``), or a ``.msg`` file's."""
+def lookup_type(name: str, ros2: bool = False) -> type[Message]:
+    """A registered type by name (``Setpoint``, ``std_msgs/String``), or a ``.msg`` file's; with
+    ``ros2``, the ROS 2 type of that name (``std_msgs/msg/String``), as ROS 2 nodes send it."""
     from zenoh_robot import msgs  # noqa: F401  registers the standard types
     from zenoh_robot.message import lookup
 
+    if ros2 and not is_msg_file(name):
+        return ros2_lookup(name)
     if is_msg_file(name):
         return load_msg_file(name)
     _register_drone_types()
@@ -174,6 +194,18 @@ def lookup_type(name: str) -> type[Message]:
         return lookup(name)
     except KeyError as exc:
         raise CliError(str(exc.args[0])) from None
+
+
+def ros2_lookup(name: str) -> type[Message]:
+    """The ROS 2 message type ``name`` (rosbags' standard packages, or one loaded before)."""
+    try:
+        from zenoh_robot.ros2 import ros2_type
+
+        return ros2_type(name)
+    except ImportError as exc:
+        raise CliError(str(exc)) from None
+    except (KeyError, ValueError) as exc:
+        raise CliError(one_line(str(exc.args[0] if exc.args else exc))) from None
 
 
 _plugins_loaded = False

@@ -14,7 +14,7 @@ import dataclasses
 import re
 from typing import TYPE_CHECKING, Any
 
-from .common import did_you_mean, is_msg_file, load_msg_file, lookup_type, quiet_exit
+from .common import did_you_mean, is_msg_file, load_msg_file, lookup_type, quiet_exit, ros2_lookup
 from .main import CliError
 
 if TYPE_CHECKING:
@@ -34,6 +34,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     o = ops.add_parser("show", help="a type's fields with ROS types and defaults, nested types expanded")
     o.add_argument("type", help="Setpoint, std_msgs/String, zenoh_robot/GetParameters (a service), or FILE.msg")
     o.add_argument("--no-expand", action="store_true", help="do not expand nested message types")
+    o.add_argument("--ros2", action="store_true",
+                   help="a ROS 2 type (std_msgs/msg/String, example_interfaces/srv/AddTwoInts), as ROS 2 nodes send it")
     p.set_defaults(func=run)
 
 
@@ -75,6 +77,9 @@ def _list(args: argparse.Namespace) -> int:
 
 def _show(args: argparse.Namespace) -> int:
     name = args.type
+    if getattr(args, "ros2", False) and not is_msg_file(name):
+        print("\n".join(_ros2_lines(name, not args.no_expand)))
+        return 0
     if is_msg_file(name):
         constants = [line for line in _msg_lines(name) if _CONSTANT.match(line)]
         print("\n".join([*constants, *render(load_msg_file(name), expand=not args.no_expand)]))
@@ -95,6 +100,22 @@ def _show(args: argparse.Namespace) -> int:
                        + " (see `zenoh-robot interface list`)") from None
     print("\n".join(render(cls, expand=not args.no_expand)))
     return 0
+
+
+def _ros2_lines(name: str, expand: bool) -> list[str]:
+    """A ROS 2 message type's fields, or a service's request ``---`` response (its type hash last)."""
+    from zenoh_robot.message import type_support
+
+    if "/srv/" in name:
+        from zenoh_robot.ros2 import Ros2TypeError, ros2_service_type
+
+        try:
+            srv = ros2_service_type(name)
+        except Ros2TypeError as exc:
+            raise CliError(str(exc)) from None
+        return [*render(srv.request, expand), "---", *render(srv.response, expand), f"# {srv.hash}"]
+    cls = ros2_lookup(name)
+    return [*render(cls, expand), f"# {type_support(cls).hash}"]
 
 
 def render(cls: type[Message], expand: bool = True, depth: int = 0) -> list[str]:

@@ -11,7 +11,7 @@ DEFAULT_DIR = "keys"
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    p = sub.add_parser("keys", help="make a CA and node certificates for --secure sessions")
+    p = sub.add_parser("keys", help="make a CA and node certificates for --secure sessions, link keys for --link-keys")
     ops = p.add_subparsers(dest="keys_action", required=True, metavar="ACTION")
     init = ops.add_parser("init", help="create the CA in DIR (default ./keys)")
     init.add_argument("dir", nargs="?", default=DEFAULT_DIR)
@@ -23,6 +23,16 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     issue.add_argument("--san", action="append", default=[], metavar="HOST",
                        help="another host name or address others dial to reach this node; repeatable")
     issue.add_argument("--dir", default=DEFAULT_DIR)
+    link = ops.add_parser("link", help="make link keys (sealed samples: --link-keys DIR/link) for a fleet, "
+                                       "one keyring per node in DIR/link/<node>.json, 0600")
+    link.add_argument("--dir", default=DEFAULT_DIR)
+    link.add_argument("--gcs", action="append", default=[], metavar="NAME:DRONE,...",
+                      help="a GCS and the drones it commands; repeatable (roles.yaml's are included)")
+    link.add_argument("--drone", action="append", default=[], metavar="NAME", help="a drone; repeatable")
+    link.add_argument("--rotate", action="store_true",
+                      help="add a new key per sender (used from the next load; old ones open until removed)")
+    link.add_argument("--revoke", action="append", default=[], metavar="ID|NODE",
+                      help="revoke a key id, or every key a node sends with; nodes refuse it within their refresh")
     ls = ops.add_parser("list", help="certificates in DIR: name, role, expiry, key mode")
     ls.add_argument("dir", nargs="?", default=DEFAULT_DIR)
     ls.add_argument("--json", action="store_true")
@@ -44,6 +54,17 @@ def run(args: argparse.Namespace) -> int:
             conf = keys.write_node_config(args.dir, args.name)
             print(f"{args.name} ({args.role}{': ' + ','.join(drones) if drones else ''}): {path}, "
                   f"key {path.with_suffix('.key')} 0600, zenoh config {conf}")
+        elif args.keys_action == "link":
+            if args.revoke:
+                ids = keys.revoke_link_keys(args.dir, args.revoke)
+                print(f"revoked link keys {', '.join(ids)} ({Path(args.dir) / keys.LINK_DIR / 'revoked.json'})")
+            else:
+                gcs = {}
+                for spec in args.gcs:
+                    name, _, drones = spec.partition(":")
+                    gcs[name] = [d.strip() for d in drones.split(",") if d.strip()]
+                for path in keys.make_link_keys(args.dir, gcs=gcs, drones=args.drone, rotate=args.rotate):
+                    print(f"{path} (0600)")     # paths only: a key never reaches a terminal or a log
         else:
             certs = keys.list_certs(args.dir)
             roles = keys.load_roles(args.dir)

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 from zenoh_robot.session_args import add_session_arguments
 
-from .common import HIDDEN_PREFIX, cli_node, did_you_mean, quiet_exit
+from .common import HIDDEN_PREFIX, cli_node, did_you_mean, is_ros2, quiet_exit
 from .main import CliError
 from .reader import shown_type
 from .topic import discover_graph
@@ -86,6 +86,13 @@ def _info(node: "Node", args: argparse.Namespace) -> int:
     print(target)
     _section("Subscribers", [f"{e.topic_name}: {shown_type(e.topic_type)}" for e in subs])
     _section("Publishers", [f"{e.topic_name}: {shown_type(e.topic_type)}" for e in pubs])
+    if is_ros2(node):      # ROS 2 nodes announce servers and clients (SS/SC tokens), not parameters here
+        from .ros2_service import node_services
+
+        servers, clients = node_services(node, target, args.timeout)
+        _section("Service Servers", servers)
+        _section("Service Clients", clients)
+        return 0
     _section("Service Servers", [f"{s['service']}: {s['request']} -> {s['response']}"
                                  for s in _services_of(node, target, args.timeout)])
     print("  Service Clients: not announced on the network")

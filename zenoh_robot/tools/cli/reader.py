@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 from zenoh_robot.message import Message, type_support
 
-from .common import load_msg_file, lookup_type
+from .common import is_ros2, load_msg_file, lookup_type, ros2_lookup
 from .main import CliError
 
 if TYPE_CHECKING:
@@ -177,13 +177,17 @@ def open_reader(node: "Node", key: str, wanted_type: str | None, deadline: float
                 frames: bool = True) -> str:
     """Wait for the topic's publishers, then subscribe; returns the type name read."""
     pubs = wait_for_publishers(node, key, deadline)
+    ros2 = is_ros2(node)
     wanted = None
     if msg_file:
         wanted = load_msg_file(msg_file)
     elif wanted_type:
-        wanted = lookup_type(wanted_type)
+        wanted = lookup_type(wanted_type, ros2)
     type_name, hashes = choose_type(key, pubs, wanted)
     qos = qos or adapted_qos(pubs)
+    if ros2:
+        _open_ros2(node, key, type_name, hashes, deliver, qos)
+        return type_name
     cls = _local_type(type_name, hashes, msg_file)
     decode = type_support(cls).decode if cls is not None else None
     sink: Callable[[Any, int, int], None] = deliver
@@ -208,3 +212,23 @@ def open_reader(node: "Node", key: str, wanted_type: str | None, deadline: float
     # subscription, without needing the type here.
     node.create_subscription(None, "/" + key, on_raw, qos, raw=True)
     return type_name
+
+
+def _open_ros2(node: "Node", key: str, type_name: str, hashes: set[str], deliver: Deliver,
+               qos: "QoSProfile") -> None:
+    """A ROS 2 topic: CDR says nothing of its type, so the type is the graph's (its publishers'
+    tokens), made here from its definition and subscribed to typed; the hash must be theirs (the
+    data key carries it: another version would simply never arrive)."""
+    from zenoh_robot.ros2 import cdr_codec
+
+    cls = ros2_lookup(type_name)
+    ts = type_support(cls)
+    if hashes - {ts.hash}:
+        raise CliError(f"/{key}: {type_name} here has hash {ts.hash}, its publishers send "
+                       f"{', '.join(sorted(hashes))} (another version of the type)")
+    serialize = cdr_codec(cls).serialize
+
+    def on_msg(msg: Any, info: Any) -> None:
+        deliver(msg, info.received_stamp_ns, len(serialize(ts.encode(msg))))
+
+    node.create_subscription(cls, "/" + key, on_msg, qos)

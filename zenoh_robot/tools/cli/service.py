@@ -13,7 +13,7 @@ from typing import Any
 from zenoh_robot.services import SERVICE_PREFIX, ServiceCallError, call_dict, describe_services, service_key
 from zenoh_robot.session_args import add_session_arguments
 
-from .common import did_you_mean, lookup_type, session_config
+from .common import did_you_mean, lookup_type, session_config, wire_of
 from .main import CliError
 from .values import build_message, parse_values, render_data
 
@@ -30,6 +30,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     o.add_argument("service", help="absolute service name, e.g. /uav1/command (see `service list`)")
     o.add_argument("request", nargs="?", default="{}", help="request fields as YAML, e.g. '{altitude: 5}'")
     o.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for the reply (default 5)")
+    o.add_argument("--srv", metavar="FILE", help="with --ros2: the .srv of a service type not known here")
     o = ops.add_parser("type", help="a service's type (X for an X_Request/X_Response pair, else REQ -> RESP)")
     o.add_argument("service", help="absolute service name, e.g. /uav1/command")
     o.add_argument("--timeout", type=float, default=1.5, help="seconds to collect answers (default 1.5)")
@@ -42,7 +43,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 def run(args: argparse.Namespace) -> int:
     from zenoh_robot.node import Node
 
-    with Node(f"_zr_service_{secrets.token_hex(3)}", config=session_config(args)) as node:
+    wire = wire_of(args)
+    with Node(f"_zr_service_{secrets.token_hex(3)}", config=session_config(args), wire=wire) as node:
+        if wire.name == "ros2":
+            from .ros2_service import OPS
+
+            return OPS[args.op](node, args)
         return _OPS[args.op](node, args)
 
 

@@ -31,6 +31,7 @@ from .common import (
     quiet_exit,
     spin_until,
     topic_key,
+    wire_of,
 )
 from .fields import Filter, csv_value, flatten, get_path
 from .main import CliError
@@ -496,7 +497,7 @@ def _pub(args: argparse.Namespace) -> int:
     key = topic_key(args.topic)
     plan = _pub_plan(args)
     deadline = deadline_of(args)
-    cls = lookup_type(args.type)
+    cls = lookup_type(args.type, ros2=wire_of(args).name == "ros2")
     msg, auto_header = build_message(cls, parse_values(args.values))
     qos = qos_from_args(args)
     assert qos is not None   # pub's parser has a default profile (system_default)

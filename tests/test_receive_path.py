@@ -1,0 +1,160 @@
+"""The channel receive path (issue #30) over real Zenoh sessions: Zenoh's ring channel drained by the
+executor in batches keeps order, bounds, counters and QoS events, and runs no Python per sample on
+Zenoh's threads."""
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+import msgpack
+import pytest
+from conftest import linked_nodes
+
+from zenoh_robot import QoSProfile
+from zenoh_robot.events import SubscriptionEventCallbacks
+from zenoh_robot.msgs import Float32, Setpoint
+from zenoh_robot.qos import HistoryPolicy
+from zenoh_robot.subscription import DRAIN_BATCH, Subscription
+
+KEEP_ALL = QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=0)
+
+
+def _blocking_put(session: Any, key: str) -> Any:
+    import zenoh
+    return session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK).put
+
+
+def test_channel_path_keeps_order_across_batches_on_the_executor_thread(ns: str, monkeypatch: Any) -> None:
+    calls = {"on_sample": 0}
+    original = Subscription._on_sample
+
+    def counting(self: Subscription[Any], sample: Any) -> None:
+        calls["on_sample"] += 1
+        original(self, sample)
+    monkeypatch.setattr(Subscription, "_on_sample", counting)
+    n = 20 * DRAIN_BATCH + 7
+    with linked_nodes(ns) as (a, b):
+        got: list[int] = []
+        threads: set[int] = set()
+
+        def on_msg(m: Setpoint, info: Any) -> None:
+            got.append(info.seq)
+            threads.add(threading.get_ident())
+        sub = b.create_subscription(Setpoint, "sp", on_msg, KEEP_ALL, receive="channel")
+        assert sub.receive == "channel"
+        pub = a.create_publisher(Setpoint, "sp", KEEP_ALL)
+        time.sleep(0.3)
+        for i in range(n):
+            pub.publish(Setpoint(x=float(i)))
+        assert b.spin_until(lambda: len(got) == n, 10.0), sub.counters
+        assert got == list(range(1, n + 1))
+        assert threads == {threading.get_ident()}          # the test's spin is the executor
+        c = sub.counters
+        assert c.received == c.delivered == n and c.lost == 0 and c.dropped == 0 and c.internal_errors == 0
+        assert calls["on_sample"] == 0      # no Python callback ran on Zenoh's threads
+        # The old path still is the default, and it does run one.
+        cb_got: list[Setpoint] = []
+        cb_sub = b.create_subscription(Setpoint, "sp", cb_got.append, KEEP_ALL)
+        assert cb_sub.receive == "callback"
+        time.sleep(0.3)
+        pub.publish(Setpoint())
+        assert b.spin_until(lambda: len(cb_got) == 1, 5.0)
+        assert calls["on_sample"] >= 1
+
+
+def test_channel_path_keep_last_holds_only_the_newest_depth_samples(ns: str) -> None:
+    with linked_nodes(ns) as (a, b):
+        got: list[int] = []
+        sub = b.create_subscription(Setpoint, "sp", lambda m, info: got.append(info.seq), QoSProfile(depth=5),
+                                    receive="channel")
+        pub = a.create_publisher(Setpoint, "sp", QoSProfile(depth=5))
+        time.sleep(0.3)
+        for i in range(100):        # nobody spins: Zenoh's ring keeps the newest 5
+            pub.publish(Setpoint(x=float(i)))
+        time.sleep(0.5)
+        assert b.spin_until(lambda: got and got[-1] == 100, 5.0), (got, sub.counters)
+        b.spin_until(lambda: False, 0.2)
+        assert got == [96, 97, 98, 99, 100]
+        # The waiter's sample (older than the 5 in the ring) is dropped and counted, as the callback path
+        # would; the ring's own overwrites are not seen by Python (the module doc says so).
+        c = sub.counters
+        assert c.received == 6 and c.dropped == 1 and c.delivered == 5 and c.lost == 0 and not sub.pending
+
+
+def test_channel_path_counts_malformed_and_oversize_and_keeps_draining(ns: str) -> None:
+    with linked_nodes(ns) as (a, b):
+        got: list[float] = []
+        sub = b.create_subscription(Setpoint, "sp", lambda m: got.append(m.x), KEEP_ALL, receive="channel")
+        sub.max_sample_bytes = 4096
+        pub = a.create_publisher(Setpoint, "sp", KEEP_ALL)
+        put = _blocking_put(a.session, sub.data_key)
+        time.sleep(0.3)
+        for i in range(30):
+            put(b"\x93garbage" * (i % 3))                                      # not an envelope
+            put(msgpack.packb(["zr1", "x", "y", 1, 1, 0, [], {}]) + b"")      # another type, same key
+            put(b"\x00" * 10_000)                                               # over max_sample_bytes
+            pub.publish(Setpoint(x=float(i)))
+        assert b.spin_until(lambda: len(got) == 30 and sub.counters.received == 120, 10.0), sub.counters
+        c = sub.counters
+        assert got == [float(i) for i in range(30)]
+        assert c.oversize == 30 and c.malformed + c.type_mismatch == 60 and c.internal_errors == 0
+        assert c.delivered == 30
+
+
+def test_channel_path_deadline_events_on_time_and_none_while_samples_flow(ns: str) -> None:
+    events: list[Any] = []
+    with linked_nodes(ns) as (a, b):
+        q = QoSProfile(depth=5, deadline=0.2)
+        got: list[float] = []
+        b.create_subscription(Float32, "hb", lambda m: got.append(m.data), q, receive="channel",
+                              event_callbacks=SubscriptionEventCallbacks(deadline=events.append))
+        pub = a.create_publisher(Float32, "hb", q)
+        b.spin_until(lambda: False, 0.3)
+        for _ in range(16):       # 20 Hz for 0.8 s: inside the 200 ms deadline
+            pub.publish(Float32(1.0))
+            b.spin_until(lambda: False, 0.05)
+        assert len(got) >= 14 and events == []
+        b.spin_until(lambda: False, 0.75)     # silence: about three periods
+        assert events and 2 <= events[-1].total_count <= 5, events
+
+
+def test_channel_path_a_flood_does_not_hold_back_another_topic(ns: str) -> None:
+    """The setpoint path never waits behind heavy decoding: a drain turn takes at most DRAIN_BATCH samples."""
+    with linked_nodes(ns) as (a, b):
+        order: list[str] = []
+        b.create_subscription(Setpoint, "flood", lambda m: (order.append("f"), time.sleep(0.0002)), KEEP_ALL,
+                              receive="channel")
+        b.create_subscription(Setpoint, "sp", lambda m: order.append("s"), QoSProfile(depth=1), receive="channel")
+        flood = a.create_publisher(Setpoint, "flood", KEEP_ALL)
+        sp = a.create_publisher(Setpoint, "sp", QoSProfile(depth=1))
+        time.sleep(0.3)
+        n = 40 * DRAIN_BATCH
+        for _ in range(n):
+            flood.publish(Setpoint())
+        time.sleep(0.3)     # all of the flood is in Zenoh's channel before the setpoint
+        sp.publish(Setpoint())
+        time.sleep(0.2)
+        assert b.spin_until(lambda: order.count("f") == n and "s" in order, 20.0), len(order)
+        assert order.index("s") <= 2 * DRAIN_BATCH + 1, order.index("s")
+
+
+def test_channel_path_destroy_stops_delivery_and_the_waiter_ends_with_the_session(ns: str) -> None:
+    with linked_nodes(ns) as (a, b):
+        got: list[Setpoint] = []
+        sub = b.create_subscription(Setpoint, "sp", got.append, QoSProfile(depth=5), receive="channel")
+        pub = a.create_publisher(Setpoint, "sp", QoSProfile(depth=5))
+        time.sleep(0.3)
+        pub.publish(Setpoint())
+        assert b.spin_until(lambda: len(got) == 1, 5.0)
+        sub.destroy()
+        pub.publish(Setpoint())
+        b.spin_until(lambda: False, 0.3)
+        assert len(got) == 1
+    sub._waiter.join(5.0)
+    assert not sub._waiter.is_alive()
+
+
+def test_receive_must_name_a_path(ns: str) -> None:
+    with linked_nodes(ns) as (_, b), pytest.raises(ValueError, match="receive"):
+        b.create_subscription(Setpoint, "sp", print, QoSProfile(depth=5), receive="poll")

@@ -1,0 +1,152 @@
+"""The CLI on ROS 2's wire (``--ros2``) against an independent rmw_zenoh implementation
+(zenoh-ros2-sdk, in its own process), both through a Zenoh router as rmw_zenoh nodes meet: our
+``topic list/info`` see its node's topic with the ROS type, ``topic echo`` prints its String,
+``topic pub`` publishes a String it hears, ``node list/info`` show it, ``service list/call`` call
+its AddTwoInts. Before ``--ros2`` the CLI spoke only the envelope: it saw none of this.
+
+zenoh-ros2-sdk would fetch .msg files from GitHub; the peer is handed the definitions (no network).
+"""
+from __future__ import annotations
+
+import json
+import secrets
+import subprocess
+import sys
+import threading
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+import zenoh
+from conftest import ROOT, free_port, kill_process, wait_for
+
+from zenoh_robot.ros2 import dependencies, msg_definition
+
+CLI = [sys.executable, "-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())"]
+STRING = "std_msgs/msg/String"
+ADD = "example_interfaces/srv/AddTwoInts"
+
+PEER = r"""
+import json, sys, time
+import zenoh_ros2_sdk.message_registry as registry
+registry._registry = registry.MessageRegistry(sys.argv[1])
+from zenoh_ros2_sdk import ROS2Publisher, ROS2ServiceServer, ROS2Subscriber
+port, domain = int(sys.argv[2]), int(sys.argv[3])
+common = dict(domain_id=domain, router_ip="127.0.0.1", router_port=port, namespace="/sdk")
+
+def out(**kw):
+    print(json.dumps(kw), flush=True)
+
+sub = ROS2Subscriber("/sdk/heard", "std_msgs/msg/String", lambda m: out(heard=m.data), node_name="sdk_node", **common)
+pub = ROS2Publisher("/sdk/chatter", "std_msgs/msg/String", node_name="sdk_node", **common)
+server = ROS2ServiceServer("/sdk/add_two_ints", "example_interfaces/srv/AddTwoInts",
+                           callback=lambda r: server.response_msg_class(sum=r.a + r.b),
+                           request_definition="int64 a\nint64 b", response_definition="int64 sum",
+                           node_name="sdk_node", **common)
+out(ready=True)
+n = 0
+while True:
+    n += 1
+    pub.publish(data=f"hello {n}")
+    time.sleep(0.1)
+"""
+
+
+class Peer:
+    def __init__(self, proc: subprocess.Popen[str]) -> None:
+        self.proc = proc
+        self.lines: list[dict[str, Any]] = []
+        self.raw: list[str] = []
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self.raw.append(line)
+            if line.startswith("{"):
+                self.lines.append(json.loads(line))
+
+    def find(self, key: str) -> list[Any]:
+        return [d[key] for d in list(self.lines) if key in d]
+
+
+@pytest.fixture(scope="module")
+def peer(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[int, int, Peer]]:
+    """(router port, ROS domain, the zenoh-ros2-sdk peer)."""
+    root = tmp_path_factory.mktemp("msgs")
+    for name in {STRING, *dependencies(STRING)}:
+        pkg, kind, short = name.split("/")
+        (root / pkg / kind).mkdir(parents=True, exist_ok=True)
+        (root / pkg / kind / f"{short}.msg").write_text(msg_definition(name))
+    port = free_port()
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"router"')
+    conf.insert_json5("listen/endpoints", f'["tcp/127.0.0.1:{port}"]')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    router = zenoh.open(conf)
+    domain = 1 + secrets.randbelow(200)
+    proc = subprocess.Popen([sys.executable, "-c", PEER, str(root), str(port), str(domain)], cwd=ROOT, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            env={**__import__("os").environ, "PYTHONUNBUFFERED": "1",
+                                 "ZENOH_CONFIG_OVERRIDE": "scouting/multicast/enabled=false"})
+    p = Peer(proc)
+    try:
+        assert wait_for(lambda: p.find("ready"), 30.0), "".join(p.raw)[-3000:]
+        yield port, domain, p
+    finally:
+        kill_process(proc)
+        router.close()
+
+
+def cli(peer: tuple[int, int, Peer], *args: str, timeout: float = 40.0) -> subprocess.CompletedProcess[str]:
+    port, domain, _ = peer
+    # As an rmw_zenoh node: a peer connected to the router that listens and gossips (rmw_zenoh #929).
+    flags = ["--ros2", "--ros-domain-id", str(domain), "-e", f"tcp/127.0.0.1:{port}", "-l", "tcp/127.0.0.1:0"]
+    return subprocess.run([*CLI, args[0], *flags, *args[1:]], cwd=ROOT, capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def test_topic_list_and_info_show_the_ros2_topic_with_its_type(peer) -> None:
+    listed = cli(peer, "topic", "list", "-t")
+    assert listed.returncode == 0, listed.stderr
+    assert f"/sdk/chatter [{STRING}]" in listed.stdout.splitlines(), listed.stdout
+    info = cli(peer, "topic", "info", "/sdk/chatter", "-v")
+    assert info.returncode == 0, info.stderr
+    assert STRING in info.stdout and "sdk_node" in info.stdout, info.stdout
+
+
+def test_node_list_and_info(peer) -> None:
+    listed = cli(peer, "node", "list")
+    assert listed.returncode == 0, listed.stderr
+    assert "/sdk/sdk_node" in listed.stdout.splitlines(), listed.stdout
+    info = cli(peer, "node", "info", "/sdk/sdk_node")
+    assert info.returncode == 0, info.stderr
+    assert f"/sdk/chatter: {STRING}" in info.stdout and f"/sdk/add_two_ints: {ADD}" in info.stdout, info.stdout
+
+
+def test_topic_echo_decodes_its_string_with_the_graphs_type(peer) -> None:
+    echo = cli(peer, "topic", "echo", "/sdk/chatter", "--once", "--duration", "20")
+    assert echo.returncode == 0, echo.stderr
+    assert echo.stdout.startswith("data: hello "), echo.stdout
+
+
+def test_topic_hz_measures_its_rate(peer) -> None:
+    hz = cli(peer, "topic", "hz", "/sdk/chatter", "--duration", "4")
+    assert hz.returncode == 0, hz.stderr
+    assert "average rate:" in hz.stdout, hz.stdout
+
+
+def test_topic_pub_with_a_ros_type_name_is_heard(peer) -> None:
+    _, _, p = peer
+    pub = cli(peer, "topic", "pub", "/sdk/heard", STRING, "{data: from the cli}", "--times", "3", "--max-wait", "10")
+    assert pub.returncode == 0, pub.stderr
+    assert wait_for(lambda: "from the cli" in p.find("heard"), 10.0), p.find("heard")
+
+
+def test_service_list_and_call(peer) -> None:
+    listed = cli(peer, "service", "list", "-t")
+    assert listed.returncode == 0, listed.stderr
+    assert f"/sdk/add_two_ints [{ADD}]" in listed.stdout.splitlines(), listed.stdout
+    call = cli(peer, "service", "call", "/sdk/add_two_ints", "{a: 20, b: 22}", "--timeout", "10")
+    assert call.returncode == 0, call.stderr
+    assert call.stdout.strip() == "sum: 42", call.stdout

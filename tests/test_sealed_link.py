@@ -1,0 +1,331 @@
+"""Sealed samples (issue #26): every sample carries a ChaCha20-Poly1305 tag under a per-role link key,
+with a replay window per (key, publisher epoch). Over real Zenoh sessions, on UDP multicast (the
+resilient profile's transport, no Zenoh authentication at all) and through a router: each rogue try
+is refused and counted by name while the legitimate setpoint and telemetry streams keep flowing.
+The attacker holds what a rogue would: a plain Zenoh session, captured bytes, another drone's or
+another fleet's keys, a revoked key (crypto from ``cryptography`` directly, not from the code under test).
+"""
+from __future__ import annotations
+
+import json
+import os
+import random
+import stat
+import struct
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import pytest
+import zenoh
+from conftest import free_port, wait_for
+from cryptography.hazmat.primitives.ciphers.aead import ChaCha20Poly1305
+
+from drone_contract.messages import DroneSetpoint, VehicleState
+from drone_contract.streams import PROFILES
+from zenoh_robot import Node, SessionConfig, qos
+from zenoh_robot._wire import envelope
+from zenoh_robot.keyring import Keyring, KeyringError
+from zenoh_robot.tools import keys
+from zenoh_robot.wire import ENVELOPE, sealed
+from zenoh_robot.wire.sealed import OVERHEAD, WINDOW, ReplayWindow
+
+REFRESH_S = 0.5     # the revocation bound these tests hold the nodes to
+
+
+# -- the replay window, alone ---------------------------------------------------------------------
+def test_window_takes_loss_and_reordering_and_refuses_repeats_and_stale() -> None:
+    w = ReplayWindow()
+    rng = random.Random(26)
+    counters = [c for c in range(1, 5001) if rng.random() > 0.9]      # 90 % loss
+    shuffled = counters[:]
+    for i in range(0, len(shuffled) - 8, 8):                           # reordered within 8
+        chunk = shuffled[i:i + 8]
+        rng.shuffle(chunk)
+        shuffled[i:i + 8] = chunk
+    assert [w.check(c) for c in shuffled] == [None] * len(shuffled)    # every survivor accepted once
+    assert all(w.check(c) == "replayed" for c in counters[-50:])
+    assert w.check(w.top - WINDOW) == "stale"
+    assert w.check(w.top - WINDOW + 1) in (None, "replayed")           # the window's oldest slot still counts
+    w2 = ReplayWindow()
+    assert w2.check(10) is None and w2.check(10 + 5 * WINDOW) is None    # a jump past the window resets it
+    assert w2.check(10) == "stale" and w2.check(9 + 5 * WINDOW) is None
+
+
+def test_window_late_sample_within_width_is_accepted_once() -> None:
+    w = ReplayWindow()
+    for c in range(2, 1000):
+        assert w.check(c) is None
+    assert w.check(1) is None and w.check(1) == "replayed"
+
+
+# -- keys -------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    d = tmp_path_factory.mktemp("fleet")
+    keys.make_link_keys(d, gcs={"gcs1": ["uav1", "uav2"], "gcs2": ["uav1"]})
+    return d / keys.LINK_DIR
+
+
+@pytest.fixture(scope="module")
+def other_fleet(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    d = tmp_path_factory.mktemp("other")
+    keys.make_link_keys(d, gcs={"gcs1": ["uav1"]})
+    return d / keys.LINK_DIR
+
+
+def test_keys_link_writes_private_keyrings_by_role(tmp_path: Path) -> None:
+    out = subprocess.run([sys.executable, "-m", "zenoh_robot.tools.cli.main", "keys", "link", "--dir", str(tmp_path),
+                          "--gcs", "gcs1:uav1,uav2", "--drone", "uav3"], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    link = tmp_path / keys.LINK_DIR
+    master = json.loads((link / keys.LINK_MASTER).read_text())
+    for k in master:
+        assert k["secret"] not in out.stdout + out.stderr      # never printed
+    for name in ("gcs1", "uav1", "uav2", "uav3", keys.LINK_MASTER.removesuffix(".json")):
+        assert stat.S_IMODE((link / f"{name}.json").stat().st_mode) == 0o600
+    held = {n: {(k["sender"], k["scope"]) for k in json.loads((link / f"{n}.json").read_text())["keys"]}
+            for n in ("gcs1", "uav1", "uav2", "uav3")}
+    assert held["uav1"] == {("uav1", "uav1"), ("gcs1", "uav1")}     # never uav2's key: it cannot forge uav2
+    assert held["uav3"] == {("uav3", "uav3")}
+    assert held["gcs1"] == {("uav1", "uav1"), ("uav2", "uav2"), ("gcs1", "uav1"), ("gcs1", "uav2")}
+    assert "secret" not in repr(Keyring(link, "uav1")) and "Keyring('uav1', 2 keys" in repr(Keyring(link, "uav1"))
+    # Rotation adds a newer key per sender; the newest seals, the old one still opens.
+    old = Keyring(link, "gcs1").sealing_key("uav1")
+    keys.make_link_keys(tmp_path, rotate=True, gcs={"gcs1": ["uav1", "uav2"]}, drones=["uav3"])
+    ring = Keyring(link, "uav1")
+    new = Keyring(link, "gcs1").sealing_key("uav1")
+    assert old is not None and new is not None and new.key_id != old.key_id
+    assert ring.opening_key(old.wire_id)[0] is not None and ring.opening_key(new.wire_id)[0] is not None
+    os.chmod(link / "uav1.json", 0o644)
+    with pytest.raises(KeyringError, match="0600"):
+        Keyring(link, "uav1")
+
+
+# -- a system over real Zenoh --------------------------------------------------------------------
+def _configs(transport: str) -> tuple[list[SessionConfig], Any]:
+    if transport == "multicast":
+        group = f"239.255.74.{random.randint(100, 250)}:{free_port()}"
+        return [SessionConfig.resilient("lo", group) for _ in range(3)], None
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    # A plain router: it forwards sealed bytes as they are and holds no key.
+    router = zenoh.open(SessionConfig(mode="router", listen=[endpoint], multicast_scouting=False,
+                                      shared_memory=False).to_zenoh())
+    return [SessionConfig(mode="client", listen=[], connect=[endpoint], multicast_scouting=False,
+                          shared_memory=False) for _ in range(3)], router
+
+
+class System:
+    """uav1's companion side (setpoints in, telemetry out) and gcs1 (the reverse), sealed, each
+    spinning; ``rogue`` is a plain session on the same transport."""
+
+    def __init__(self, drone: Node, gcs: Node, rogue: zenoh.Session, fleet: Path, configs: list[SessionConfig]) -> None:
+        self.drone, self.gcs, self.rogue, self.fleet, self.configs = drone, gcs, rogue, fleet, configs
+        self.setpoints: list[DroneSetpoint] = []
+        self.states: list[VehicleState] = []
+        profiles = PROFILES["resilient"].qos
+        drone.create_subscription(DroneSetpoint, "setpoint", self.setpoints.append, profiles["setpoint"])
+        # Another key the drone opens GCS samples on: where a captured setpoint is moved to.
+        drone.create_subscription(DroneSetpoint, "goal", self.setpoints.append, profiles["setpoint"])
+        gcs.create_subscription(VehicleState, "state", self.states.append, qos.SENSOR_DATA)
+        self.setpoint_pub = gcs.create_publisher(DroneSetpoint, "setpoint", profiles["setpoint"])
+        self.state_pub = drone.create_publisher(VehicleState, "state", qos.SENSOR_DATA)
+        self.captured: list[bytes] = []
+        self._tap = rogue.declare_subscriber("uav1/setpoint", lambda s: self.captured.append(s.payload.to_bytes()))
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._stream, daemon=True)
+        self._thread.start()
+
+    def _stream(self) -> None:
+        i = 0
+        while not self._stop.is_set():
+            i += 1
+            self.setpoint_pub.publish(DroneSetpoint(client_id="gcs1", x=float(i)))
+            self.state_pub.publish(VehicleState(mode="OFFBOARD"))
+            time.sleep(0.05)
+
+    def still_flowing(self) -> None:
+        """Both legitimate streams deliver fresh samples now."""
+        sp, st = len(self.setpoints), len(self.states)
+        assert wait_for(lambda: len(self.setpoints) >= sp + 5 and len(self.states) >= st + 5, 5.0), \
+            f"legitimate streams stalled: setpoints {sp}->{len(self.setpoints)}, states {st}->{len(self.states)}"
+
+    def put(self, key: str, payload: bytes, times: int = 5) -> None:
+        """A rogue put, a few times spaced out: the setpoint subscription keeps the newest sample only
+        (KEEP_LAST 1), so a rogue sample beside a legitimate one in one drain never reaches the seal."""
+        for _ in range(times):
+            self.rogue.put(key, payload)
+            time.sleep(0.02)
+
+    def refused(self, node: Node, reason: str, before: int) -> bool:
+        return wait_for(lambda: node.wire.snapshot()[reason] > before, 5.0)  # type: ignore[attr-defined]
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2.0)
+        self._tap.undeclare()
+
+
+@contextmanager
+def system(transport: str, fleet: Path) -> Iterator[System]:
+    configs, router = _configs(transport)
+    rogue = zenoh.open(configs[2].to_zenoh())
+    try:
+        with Node("companion", namespace="uav1", config=configs[0],
+                  wire=sealed(ENVELOPE, Keyring(fleet, "uav1", refresh_s=REFRESH_S))) as drone, \
+                Node("gcs", namespace="uav1", config=configs[1],
+                     wire=sealed(ENVELOPE, Keyring(fleet, "gcs1", refresh_s=REFRESH_S))) as gcs:
+            threads = [threading.Thread(target=n.spin, daemon=True) for n in (drone, gcs)]
+            for t in threads:
+                t.start()
+            s = System(drone, gcs, rogue, fleet, configs)
+            try:
+                assert wait_for(lambda: len(s.setpoints) > 3 and len(s.states) > 3, 15.0), "no sealed link formed"
+                yield s
+            finally:
+                s.close()
+    finally:
+        rogue.close()
+        if router is not None:
+            router.close()
+
+
+def _seal(secret: bytes, key_id: str, key_expr: str, inner: bytes, epoch: bytes | None = None, counter: int = 1) -> bytes:
+    """What a holder of ``secret`` can put on ``key_expr`` (the documented layout, sealed independently)."""
+    head = struct.pack(">B4s8sI", 0x5A, bytes.fromhex(key_id), epoch or os.urandom(8), counter)
+    tag = ChaCha20Poly1305(secret).encrypt(head[5:], b"", head + key_expr.encode() + inner)
+    return head + inner + tag
+
+
+def _key(fleet: Path, node: str, sender: str, scope: str) -> tuple[bytes, str]:
+    for k in json.loads((fleet / f"{node}.json").read_text())["keys"]:
+        if k["sender"] == sender and k["scope"] == scope:
+            return bytes.fromhex(k["secret"]), k["id"]
+    raise KeyError((node, sender, scope))
+
+
+def _setpoint(client_id: str) -> bytes:
+    ts = DroneSetpoint._zr_type_support if hasattr(DroneSetpoint, "_zr_type_support") else None
+    from zenoh_robot.message import type_support
+    ts = type_support(DroneSetpoint)
+    return envelope.pack(ts.name, ts.hash, 42, 1, time.time_ns(), ts.encode(DroneSetpoint(client_id=client_id, x=666.0)))
+
+
+def _state() -> bytes:
+    from zenoh_robot.message import type_support
+    ts = type_support(VehicleState)
+    return envelope.pack(ts.name, ts.hash, 42, 1, time.time_ns(), ts.encode(VehicleState(mode="FORGED")))
+
+
+def _forged_delivered(s: System) -> bool:
+    return any(sp.x == 666.0 for sp in s.setpoints) or any(st.mode == "FORGED" for st in s.states)
+
+
+TRANSPORTS = ["multicast", "router"]
+
+
+@pytest.mark.parametrize("transport", TRANSPORTS)
+def test_rogue_tries_are_refused_and_counted_while_the_link_flows(transport: str, fleet: Path,
+                                                                  other_fleet: Path) -> None:
+    with system(transport, fleet) as s:
+        drone, gcs = s.drone.wire.snapshot(), s.gcs.wire.snapshot()  # type: ignore[attr-defined]
+        assert drone["replayed"] == 0 and drone["bad_tag"] == 0     # repeats are sealed one by one: no "replays"
+        assert s.setpoint_pub.repeats > 1
+        # Every copy on the wire is sealed: 33 bytes more than the envelope, distinct nonces.
+        assert wait_for(lambda: len(s.captured) > 20, 5.0)
+        nonces = [c[5:17] for c in s.captured[:20]]
+        assert len(set(nonces)) == 20
+
+        # 1. A plain session copying the GCS's client id: no seal at all.
+        s.put("uav1/setpoint", _setpoint("gcs1"))
+        assert s.refused(s.drone, "malformed", drone["malformed"])
+        # 2. Captured sealed bytes re-put: refused as replays, counted.
+        before = s.drone.wire.snapshot()["replayed"]  # type: ignore[attr-defined]
+        for copy in s.captured[-10:]:
+            s.put("uav1/setpoint", copy, times=1)
+        assert wait_for(lambda: s.drone.wire.snapshot()["replayed"] >= before + 5, 5.0)  # type: ignore[attr-defined]
+        # ... and moved to another key, they fail the tag (the key expression is bound).
+        s.put("uav1/goal", s.captured[-1])
+        assert s.refused(s.drone, "bad_tag", drone["bad_tag"])
+        # 3. Another drone's key: uav2's sealing uav1 telemetry (the GCS holds it: wrong scope) and uav1
+        #    setpoints (uav1 never holds it: unknown).
+        secret, kid = _key(fleet, "uav2", "uav2", "uav2")
+        s.put("uav1/state", _seal(secret, kid, "uav1/state", _state()))
+        assert s.refused(s.gcs, "wrong_key", gcs["wrong_key"])
+        s.put("uav1/setpoint", _seal(secret, kid, "uav1/setpoint", _setpoint("gcs1")))
+        assert s.refused(s.drone, "unknown_key", drone["unknown_key"])
+        # ... and the drone's own key on the GCS's stream: a drone cannot forge its GCS to others.
+        secret, kid = _key(fleet, "uav1", "uav1", "uav1")
+        s.put("uav1/setpoint", _seal(secret, kid, "uav1/setpoint", _setpoint("gcs1")))
+        assert s.refused(s.drone, "wrong_key", drone["wrong_key"])
+        # 4. A GCS of this fleet (gcs2, uav1's too) claiming gcs1's client id: the key names the sender.
+        secret, kid = _key(fleet, "gcs2", "gcs2", "uav1")
+        s.put("uav1/setpoint", _seal(secret, kid, "uav1/setpoint", _setpoint("gcs1")))
+        assert s.refused(s.drone, "forged_claim", drone["forged_claim"])
+        # 5. A node of another fleet (its own keys, same names): unknown.
+        secret, kid = _key(other_fleet, "gcs1", "gcs1", "uav1")
+        before = s.drone.wire.snapshot()["unknown_key"]  # type: ignore[attr-defined]
+        s.put("uav1/setpoint", _seal(secret, kid, "uav1/setpoint", _setpoint("gcs1")))
+        assert s.refused(s.drone, "unknown_key", before)
+        s.still_flowing()
+        assert not _forged_delivered(s)
+        # gcs2's honest sample (its own id) opens: the refusals above were for what was forged.
+        secret, kid = _key(fleet, "gcs2", "gcs2", "uav1")
+        opened = s.drone.wire.snapshot()["opened"]  # type: ignore[attr-defined]
+        s.put("uav1/setpoint", _seal(secret, kid, "uav1/setpoint", _setpoint("gcs2")))
+        assert wait_for(lambda: any(sp.client_id == "gcs2" for sp in s.setpoints), 5.0)
+        assert s.drone.wire.snapshot()["opened"] > opened  # type: ignore[attr-defined]
+
+
+@pytest.mark.parametrize("transport", TRANSPORTS)
+def test_revoked_key_is_refused_within_the_refresh_bound(transport: str, tmp_path: Path) -> None:
+    keys.make_link_keys(tmp_path, gcs={"gcs1": ["uav1"], "gcs2": ["uav1"]})
+    fleet = tmp_path / keys.LINK_DIR
+    with system(transport, fleet) as s:
+        secret, kid = _key(fleet, "gcs2", "gcs2", "uav1")
+        epoch = os.urandom(8)
+        for counter in range(1, 6):
+            s.put("uav1/setpoint", _seal(secret, kid, "uav1/setpoint", _setpoint("gcs2"), epoch, counter), times=1)
+        assert wait_for(lambda: any(sp.client_id == "gcs2" for sp in s.setpoints), 5.0)
+        assert keys.revoke_link_keys(tmp_path, ["gcs2"]) == [kid]
+        revoked_at = time.monotonic()
+        before = s.drone.wire.snapshot()["revoked"]  # type: ignore[attr-defined]
+        delivered = sum(sp.client_id == "gcs2" for sp in s.setpoints)
+        counter = 5
+        while s.drone.wire.snapshot()["revoked"] == before and time.monotonic() - revoked_at < 5:  # type: ignore[attr-defined]
+            counter += 1
+            s.put("uav1/setpoint", _seal(secret, kid, "uav1/setpoint", _setpoint("gcs2"), epoch, counter), times=1)
+            time.sleep(0.05)
+        took = time.monotonic() - revoked_at
+        assert s.drone.wire.snapshot()["revoked"] > before, "the revoked key was never refused"  # type: ignore[attr-defined]
+        assert took < REFRESH_S + 0.5, f"revocation took {took:.2f} s (bound {REFRESH_S} s + delivery)"
+        settled = sum(sp.client_id == "gcs2" for sp in s.setpoints)
+        s.put("uav1/setpoint", _seal(secret, kid, "uav1/setpoint", _setpoint("gcs2"), epoch, counter + 1))
+        s.still_flowing()
+        assert sum(sp.client_id == "gcs2" for sp in s.setpoints) == settled >= delivered
+
+
+def test_sealing_adds_a_fixed_overhead_and_encrypts_on_request(fleet: Path) -> None:
+    gcs_ring, drone_ring = Keyring(fleet, "gcs1"), Keyring(fleet, "uav1")
+    inner = _setpoint("gcs1")
+    for encrypt in (False, True):
+        seal = sealed(ENVELOPE, gcs_ring, encrypt=encrypt).sealer("uav1/setpoint")
+        fmt = sealed(ENVELOPE, drone_ring)
+        from zenoh_robot.message import type_support
+        opened = fmt.keyed_decoder(type_support(DroneSetpoint), "uav1/setpoint")
+        a, b = seal(inner), seal(inner)
+        assert len(a) == len(inner) + OVERHEAD and a != b          # a new nonce per copy
+        assert (inner in a) is (not encrypt)
+        assert opened(a, None)[5][1] == "gcs1" and opened(b, None)[5][1] == "gcs1"
+        with pytest.raises(envelope.MalformedSample, match="replayed"):
+            opened(a, None)
+        other = fmt.keyed_decoder(type_support(DroneSetpoint), "uav1/other")
+        with pytest.raises(envelope.MalformedSample, match="bad_tag"):
+            other(seal(inner), None)
+    with pytest.raises(ValueError, match="holds no link key"):
+        sealed(ENVELOPE, drone_ring).sealer("uav2/state")
