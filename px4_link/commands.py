@@ -13,6 +13,11 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 MAV_RESULT_ACCEPTED = 0
+MAV_CMD_DO_SET_MODE = 176
+# PX4 answers every DO_SET_MODE twice, 0-8 ms apart (px4_traces: all 9 mode requests of the flight):
+# the second ACK of one request must not answer the next request of the same command.
+DOUBLE_ACKED = frozenset({MAV_CMD_DO_SET_MODE})
+ECHO_WINDOW_S = 0.3
 MAV_RESULT_TEMPORARILY_REJECTED = 1
 MAV_RESULT_DENIED = 2
 MAV_RESULT_UNSUPPORTED = 3
@@ -115,6 +120,9 @@ class CommandSender:
         self.sent = 0
         self.retried = 0
         self.cancelled = 0
+        self._echo: tuple[int, float] | None = None   # (command, until): its answer's second ACK to come
+        self._second_seen = False                      # ... or already came while the answer was read
+        self.echoes = 0
 
     def cancel(self, owner: int, why: str) -> bool:
         """Withdraw the command in flight if thread ``owner`` sent it: its ``run`` raises
@@ -137,9 +145,16 @@ class CommandSender:
         flood of forged ACKs would otherwise overwrite a refusal) never turns it around.
         """
         with self._cond:
+            echo = self._echo
+            if echo is not None and echo[0] == command:
+                self._echo = None
+                if time.monotonic() <= echo[1]:
+                    self.echoes += 1
+                    return "duplicate"
             if self._waiting_for != command:
                 return "unsolicited"
             if self._ack is not None or self._answered:
+                self._second_seen = True
                 return "duplicate"
             self._ack = (result, progress, result_param2)
             self._answered = result != MAV_RESULT_IN_PROGRESS
@@ -163,6 +178,7 @@ class CommandSender:
                 self._answered = False
                 self._owner = threading.get_ident()
                 self._cancelled = ""
+                self._second_seen = False
             try:
                 attempts = 0
                 while attempts <= retries:
@@ -181,6 +197,8 @@ class CommandSender:
                                     # Keep listening without resending: the vehicle is on it.
                                     deadline = time.monotonic() + timeout
                                     continue
+                                if command in DOUBLE_ACKED and not self._second_seen:
+                                    self._echo = (command, time.monotonic() + ECHO_WINDOW_S)
                                 return self._finish(command, result, param2, attempts, start)
                             if self._cancelled:
                                 raise CommandCancelled(command, None, f"{name}: {self._cancelled}")

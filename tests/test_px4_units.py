@@ -262,3 +262,37 @@ def test_offboard_fences_each_send_and_expires_velocity_once_per_episode() -> No
     assert ob.outgoing(back, now + 1.6) == VelocityTarget(0, 0, 0)
     assert core.counts["setpoints_expired"] == 1
     assert ob.outgoing(PositionTarget(1, 2, -3), now + 9) == PositionTarget(1, 2, -3)   # a place never expires
+
+
+def test_the_second_ack_of_a_mode_request_never_answers_the_next_one() -> None:
+    """PX4 ACKs every DO_SET_MODE twice (px4_traces: 9 of 9, 0-8 ms apart). A refused request
+    followed at once by another: the refusal's echo must not answer the second request."""
+    import threading as _threading
+    import time
+
+    from px4_link.commands import CommandSender, CommandTemporarilyRejected
+    MAV_CMD_DO_SET_MODE = 176
+
+    sent: list[int] = []
+    sender: CommandSender
+
+    def send(command: int, params: object, confirmation: int) -> None:
+        sent.append(command)
+        n = len(sent)
+
+        def answer() -> None:
+            if n == 1:       # the first request: refused; its echo comes only after the caller moved on
+                sender.handle_ack(command, 1)
+            else:            # PX4's echo of the refusal reaches us first, then the second's answers
+                sender.handle_ack(command, 1)
+                time.sleep(0.005)
+                sender.handle_ack(command, 0)
+                sender.handle_ack(command, 0)
+        _threading.Thread(target=answer, daemon=True).start()
+
+    sender = CommandSender(send, timeout=1.0, retries=0)
+    with pytest.raises(CommandTemporarilyRejected):
+        sender.run(MAV_CMD_DO_SET_MODE, (1, 6))
+    ack = sender.run(MAV_CMD_DO_SET_MODE, (1, 4))
+    assert ack.result == 0 and len(sent) == 2
+    assert sender.echoes == 1
