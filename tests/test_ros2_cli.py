@@ -144,7 +144,7 @@ def test_topic_pub_with_a_ros_type_name_is_heard(peer) -> None:
 
 
 def test_service_list_and_call(peer) -> None:
-    listed = cli(peer, "service", "list", "-t")
+    listed = cli(peer, "service", "list", "-t", "--timeout", "10")
     assert listed.returncode == 0, listed.stderr
     assert f"/sdk/add_two_ints [{ADD}]" in listed.stdout.splitlines(), listed.stdout
     call = cli(peer, "service", "call", "/sdk/add_two_ints", "{a: 20, b: 22}", "--timeout", "10")

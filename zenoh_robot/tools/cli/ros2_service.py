@@ -24,9 +24,16 @@ if TYPE_CHECKING:
 def servers(node: "Node", timeout: float) -> list["Ros2ServiceInfo"]:
     from zenoh_robot.services import ros2_services
 
-    time.sleep(0.3)   # let a fresh session learn the network before asking it
+    # A fresh session learns the network over a moment (longer on a loaded host): ask again until
+    # a server answers or the time is up.
     domain = int(getattr(node.wire, "domain_id", 0))
-    return [i for i in ros2_services(node.session, domain, timeout) if i.kind == "SS"]
+    end = time.monotonic() + timeout
+    time.sleep(0.3)
+    while True:
+        found = [i for i in ros2_services(node.session, domain, min(timeout, 1.0)) if i.kind == "SS"]
+        if found or time.monotonic() >= end:
+            return found
+        time.sleep(0.2)
 
 
 def node_services(node: "Node", target: str, timeout: float) -> tuple[list[str], list[str]]:
@@ -85,7 +92,7 @@ def _call(node: "Node", args: argparse.Namespace) -> int:
     from zenoh_robot.services import ServiceCallError
 
     name = _absolute(args.service)
-    infos = _of(node, name, min(args.timeout, 2.0))
+    infos = _of(node, name, args.timeout)
     if any(i.humble for i in infos):
         raise CliError(f"service {name} is served by ROS 2 Humble (no type hash): Humble's rmw_zenoh "
                        "exchanges no data with Jazzy or newer, nor with this tool")
