@@ -119,6 +119,7 @@ class Companion:
             q[setpoint.name].replace(deadline=config.setpoint_deadline),
             event_callbacks=SubscriptionEventCallbacks(deadline=self.failsafe.on_deadline_missed),
             topic_statistics=with_cpu_budget(node.enable_topic_statistics, SETPOINT_CPU_BUDGET_PCT))
+        self.setpoint_sub.superseded = self.gate.on_superseded   # latest wins: still recorded as arrived
         command_srv = node.create_service(COMMAND_SERVICE, Command, CommandResult, self.desk.on_command)
         if self.link_monitor is not None:   # reply copies sized from the measured loss (services.py)
             self.link_monitor.adapt(command_srv.set_loss)

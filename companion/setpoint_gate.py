@@ -133,6 +133,11 @@ class SetpointGate:
         self._flying = client
         self._failsafe.fed(now)
 
+    def on_superseded(self, pub_id: int, seq: int, source_stamp_ns: int, received_ns: int) -> None:
+        """A setpoint recovered with a newer one (the subscription delivered only that): it reached the
+        companion, so the record of arrivals keeps it; it is never forwarded."""
+        self.received.record(seq, source_stamp_ns, received_ns)
+
     def _is_stale(self, client: str, stamp: tuple[int, int]) -> bool:
         """Inside a session: not newer than what this client last had forwarded."""
         last = self._last_forwarded

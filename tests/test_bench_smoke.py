@@ -4,7 +4,7 @@ from __future__ import annotations
 import math
 
 from zenoh_robot.tools.bench.report import markdown
-from zenoh_robot.tools.bench.runner import Cell, run_cell
+from zenoh_robot.tools.bench.runner import Cell, run_cell, spread
 
 
 def test_small_and_image_cells_produce_complete_figures() -> None:
@@ -21,3 +21,20 @@ def test_small_and_image_cells_produce_complete_figures() -> None:
     assert thr.framework.msgs_per_s > 0 and thr.framework.mb_per_s > 0 and thr.payload_bytes > 10_000
     md = markdown([lat, thr], None)
     assert "setpoint" in md and "jpeg" in md and md.count("\n") == 3
+
+
+def test_repetitions_alternate_and_report_median_spread_and_load() -> None:
+    """Issue #30: figures a shared machine can be trusted with: A/B repetitions, their median and
+    spread, the load average beside them; the channel receive path measured like the default."""
+    r = run_cell(Cell("setpoint", "throughput", 0, 2000), reps=3, receive="channel")
+    assert r.receive == "channel" and len(r.runs) == 3
+    assert not r.framework.error and not r.raw.error
+    assert r.framework.received == r.raw.received == 2000           # the worst repetition: nothing lost
+    per_run = [run["throughput"] for run in r.runs]
+    assert all(math.isfinite(x) and x > 0 for x in per_run)
+    assert r.ratios["throughput"] == sorted(per_run)[1]              # the median of the three
+    low, high = spread(r, "throughput")
+    assert low == min(per_run) and high == max(per_run)
+    assert all(run["load1"] >= 0 for run in r.runs) and r.load[0] <= r.load[1]
+    row = markdown([r], None).splitlines()[-1]
+    assert f"({low:.2f}-{high:.2f})" in row and f"{r.load[0]:.1f}-{r.load[1]:.1f}" in row and "| 3 |" in row

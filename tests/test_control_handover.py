@@ -11,6 +11,7 @@ import threading
 import time
 
 from conftest import wait_for
+from px4_helpers import wait_state_armable
 from test_control_lifecycle import PROFILE, Rig, _take_off, rig
 
 from companion.offboard_session import OffboardState
@@ -101,6 +102,7 @@ def test_gcs_exits_mid_flight_drone_holds_and_control_is_kept(ns: str) -> None:
             assert wait_for(lambda: drone.setpoints_sent > 5, 10)
             res = drone.command("offboard_start")
             assert res.success, res.message
+            wait_state_armable(drone)
             assert drone.command("arm").success
             assert wait_for(lambda: r.sim.altitude > 0.8 * ALT, 20), f"altitude {r.sim.altitude:.1f}"
             intruder = _observer_streams(r)

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 from conftest import free_port, python_proc, wait_for
+from px4_helpers import wait_state_armable
 
 from drone_contract.streams import stream_profile
 from gcs.app import Gcs, GcsConfig
@@ -87,6 +88,8 @@ def test_every_drone_flies_its_own_slot_through_a_router(ns: str, tmp_path: Path
         assert [d.slot for d in links] == [(0.0, 0.0), (0.0, spacing), (0.0, 2 * spacing)]
         assert wait_for(lambda: all(d.setpoints_sent > 5 for d in links), 10), "the GCS never streamed to every drone"
         assert _parallel(g, "offboard_start") == {d.id: "ok" for d in links}
+        for d in links:
+            wait_state_armable(d)
         assert _parallel(g, "arm") == {d.id: "ok" for d in links}
 
         def in_slots() -> bool:

@@ -80,7 +80,7 @@ class Keyring:
         self._checked = 0.0
         self._by_id: dict[bytes, LinkKey] = {}
         self._revoked: frozenset[bytes] = frozenset()
-        self.reloads = 0
+        self.reloads = 0        # bumped by every reload: users cache lookups per generation
         self.reload()
 
     # -- loading ------------------------------------------------------------------------------

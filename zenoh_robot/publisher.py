@@ -122,7 +122,7 @@ class Publisher(Generic[M]):
             stamp = _time_ns()
             if self._plain:
                 # The common case (no history, no repeats, no attachment): pack and put, nothing else.
-                self._zpub.put(self._pack(seq, stamp, body, extra))
+                self._put(self._pack(seq, stamp, body, extra))
             else:
                 self._put_with_extras(seq, stamp, body, extra)
             self.published += 1
@@ -141,14 +141,14 @@ class Publisher(Generic[M]):
             extra = {**(extra or {}), REPEAT_KEY: self._repeats}
         payload = self._pack(seq, stamp, body, extra)
         if self._attachment is None:
-            self._zpub.put(payload)
+            self._put(payload)
         else:   # never with repeats: only formats that carry extra fields repeat (see __init__)
             self._zpub.put(payload, attachment=self._attachment(seq, stamp))
         if self._repeats and self._repeat_window is not None:
-            self.context.repeater.schedule_latest(self.publisher_id, self._zpub.put, payload, self._repeats,
+            self.context.repeater.schedule_latest(self.publisher_id, self._put, payload, self._repeats,
                                                   self._repeat_window)
         elif self._repeats:   # loss is per packet: each later copy is another chance
-            self.context.repeater.schedule(self._zpub.put, payload, self._repeats)
+            self.context.repeater.schedule(self._put, payload, self._repeats)
 
     @property
     def repeats(self) -> int:

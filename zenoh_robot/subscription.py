@@ -203,6 +203,9 @@ class Subscription(Generic[M]):
         self.dedup = Deduplicator() if (qos.redundancy or qos.repeat) else None
         # KEEP_LAST(1): of a recovered batch only the newest is delivered (see _keep_newest).
         self._newest_only = qos.history is HistoryPolicy.KEEP_LAST and qos.depth == 1
+        # Told of each sample a newer one of its batch superseded: (publisher id, seq, source stamp ns,
+        # receive stamp ns). For records of what reached this process (arrivals, ages), not for the data.
+        self.superseded: Callable[[int, int, int, int], None] | None = None
         self.gid = secrets.randbits(63)
         self.last_sample_mono: float | None = None
         self.events = SubscriptionEvents(context, self, event_callbacks)
@@ -451,11 +454,12 @@ class Subscription(Generic[M]):
             dedup = self.dedup = Deduplicator()
         fresh = dedup.fresh(pub_id, seq, stamp_ns, body, extra, received_ns)
         if len(fresh) > 1 and self._newest_only:
-            fresh = self._keep_newest(fresh)
+            fresh = self._keep_newest(pub_id, fresh, received_ns)
         for fresh_seq, stamp, fresh_body in fresh:
             self._deliver_sample(type_name, pub_id, fresh_seq, stamp, fresh_body, received_ns)
 
-    def _keep_newest(self, fresh: list[tuple[int, int, Any]]) -> list[tuple[int, int, Any]]:
+    def _keep_newest(self, pub_id: int, fresh: list[tuple[int, int, Any]],
+                     received_ns: int) -> list[tuple[int, int, Any]]:
         # KEEP_LAST(1) applied to a batch recovered from a carried history: the batch arrived at once,
         # as n samples would in a depth-1 queue, so only the newest is delivered and the rest count as
         # dropped (not lost: _track_sequence excuses them). A setpoint stream must not hand a consumer
@@ -465,6 +469,16 @@ class Subscription(Generic[M]):
         with self._lock:
             self.counters.dropped += skipped
             self._dropped_unseen += skipped
+        hook = self.superseded
+        if hook is not None:
+            for seq, stamp, _ in fresh:
+                if seq != newest[0]:
+                    try:
+                        hook(pub_id, seq, stamp, received_ns)
+                    except Exception:
+                        self.counters.hook_errors += 1
+                        self._rlog.error("superseded", "superseded hook on %r raised (error %d)", self.topic,
+                                         self.counters.hook_errors, exc_info=True)
         return [newest]
 
     def _type_mismatch(self, type_name: str, type_hash: str, pub_id: int) -> None:

@@ -56,6 +56,7 @@ TAG_SIZE = 16
 OVERHEAD = HEAD_SIZE + TAG_SIZE     # 33 bytes a sample
 WINDOW = 1024
 MAX_EPOCHS_PER_KEY = 64
+MAX_KEYS_CACHED = 256
 CLAIM_FIELD = "client_id"
 _COUNTER_WRAP = 1 << 32
 
@@ -110,6 +111,13 @@ def _aead(secret: bytes) -> Any:
     return ChaCha20Poly1305(secret)
 
 
+try:
+    from cryptography.exceptions import InvalidTag as _InvalidTag
+except ImportError:     # pragma: no cover - without the secure extra no sealed format can be made
+    class _InvalidTag(Exception):  # type: ignore[no-redef]
+        pass
+
+
 def scope_of(key_expr: str) -> str:
     return key_expr.split("/", 1)[0]
 
@@ -130,31 +138,34 @@ class _Sealer:
         self._counter = 0
         self._key: LinkKey | None = None
         self._aead: Any = None
+        self._wire_id = b""
+        self._generation = -1
         self._current()   # a publisher without a key fails at creation, not at the first sample
 
-    def _current(self) -> tuple[LinkKey, Any]:
-        key = self._keyring.sealing_key(self._scope)
-        if key is None:
-            raise ValueError(f"sealed: node {self._keyring.node!r} holds no link key to seal {self._scope!r}/...")
-        if key is not self._key:    # rotated (or first use): a new key, a new AEAD
-            self._key, self._aead = key, _aead(key.secret)
-        return key, self._aead
+    def _current(self) -> tuple[bytes, Any]:
+        keyring = self._keyring
+        keyring.refresh()
+        if self._key is None or self._generation != keyring.reloads:    # first use, or a reload: rotated?
+            key = keyring.sealing_key(self._scope)
+            if key is None:
+                raise ValueError(f"sealed: node {keyring.node!r} holds no link key to seal {self._scope!r}/...")
+            if key is not self._key:
+                self._key, self._aead, self._wire_id = key, _aead(key.secret), key.wire_id
+            self._generation = keyring.reloads
+        return self._wire_id, self._aead
 
     def __call__(self, inner: bytes) -> bytes:
         with self._lock:
-            key, aead = self._current()
+            wire_id, aead = self._current()
             self._counter += 1
             if self._counter >= _COUNTER_WRAP:
                 self._epoch, self._counter = os.urandom(8), 1
-            head = HEAD.pack(self._flags, key.wire_id, self._epoch, self._counter)
+            head = HEAD.pack(self._flags, wire_id, self._epoch, self._counter)
+            self._counters.sealed += 1     # under this sealer's lock: close enough for a statistic
         nonce = head[5:]
         if self._flags == ENCRYPTED:
-            sealed = head + aead.encrypt(nonce, inner, head + self._key_expr)
-        else:
-            sealed = head + inner + aead.encrypt(nonce, b"", head + self._key_expr + inner)
-        with self._counters_lock:
-            self._counters.sealed += 1
-        return bytes(sealed)
+            return head + aead.encrypt(nonce, inner, head + self._key_expr)
+        return head + inner + aead.encrypt(nonce, b"", head + self._key_expr + inner)
 
 
 class SealingEncoder:
@@ -185,7 +196,8 @@ class _Opener:
         self._scope = scope_of(key_expr)
         self._claim_index = claim_index
         self._windows: dict[bytes, OrderedDict[bytes, ReplayWindow]] = {}
-        self._aeads: dict[bytes, tuple[LinkKey, Any]] = {}
+        self._aeads: dict[bytes, tuple[LinkKey, Any]] = {}     # keys that passed the checks, this generation
+        self._generation = -1
 
     def _refuse(self, reason: str, detail: str) -> MalformedSample:
         self._fmt.count(reason)
@@ -195,29 +207,37 @@ class _Opener:
         if len(payload) < OVERHEAD or payload[0] not in (AUTH_ONLY, ENCRYPTED):
             raise self._refuse("malformed", "not a sealed sample")
         flags, wire_id, epoch, counter = HEAD.unpack_from(payload)
-        key, revoked = self._fmt.keyring.opening_key(wire_id)
-        if key is None:
-            raise self._refuse("unknown_key", f"key id {wire_id.hex()} is not in this node's keyring")
-        if revoked:
-            raise self._refuse("revoked", f"key {key.key_id} ({key.sender}) is revoked")
-        if key.scope != self._scope or key.sender == self._fmt.keyring.node:
-            raise self._refuse("wrong_key", f"key {key.key_id} ({key.sender}) does not seal {self._scope}/...")
+        keyring = self._fmt.keyring
+        keyring.refresh()
+        if self._generation != keyring.reloads:     # a reload (rotation, revocation): look keys up again
+            self._aeads.clear()
+            self._generation = keyring.reloads
         cached = self._aeads.get(wire_id)
-        if cached is None or cached[0] is not key:
+        if cached is None:
+            key, revoked = keyring.opening_key(wire_id)
+            if key is None:
+                raise self._refuse("unknown_key", f"key id {wire_id.hex()} is not in this node's keyring")
+            if revoked:
+                raise self._refuse("revoked", f"key {key.key_id} ({key.sender}) is revoked")
+            if key.scope != self._scope or key.sender == keyring.node:
+                raise self._refuse("wrong_key", f"key {key.key_id} ({key.sender}) does not seal {self._scope}/...")
+            if len(self._aeads) >= MAX_KEYS_CACHED:
+                self._aeads.clear()
             cached = self._aeads[wire_id] = (key, _aead(key.secret))
-        aead = cached[1]
+        key, aead = cached
         head, nonce = payload[:HEAD_SIZE], payload[5:HEAD_SIZE]
-        from cryptography.exceptions import InvalidTag
         try:
             if flags == ENCRYPTED:
                 inner = aead.decrypt(nonce, payload[HEAD_SIZE:], head + self._key_expr)
             else:
                 inner = payload[HEAD_SIZE:-TAG_SIZE]
                 aead.decrypt(nonce, payload[-TAG_SIZE:], head + self._key_expr + inner)
-        except InvalidTag:
+        except _InvalidTag:
             raise self._refuse("bad_tag", f"tag does not verify under key {key.key_id} on this key") from None
         # After the tag: only an authentic sample may move the window.
-        windows = self._windows.setdefault(wire_id, OrderedDict())
+        windows = self._windows.get(wire_id)
+        if windows is None:
+            windows = self._windows[wire_id] = OrderedDict()
         window = windows.get(epoch)
         if window is None:
             window = windows[epoch] = ReplayWindow()
@@ -236,7 +256,7 @@ class _Opener:
                 else None
             if claimed != key.sender:
                 raise self._refuse("forged_claim", f"client_id {str(claimed)[:64]!r} under {key.sender!r}'s key")
-        self._fmt.count("opened")
+        self._fmt.counters.opened += 1     # one decoder per subscription: a statistic, no lock on the hot path
         return header
 
 
@@ -269,6 +289,7 @@ class SealedWireFormat:
         self._lock = threading.Lock()
 
     def count(self, reason: str) -> None:
+        """One more refusal for ``reason`` (a :class:`SealCounters` field)."""
         with self._lock:
             setattr(self.counters, reason, getattr(self.counters, reason) + 1)
 
