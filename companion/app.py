@@ -28,6 +28,7 @@ import logging
 import time
 from typing import Any
 
+from drone_contract.commands import COMMAND_SERVICE
 from drone_contract.messages import CONTROL_TOKEN_PREFIX, Command, CommandResult, valid_client_id
 from drone_contract.streams import DOWN, STREAM_SPECS, UP, StreamSpec
 from px4_link import Px4Link
@@ -58,7 +59,6 @@ log = logging.getLogger("companion")
 # a loaded host and still flags a slow callback or a flood.
 SETPOINT_CPU_BUDGET_PCT = 1.5
 WATCHDOG_PERIOD_S = 0.05
-COMMAND_SERVICE = "command"   # the service GCSs call (not a stream: not in STREAM_SPECS)
 
 
 def _stream(name: str, direction: str) -> StreamSpec:

@@ -11,7 +11,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from drone_contract.link_protection import log_startup_line
+from drone_contract.link_protection import link_wire, log_startup_line
 from drone_contract.streams import IMAGE_MODES, PROFILES, STREAMS, StreamProfile, stream_profile
 from px4_link import CommandError, Px4Link
 from px4_link.targets import DEFAULT_FENCE_CEILING_M, DEFAULT_FENCE_FLOOR_M, DEFAULT_FENCE_RADIUS_M
@@ -20,6 +20,7 @@ from zenoh_robot.names import validate_node_name
 from zenoh_robot.parameters import ParameterError, ParameterStore, add_param_argument, params_from_args
 from zenoh_robot.qos import load_qos
 from zenoh_robot.session_args import add_session_arguments, session_config_from_args
+from zenoh_robot.wire import ENVELOPE, WireFormat
 
 from .app import Companion
 from .config import DEFAULT_PARAM_ALLOW, CompanionConfig
@@ -45,6 +46,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--iface", help="network interface towards the GCS for the multicast transport "
                    "(profiles resilient, resilient_multicast; required by the latter)")
     add_session_arguments(p)
+    p.add_argument("--link-keys", metavar="DIR",
+                   help="seal every topic sample (ChaCha20-Poly1305, replay window, per-role keys) with this "
+                        "node's keyring DIR/<id>.json from `zenoh-robot keys link` (docs/security.md); "
+                        "re-read on SIGHUP")
+    p.add_argument("--link-encrypt", action="store_true", help="with --link-keys: encrypt samples too")
     p.add_argument("--no-topic-statistics", action="store_true",
                    help="do not publish per-stream statistics (what `zenoh-robot stats` shows)")
     p.add_argument("--deadline", type=float, default=1.0,
@@ -152,7 +158,14 @@ def run(args: argparse.Namespace) -> int:
         session = session_config_from_args(args, lambda: profile.session_config(args.iface), args.id)
     except ValueError as exc:
         raise CliError(str(exc)) from None
-    log_startup_line(log, session)
+    wire: WireFormat = ENVELOPE
+    keyring = None
+    if args.link_keys:
+        try:
+            wire, keyring = link_wire(args.link_keys, args.id, encrypt=args.link_encrypt)
+        except ValueError as exc:
+            raise CliError(f"--link-keys: {exc}") from None
+    log_startup_line(log, session, keyring, args.link_encrypt)
     from zenoh_robot import MultiThreadedExecutor
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
@@ -160,7 +173,7 @@ def run(args: argparse.Namespace) -> int:
     with px4_connection(args.px4, args.sysid) as px4_conn, \
             maybe_tee(args.mavlink_tunnel, px4_conn) as (tee, connection), \
             Px4Link(connection, geofence=in_force.geofence()) as link, \
-            Node("companion", namespace=args.id, config=session, executor=MultiThreadedExecutor(3),
+            Node("companion", namespace=args.id, config=session, executor=MultiThreadedExecutor(3), wire=wire,
                  parameter_overrides=params, enable_topic_statistics=not args.no_topic_statistics) as node:
         log.info("companion %s: PX4 at %s, profile %s", args.id, connection, profile.name)
         if not link.wait_connected(timeout=3.0):

@@ -14,6 +14,10 @@ from dataclasses import dataclass
 HAND_OVER_S = 10.0   # how long an offer of control (hand_over) waits for the named GCS's take_control
 
 
+# The drone's command service: ``<drone id>/command`` (Command -> CommandResult).
+COMMAND_SERVICE = "command"
+
+
 class CommandName(enum.StrEnum):
     ARM = "arm"
     DISARM = "disarm"

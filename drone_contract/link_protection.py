@@ -7,20 +7,43 @@ which protection is on instead (mTLS + ACL, this node's certificate and role), a
 :func:`reaches_network` tells whether a session dials or listens beyond this host on purpose
 (a multicast interface, a non-loopback connect endpoint): where the GCS asks for
 ``--insecure-ok`` before flying a mission without ``--secure``.
+
+With ``--link-keys DIR`` every sample of the node's topics is sealed (``zenoh_robot.wire.sealed``:
+ChaCha20-Poly1305 per sample, replay window, per-role keys): the line says so, with the key ids
+(never the keys), and that commands (services) are not sealed yet, so without ``--secure`` they
+stay ``UNAUTHENTICATED``.
 """
 from __future__ import annotations
 
 import ipaddress
 import logging
+from typing import TYPE_CHECKING, Any
 
 from zenoh_robot import SessionConfig
 from zenoh_robot.session_config import SECURE_PROTOCOLS
 
+if TYPE_CHECKING:
+    from zenoh_robot.keyring import Keyring
+
 UNAUTHENTICATED = "UNAUTHENTICATED"
 
 
-def startup_line(config: SessionConfig) -> tuple[int, str]:
-    """``(logging level, line)`` saying what protects commands and control on ``config``."""
+def startup_line(config: SessionConfig, link_keys: Keyring | None = None, encrypt: bool = False) -> tuple[int, str]:
+    """``(logging level, line)`` saying what protects commands and control on ``config`` (and, with
+    ``link_keys``, the sealed samples of ``--link-keys``)."""
+    if link_keys is not None:
+        level, rest = _session_line(config)
+        mode = "encrypted" if encrypt else "authenticated"
+        ids = ", ".join(link_keys.key_ids())
+        sealed = (f"link protection: per-sample AEAD (ChaCha20-Poly1305, {mode}), key ids {ids} of "
+                  f"{link_keys.node!r} ({link_keys.directory}): "
+                  "setpoints, telemetry and every topic sample without a valid seal, replayed, or claiming another "
+                  "GCS's client id are refused; services: ")
+        return level, sealed + rest.removeprefix("link protection: ")
+    return _session_line(config)
+
+
+def _session_line(config: SessionConfig) -> tuple[int, str]:
     if config.secure:
         role = _role(config.secure, config.name or "")
         return logging.INFO, (f"link protection: mTLS + ACL (certificate {config.name!r}{role}, CA and roles in "
@@ -36,8 +59,9 @@ def startup_line(config: SessionConfig) -> tuple[int, str]:
                              "drone); use --secure DIR (mTLS + ACL by role, keys from `zenoh-robot keys`)")
 
 
-def log_startup_line(log: logging.Logger, config: SessionConfig) -> None:
-    level, line = startup_line(config)
+def log_startup_line(log: logging.Logger, config: SessionConfig, link_keys: Keyring | None = None,
+                     encrypt: bool = False) -> None:
+    level, line = startup_line(config, link_keys, encrypt)
     log.log(level, "%s", line)
 
 
@@ -72,3 +96,27 @@ def _role(keys_dir: str, name: str) -> str:
     if entry is None:
         return ""
     return f", role {entry.role}" + (f" for {', '.join(entry.drones)}" if entry.drones else "")
+
+
+def link_wire(keys_dir: str, node: str, encrypt: bool = False) -> tuple[Any, Keyring]:
+    """``(wire format, keyring)`` for ``--link-keys DIR``: the envelope sealed with ``node``'s link keys
+    (``DIR/<node>.json`` from ``zenoh-robot keys link``); the keyring is re-read on SIGHUP (and every
+    ``refresh_s`` when a file changed). KeyringError (a ValueError) for a missing or open keyring."""
+    import signal
+
+    from zenoh_robot.keyring import Keyring
+    from zenoh_robot.wire import ENVELOPE, sealed
+
+    keyring = Keyring(keys_dir, node)
+    if hasattr(signal, "SIGHUP"):
+        signal.signal(signal.SIGHUP, lambda *_: _reload(keyring))
+    return sealed(ENVELOPE, keyring, encrypt=encrypt), keyring
+
+
+def _reload(keyring: Keyring) -> None:
+    from zenoh_robot.keyring import KeyringError
+    try:
+        keyring.reload()
+        logging.getLogger("drone_contract.link_protection").info("link keys re-read: %r", keyring)
+    except KeyringError as exc:
+        logging.getLogger("drone_contract.link_protection").warning("link keys not re-read: %s", exc)

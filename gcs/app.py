@@ -40,6 +40,7 @@ from typing import Any
 
 import numpy as np
 
+from drone_contract.commands import COMMAND_SERVICE
 from drone_contract.limits import GCS_MAX_LEAD_M, GCS_MAX_TARGET_SPEED_MS
 from drone_contract.messages import (
     CONTROL_TOKEN_PREFIX,
@@ -173,7 +174,7 @@ class DroneView:
             node.create_subscription(Image, f"{ns}/image", self._on_raw_image, q["image"],
                                      topic_statistics=budget["image"])
         # Retried with one request id until the deadline; the companion runs each call once (services.py).
-        self.commands = node.create_client(f"{ns}/command", Command, CommandResult, retry=command_retry(node))
+        self.commands = node.create_client(f"{ns}/{COMMAND_SERVICE}", Command, CommandResult, retry=command_retry(node))
 
     # -- telemetry -------------------------------------------------------------------
     def _on_sensor(self, msg: SensorCombined, info: Any) -> None:

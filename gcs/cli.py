@@ -14,13 +14,14 @@ from typing import Any
 from rich.console import Console
 from rich.live import Live
 
-from drone_contract.commands import CLI_COMMANDS, resolve_cli_name
-from drone_contract.link_protection import log_startup_line, reaches_network
+from drone_contract.commands import CLI_COMMANDS, COMMAND_SERVICE, resolve_cli_name
+from drone_contract.link_protection import link_wire, log_startup_line, reaches_network
 from drone_contract.streams import IMAGE_MODES, PROFILES, StreamProfile, stream_profile
 from zenoh_robot import Node, SessionConfig
 from zenoh_robot.parameters import add_param_argument, params_from_args
 from zenoh_robot.services import command_retry
 from zenoh_robot.session_args import add_session_arguments, session_config_from_args
+from zenoh_robot.wire import ENVELOPE, WireFormat
 
 from .app import Gcs, GcsConfig
 from .dashboard import RateMeter, plain_lines, render
@@ -68,6 +69,11 @@ def add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mission", action="store_true",
                    help="fly every drone of --drones at once: offboard, arm, pattern for --duration, land; "
                         "without it the pattern is flown once an operator starts a drone's offboard session")
+    p.add_argument("--link-keys", metavar="DIR",
+                   help="seal every topic sample (ChaCha20-Poly1305, replay window, per-role keys) with this "
+                        "node's keyring DIR/<gcs id>.json from `zenoh-robot keys link` (docs/security.md); "
+                        "re-read on SIGHUP")
+    p.add_argument("--link-encrypt", action="store_true", help="with --link-keys: encrypt samples too")
     p.add_argument("--insecure-ok", action="store_true",
                    help="fly --mission over a network (--iface, or --connect to another host) without --secure: "
                         "anyone who reaches that network can command the drones as this GCS")
@@ -160,13 +166,21 @@ def run(args: argparse.Namespace) -> int:
                       f"{args.save_image.with_name(args.save_image.stem + '_<id>' + args.save_image.suffix)} "
                       "(each name is printed when first written)")
     session = session_config(args, profile)
-    log_startup_line(log, session)
+    wire: WireFormat = ENVELOPE
+    keyring = None
+    if args.link_keys:   # the keyring of this GCS's id: its key is what "the GCS in control" means
+        try:
+            wire, keyring = link_wire(args.link_keys, client_id, encrypt=args.link_encrypt)
+        except ValueError as exc:
+            print(f"gcs: --link-keys: {exc}", file=sys.stderr)
+            return 2
+    log_startup_line(log, session, keyring, args.link_encrypt)
     if args.mission and not session.secure and reaches_network(session) and not args.insecure_ok:
         # One flag must not be all that stands between a field flight and an open link.
         print("gcs: --mission over a network without --secure: commands would be unauthenticated (a peer can "
               "claim this GCS's client id); give --secure DIR, or --insecure-ok to fly anyway", file=sys.stderr)
         return 2
-    with Node("gcs", config=session, parameter_overrides=params,
+    with Node("gcs", config=session, parameter_overrides=params, wire=wire,
               enable_topic_statistics=not args.no_topic_statistics) as node:
         gcs = Gcs(node, config)
         from .mavlink_out import GcsExtras
@@ -366,7 +380,8 @@ def run_command(args: argparse.Namespace) -> int:
         failed: list[str] = []
 
         def one(drone: str) -> None:
-            client = node.create_client(f"/{drone}/command", Command, CommandResult, retry=command_retry(node))
+            client = node.create_client(f"/{drone}/{COMMAND_SERVICE}", Command, CommandResult,
+                                        retry=command_retry(node))
             try:
                 res = client.call(Command(name, value, text, args.force, client_id), timeout=args.timeout)
             except ServiceCallError as exc:

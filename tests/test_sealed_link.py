@@ -31,6 +31,7 @@ from drone_contract.streams import PROFILES
 from zenoh_robot import Node, SessionConfig, qos
 from zenoh_robot._wire import envelope
 from zenoh_robot.keyring import Keyring, KeyringError
+from zenoh_robot.message import type_support
 from zenoh_robot.tools import keys
 from zenoh_robot.wire import ENVELOPE, sealed
 from zenoh_robot.wire.sealed import OVERHEAD, WINDOW, ReplayWindow
@@ -195,7 +196,8 @@ def system(transport: str, fleet: Path) -> Iterator[System]:
             router.close()
 
 
-def _seal(secret: bytes, key_id: str, key_expr: str, inner: bytes, epoch: bytes | None = None, counter: int = 1) -> bytes:
+def _seal(secret: bytes, key_id: str, key_expr: str, inner: bytes, epoch: bytes | None = None,
+          counter: int = 1) -> bytes:
     """What a holder of ``secret`` can put on ``key_expr`` (the documented layout, sealed independently)."""
     head = struct.pack(">B4s8sI", 0x5A, bytes.fromhex(key_id), epoch or os.urandom(8), counter)
     tag = ChaCha20Poly1305(secret).encrypt(head[5:], b"", head + key_expr.encode() + inner)
@@ -210,14 +212,12 @@ def _key(fleet: Path, node: str, sender: str, scope: str) -> tuple[bytes, str]:
 
 
 def _setpoint(client_id: str) -> bytes:
-    ts = DroneSetpoint._zr_type_support if hasattr(DroneSetpoint, "_zr_type_support") else None
-    from zenoh_robot.message import type_support
     ts = type_support(DroneSetpoint)
-    return envelope.pack(ts.name, ts.hash, 42, 1, time.time_ns(), ts.encode(DroneSetpoint(client_id=client_id, x=666.0)))
+    body = ts.encode(DroneSetpoint(client_id=client_id, x=666.0))
+    return envelope.pack(ts.name, ts.hash, 42, 1, time.time_ns(), body)
 
 
 def _state() -> bytes:
-    from zenoh_robot.message import type_support
     ts = type_support(VehicleState)
     return envelope.pack(ts.name, ts.hash, 42, 1, time.time_ns(), ts.encode(VehicleState(mode="FORGED")))
 
@@ -316,7 +316,6 @@ def test_sealing_adds_a_fixed_overhead_and_encrypts_on_request(fleet: Path) -> N
     for encrypt in (False, True):
         seal = sealed(ENVELOPE, gcs_ring, encrypt=encrypt).sealer("uav1/setpoint")
         fmt = sealed(ENVELOPE, drone_ring)
-        from zenoh_robot.message import type_support
         opened = fmt.keyed_decoder(type_support(DroneSetpoint), "uav1/setpoint")
         a, b = seal(inner), seal(inner)
         assert len(a) == len(inner) + OVERHEAD and a != b          # a new nonce per copy
@@ -329,3 +328,17 @@ def test_sealing_adds_a_fixed_overhead_and_encrypts_on_request(fleet: Path) -> N
             other(seal(inner), None)
     with pytest.raises(ValueError, match="holds no link key"):
         sealed(ENVELOPE, drone_ring).sealer("uav2/state")
+
+
+def test_startup_line_names_the_seal_and_key_ids_never_the_keys(fleet: Path) -> None:
+    from drone_contract.link_protection import UNAUTHENTICATED, link_wire, startup_line
+
+    wire, ring = link_wire(str(fleet), "uav1")
+    assert isinstance(wire, type(sealed(ENVELOPE, ring)))
+    level, line = startup_line(SessionConfig(), ring)
+    assert "per-sample AEAD (ChaCha20-Poly1305, authenticated), key ids" in line
+    assert all(k in line for k in ring.key_ids())
+    assert UNAUTHENTICATED in line      # services (commands) are not sealed: said, not hidden
+    for k in json.loads((fleet / "uav1.json").read_text())["keys"]:
+        assert k["secret"] not in line
+    assert "encrypted" in startup_line(SessionConfig(), ring, encrypt=True)[1]

@@ -9,10 +9,9 @@ A key is used by exactly one sender (``sender``, a node name of role ``gcs`` or 
 keys under one drone's namespace (``scope``: ``uav1`` covers ``uav1/...``). A GCS holds one key per
 drone it commands (it seals its setpoints and commands with it) and each of those drones' own keys
 (it opens their telemetry); a drone holds its own key and the keys of the GCSs that command it.
-So a drone cannot seal a GCS's sample (it has no key whose sender is a GCS... except for the pair
-keys it must open with: those it holds, but a sample sealed with a GCS key is refused by any GCS,
-and a drone never accepts samples it could have sealed itself under its own scope from another
-drone), and one drone cannot seal another's telemetry (it never holds that key).
+A sample opens only under a key of its namespace whose sender is not the receiving node, so one
+drone never holds, and never accepts, another's key. Keys are symmetric: a drone could seal with
+the pair key of its GCS, but only that drone accepts that key, so it can forge only to itself.
 
 Rotation: a keyring holds several keys per (sender, scope); the newest (``created``) seals, every
 one opens until it is removed from the file. Revocation: ``<dir>/revoked.json`` (a list of key

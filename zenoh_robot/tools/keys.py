@@ -199,7 +199,7 @@ LINK_MASTER = "keys.json"
 
 def _link_entry(sender: str, role: str, scope: str) -> dict[str, Any]:
     return {"id": os.urandom(4).hex(), "sender": sender, "role": role, "scope": scope,
-            "secret": os.urandom(32).hex(), "created": dt.datetime.now(dt.timezone.utc).timestamp()}
+            "secret": os.urandom(32).hex(), "created": dt.datetime.now(dt.UTC).timestamp()}
 
 
 def make_link_keys(keys_dir: str | Path, gcs: dict[str, list[str]] | None = None, drones: list[str] | None = None,

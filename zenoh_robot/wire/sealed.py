@@ -111,11 +111,10 @@ def _aead(secret: bytes) -> Any:
     return ChaCha20Poly1305(secret)
 
 
-try:
-    from cryptography.exceptions import InvalidTag as _InvalidTag
-except ImportError:     # pragma: no cover - without the secure extra no sealed format can be made
-    class _InvalidTag(Exception):  # type: ignore[no-redef]
-        pass
+
+def _invalid_tag() -> type[Exception]:
+    from cryptography.exceptions import InvalidTag  # loaded with the first sealed format, not by `import zenoh_robot`
+    return InvalidTag
 
 
 def scope_of(key_expr: str) -> str:
@@ -164,8 +163,10 @@ class _Sealer:
             self._counters.sealed += 1     # under this sealer's lock: close enough for a statistic
         nonce = head[5:]
         if self._flags == ENCRYPTED:
-            return head + aead.encrypt(nonce, inner, head + self._key_expr)
-        return head + inner + aead.encrypt(nonce, b"", head + self._key_expr + inner)
+            sealed_body: bytes = aead.encrypt(nonce, inner, head + self._key_expr)
+            return head + sealed_body
+        tag: bytes = aead.encrypt(nonce, b"", head + self._key_expr + inner)
+        return head + inner + tag
 
 
 class SealingEncoder:
@@ -197,6 +198,7 @@ class _Opener:
         self._claim_index = claim_index
         self._windows: dict[bytes, OrderedDict[bytes, ReplayWindow]] = {}
         self._aeads: dict[bytes, tuple[LinkKey, Any]] = {}     # keys that passed the checks, this generation
+        self._invalid_tag = _invalid_tag()
         self._generation = -1
 
     def _refuse(self, reason: str, detail: str) -> MalformedSample:
@@ -232,7 +234,7 @@ class _Opener:
             else:
                 inner = payload[HEAD_SIZE:-TAG_SIZE]
                 aead.decrypt(nonce, payload[-TAG_SIZE:], head + self._key_expr + inner)
-        except _InvalidTag:
+        except self._invalid_tag:
             raise self._refuse("bad_tag", f"tag does not verify under key {key.key_id} on this key") from None
         # After the tag: only an authentic sample may move the window.
         windows = self._windows.get(wire_id)
