@@ -8,10 +8,9 @@ which protection is on instead (mTLS + ACL, this node's certificate and role), a
 (a multicast interface, a non-loopback connect endpoint): where the GCS asks for
 ``--insecure-ok`` before flying a mission without ``--secure``.
 
-With ``--link-keys DIR`` every sample of the node's topics is sealed (``zenoh_robot.wire.sealed``:
-ChaCha20-Poly1305 per sample, replay window, per-role keys): the line says so, with the key ids
-(never the keys), and that commands (services) are not sealed yet, so without ``--secure`` they
-stay ``UNAUTHENTICATED``.
+With ``--link-keys DIR`` every sample of the node's topics and services is sealed
+(``zenoh_robot.wire.sealed``: ChaCha20-Poly1305 per sample, replay window, per-role keys, the client
+id bound to the sealing GCS's key): the line says so at INFO, with the key ids (never the keys).
 """
 from __future__ import annotations
 
@@ -32,14 +31,12 @@ def startup_line(config: SessionConfig, link_keys: Keyring | None = None, encryp
     """``(logging level, line)`` saying what protects commands and control on ``config`` (and, with
     ``link_keys``, the sealed samples of ``--link-keys``)."""
     if link_keys is not None:
-        level, rest = _session_line(config)
         mode = "encrypted" if encrypt else "authenticated"
         ids = ", ".join(link_keys.key_ids())
-        sealed = (f"link protection: per-sample AEAD (ChaCha20-Poly1305, {mode}), key ids {ids} of "
-                  f"{link_keys.node!r} ({link_keys.directory}): "
-                  "setpoints, telemetry and every topic sample without a valid seal, replayed, or claiming another "
-                  "GCS's client id are refused; services: ")
-        return level, sealed + rest.removeprefix("link protection: ")
+        return logging.INFO, (f"link protection: per-sample AEAD (ChaCha20-Poly1305, {mode}), key ids {ids} of "
+                              f"{link_keys.node!r} ({link_keys.directory}): every topic sample and command is sealed "
+                              "by its sender's key; unsealed, replayed, another node's or revoked keys, and a client "
+                              "id that is not the sealing GCS's are refused and counted")
     return _session_line(config)
 
 

@@ -48,6 +48,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     c.add_argument("--timeout", type=float, default=8.0)
     add_session_arguments(c)
     c.add_argument("--gcs-id", default=None, help="this GCS's id (default user@host, shared with `gcs` runs)")
+    c.add_argument("--link-keys", metavar="DIR", help="seal the command with this GCS's link keyring DIR/<gcs id>.json "
+                   "(needed when the companion runs with --link-keys)")
     c.add_argument("--drones", help="with 'all': comma-separated drone ids (default: discover)")
     c.add_argument("--discover", type=float, default=2.0, help="with 'all' and no --drones: listen this long, s")
     p.set_defaults(func=run)
@@ -175,10 +177,11 @@ def run(args: argparse.Namespace) -> int:
             print(f"gcs: --link-keys: {exc}", file=sys.stderr)
             return 2
     log_startup_line(log, session, keyring, args.link_encrypt)
-    if args.mission and not session.secure and reaches_network(session) and not args.insecure_ok:
+    if args.mission and not (session.secure or keyring) and reaches_network(session) and not args.insecure_ok:
         # One flag must not be all that stands between a field flight and an open link.
         print("gcs: --mission over a network without --secure: commands would be unauthenticated (a peer can "
-              "claim this GCS's client id); give --secure DIR, or --insecure-ok to fly anyway", file=sys.stderr)
+              "claim this GCS's client id); give --secure DIR or --link-keys DIR, or --insecure-ok to fly anyway",
+              file=sys.stderr)
         return 2
     with Node("gcs", config=session, parameter_overrides=params, wire=wire,
               enable_topic_statistics=not args.no_topic_statistics) as node:
@@ -367,8 +370,16 @@ def run_command(args: argparse.Namespace) -> int:
     if client_id is None:
         return 2
     config = session_config_from_args(args, name="gcs")
-    log_startup_line(log, config)
-    with Node("gcs_cmd", config=config) as node:
+    wire: WireFormat = ENVELOPE
+    keyring = None
+    if args.link_keys:
+        try:
+            wire, keyring = link_wire(args.link_keys, client_id)
+        except ValueError as exc:
+            print(f"gcs cmd: --link-keys: {exc}", file=sys.stderr)
+            return 2
+    log_startup_line(log, config, keyring)
+    with Node("gcs_cmd", config=config, wire=wire) as node:
         if args.drone == "all":
             targets = [d for d in (args.drones or "").split(",") if d] or discover_drones(node, args.discover)
             if not targets:

@@ -8,6 +8,7 @@ another fleet's keys, a revoked key (crypto from ``cryptography`` directly, not 
 from __future__ import annotations
 
 import json
+import logging
 import os
 import random
 import stat
@@ -331,14 +332,73 @@ def test_sealing_adds_a_fixed_overhead_and_encrypts_on_request(fleet: Path) -> N
 
 
 def test_startup_line_names_the_seal_and_key_ids_never_the_keys(fleet: Path) -> None:
+    import signal
+
     from drone_contract.link_protection import UNAUTHENTICATED, link_wire, startup_line
 
-    wire, ring = link_wire(str(fleet), "uav1")
+    before = signal.getsignal(signal.SIGHUP)
+    try:
+        wire, ring = link_wire(str(fleet), "uav1")     # re-read on SIGHUP: the handler is the keyring's
+        assert signal.getsignal(signal.SIGHUP) is not before
+        signal.raise_signal(signal.SIGHUP)
+        assert ring.reloads == 2
+    finally:
+        signal.signal(signal.SIGHUP, before)
     assert isinstance(wire, type(sealed(ENVELOPE, ring)))
     level, line = startup_line(SessionConfig(), ring)
     assert "per-sample AEAD (ChaCha20-Poly1305, authenticated), key ids" in line
     assert all(k in line for k in ring.key_ids())
-    assert UNAUTHENTICATED in line      # services (commands) are not sealed: said, not hidden
+    assert UNAUTHENTICATED not in line and level == logging.INFO and "command is sealed" in line
     for k in json.loads((fleet / "uav1.json").read_text())["keys"]:
         assert k["secret"] not in line
     assert "encrypted" in startup_line(SessionConfig(), ring, encrypt=True)[1]
+
+
+@pytest.mark.parametrize("transport", TRANSPORTS)
+def test_commands_are_sealed_per_sender_and_forged_or_replayed_calls_refused(transport: str, fleet: Path) -> None:
+    from drone_contract.messages import Command, CommandResult
+    from zenoh_robot.services import ServiceCallError
+
+    with system(transport, fleet) as s:
+        heard: list[Command] = []
+
+        def handle(cmd: Command) -> CommandResult:
+            heard.append(cmd)
+            return CommandResult(True, f"ok {cmd.client_id}")
+        service = s.drone.create_service("command", Command, CommandResult, handle)
+        client = s.gcs.create_client("/uav1/command", Command, CommandResult)
+        captured: list[bytes] = []
+        tap = s.rogue.declare_subscriber("@srv/uav1/command/@rq", lambda smp: captured.append(smp.payload.to_bytes()))
+        try:
+            reply = client.call(Command("hold", client_id="gcs1"), timeout=5.0)
+            assert reply.message == "ok gcs1" and [c.client_id for c in heard] == ["gcs1"]
+            legit = list(captured)      # the sealed copies of gcs1's call (the tap hears the rogue's own puts too)
+            # gcs2 (a GCS of this fleet, uav1's too) claiming gcs1's id: its own key names it.
+            with Node("gcs2", namespace="uav1", config=s.configs[2],
+                      wire=sealed(ENVELOPE, Keyring(s.fleet, "gcs2"))) as gcs2:
+                other = gcs2.create_client("/uav1/command", Command, CommandResult)
+                with pytest.raises(ServiceCallError):
+                    other.call(Command("arm", client_id="gcs1"), timeout=2.0)
+                assert s.drone.wire.snapshot()["forged_claim"] > 0  # type: ignore[attr-defined]
+                assert other.call(Command("hold", client_id="gcs2"), timeout=5.0).message == "ok gcs2"
+            # A plain session's request on the put path (or any unsealed bytes): refused before the handler.
+            bad = service.bad_requests
+            from zenoh_robot.message import type_support as ts_of
+            ts = ts_of(Command)
+            plain = envelope.pack(ts.name, ts.hash, 7, 1, time.time_ns(), ts.encode(Command("arm", client_id="gcs1")))
+            s.put("@srv/uav1/command/@rq", plain)
+            assert wait_for(lambda: service.bad_requests > bad, 5.0)
+            # Captured sealed request copies re-put: replays, no new execution.
+            runs = service.executions
+            replayed = s.drone.wire.snapshot()["replayed"]  # type: ignore[attr-defined]
+            if legit:    # the put path carries calls on multicast (always) and for AdaptiveRetry clients
+                for copy in legit[:3]:
+                    s.put("@srv/uav1/command/@rq", copy, times=1)
+                assert wait_for(lambda: s.drone.wire.snapshot()["replayed"] > replayed, 5.0)  # type: ignore[attr-defined]
+            else:
+                assert transport == "router"
+            assert service.executions == runs
+            assert all(c.client_id in ("gcs1", "gcs2") for c in heard) and "arm" not in [c.name for c in heard]
+            s.still_flowing()
+        finally:
+            tap.undeclare()

@@ -24,6 +24,7 @@ from .._wire import envelope
 from ..context import EntityContext
 from ..message import Message, TypeSupport, require_message_type, type_support
 from ..session_config import is_multicast_session
+from ..wire.sealed import service_seal
 from .errors import ServiceCallError, ServiceError, ServiceTimeout, ServiceUnavailable, decode_error
 from .keys import REPLY_CHUNK, REQUEST_CHUNK, service_name_of_key
 from .multicast import _best_effort_publisher, _parse_reply_attachment
@@ -113,11 +114,20 @@ class _Call:
             self.errors.append(err)
 
     def on_reply(self, reply: zenoh.Reply) -> None:
+        link = self.client._link
         if reply.ok is not None:
-            self.on_ok(reply.ok.payload.to_bytes())
+            data = reply.ok.payload.to_bytes()
+            opened = data if link is None else self.client._opened_reply(data)
+            if opened is not None:
+                self.on_ok(opened)
         else:
             err = reply.err
-            self.on_err(decode_error(err.payload.to_bytes()) if err is not None else None)
+            if err is None or link is None:
+                self.on_err(decode_error(err.payload.to_bytes()) if err is not None else None)
+                return
+            opened = self.client._opened_reply(err.payload.to_bytes())
+            if opened is not None:
+                self.on_err(decode_error(opened))
 
     def on_done(self) -> None:
         with self._lock:
@@ -200,7 +210,9 @@ class Client(Generic[Req, Resp]):
             self._reply_sub = context.session.declare_subscriber(
                 f"{key}/{REPLY_CHUNK}/{self.client_id}", self._on_reply_sample)
             self._request_pub = _best_effort_publisher(context.session, f"{key}/{REQUEST_CHUNK}")
-        self.bad_replies = 0        # put-carried replies with an attachment that is not ours
+        self.bad_replies = 0        # put-carried replies with an attachment that is not ours (or no valid seal)
+        # A sealing wire format (wire/sealed.py) seals calls too; None: plain envelopes, byte for byte as before.
+        self._link = service_seal(context.wire, key, self._req, self._resp)
 
     def set_loss(self, loss: float) -> None:
         """The link's measured loss (0..1), e.g. ``link_monitor.adapt(client.set_loss)``."""
@@ -299,11 +311,13 @@ class Client(Generic[Req, Resp]):
     def _transmit(self, call: _Call, remaining: float, query: bool) -> None:
         self.attempts += 1
         self.request_bytes += len(call.payload) * (int(call.puts) + int(query))
-        if call.puts:
-            self._request_pub.put(call.payload)
+        link = self._link
+        if call.puts:   # every copy sealed on its own (a new nonce): the server's window sees no replay
+            self._request_pub.put(call.payload if link is None else link.seal_request(call.payload))
         if query:
             self.context.session.get(self.key, zenoh.handlers.Callback(call.on_reply, call.on_done),
-                                     payload=call.payload, timeout=remaining,
+                                     payload=call.payload if link is None else link.seal_request(call.payload),
+                                     timeout=remaining,
                                      priority=zenoh.Priority.INTERACTIVE_HIGH)
 
     def _on_reply_sample(self, sample: zenoh.Sample) -> None:
@@ -319,10 +333,22 @@ class Client(Generic[Req, Resp]):
         if call is None:
             return        # a late duplicate of an answered call
         data = sample.payload.to_bytes()
+        if self._link is not None:
+            opened = self._opened_reply(data)
+            if opened is None:
+                return
+            data = opened
         if ok:
             call.on_ok(data)
         else:
             call.on_err(decode_error(data))
+
+    def _opened_reply(self, data: bytes) -> bytes | None:
+        assert self._link is not None
+        opened = self._link.open_reply(data)
+        if opened is None:
+            self.bad_replies += 1
+        return opened
 
     def _forget(self, call: _Call) -> None:
         if call.puts:

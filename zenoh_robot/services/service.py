@@ -28,6 +28,7 @@ from .._wire import envelope
 from ..context import EntityContext
 from ..message import Message, require_message_type, type_support, validated
 from ..ratelimit import RateLimitedLog
+from ..wire.sealed import service_seal
 from .errors import _error_payload
 from .idempotency import IdempotencyCache, Responder
 from .keys import DESCRIBE_PARAM, REPLY_CHUNK, REQUEST_CHUNK, service_name_of_key
@@ -81,6 +82,8 @@ class Service(Generic[Req, Resp]):
         self._loss = math.nan     # set_loss: this node's loss estimate (sizes reply copies)
         self._recent_replies: OrderedDict[str, float] = OrderedDict()   # reply key -> when copies went out
         self._rlog = RateLimitedLog(log)
+        # A sealing wire format (wire/sealed.py) seals calls too; None: plain envelopes, byte for byte as before.
+        self._link = service_seal(context.wire, key, self._req, self._resp)
         self._queryable = context.session.declare_queryable(key, self._on_query, complete=True)
         # Every session: a multicast session carries calls only this way; on a unicast session
         # clients with AdaptiveRetry send best-effort copies here besides their query (package doc).
@@ -107,6 +110,8 @@ class Service(Generic[Req, Resp]):
 
         def respond(ok: bool, data: bytes) -> None:
             try:
+                if self._link is not None:
+                    data = self._link.seal_reply(data)
                 if ok:
                     query.reply(self.key, data)
                 else:
@@ -118,16 +123,27 @@ class Service(Generic[Req, Resp]):
                     query.drop()     # the querier sees this attempt finalised at once
                 except Exception:
                     pass
-        payload = query.payload
+        payload: zenoh.ZBytes | bytes | None = query.payload
+        if self._link is not None:
+            payload = self._opened(query.payload)
+            if payload is None:
+                query.drop()
+                return
         self._on_request(payload, respond)
 
     def _on_put_request(self, sample: zenoh.Sample) -> None:
         """Multicast sessions: a request put on ``<key>/@rq``; the reply goes to the client's own key."""
         if self._destroyed:
             return
-        data = sample.payload
+        data: zenoh.ZBytes | bytes | None = sample.payload
+        if self._link is not None:
+            data = self._opened(sample.payload)
+            if data is None:
+                return
+        assert data is not None
         try:
-            peek = envelope.unpack(data.to_bytes()) if len(data) <= MAX_REQUEST_BYTES else None
+            raw = data if isinstance(data, bytes) else data.to_bytes() if len(data) <= MAX_REQUEST_BYTES else b""
+            peek = envelope.unpack(raw) if raw and len(raw) <= MAX_REQUEST_BYTES else None
         except envelope.MalformedSample:
             peek = None
         if peek is None:    # no client to answer: count and drop
@@ -187,8 +203,10 @@ class Service(Generic[Req, Resp]):
         try:
             pub = self._reply_publisher(client_id)
 
-            def put(data: bytes) -> None:
-                pub.put(data, attachment=attachment)
+            link = self._link
+
+            def put(data: bytes) -> None:     # on the repeater too: each copy sealed on its own
+                pub.put(data if link is None else link.seal_reply(data), attachment=attachment)
             put(payload)
         except Exception as exc:
             log.debug("service %s: reply put failed: %s", self.service_name, exc)
@@ -196,12 +214,25 @@ class Service(Generic[Req, Resp]):
         if copies > 1:
             self.context.repeater.schedule(put, payload, copies - 1, plans.REPLY_SPACING_S)
 
-    def _on_request(self, payload: zenoh.ZBytes | None, respond: Responder) -> None:
+    def _opened(self, payload: zenoh.ZBytes | None) -> bytes | None:
+        """A sealed request's envelope, or None: refused (counted as a bad request and on the format)."""
+        assert self._link is not None
+        if payload is None or len(payload) > MAX_REQUEST_BYTES + 64:
+            opened = None
+        else:
+            opened = self._link.open_request(payload.to_bytes())
+        if opened is None:
+            with self._lock:
+                self.bad_requests += 1
+            self._rlog.warning("unsealed", "service %s: dropped a request without a valid seal", self.service_name)
+        return opened
+
+    def _on_request(self, payload: zenoh.ZBytes | bytes | None, respond: Responder) -> None:
         size = len(payload) if payload is not None else 0
         if size > MAX_REQUEST_BYTES:     # refused before it is copied
             respond(False, self._bad_request(f"request of {size} bytes is over the limit of {MAX_REQUEST_BYTES}"))
             return
-        data = payload.to_bytes() if payload is not None else b""
+        data = payload if isinstance(payload, bytes) else payload.to_bytes() if payload is not None else b""
         key = hashlib.blake2b(data, digest_size=16).digest()
         state, cached = self.cache.begin(key, respond)
         if state != "new":

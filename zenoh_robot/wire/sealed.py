@@ -118,7 +118,11 @@ def _invalid_tag() -> type[Exception]:
 
 
 def scope_of(key_expr: str) -> str:
-    return key_expr.split("/", 1)[0]
+    """The namespace whose keys seal ``key_expr``: its first chunk not verbatim (``@srv/uav1/x`` -> uav1)."""
+    for chunk in key_expr.split("/"):
+        if not chunk.startswith("@"):
+            return chunk
+    return ""
 
 
 class _Sealer:
@@ -206,6 +210,22 @@ class _Opener:
         return MalformedSample(f"sealed sample refused ({reason}): {detail}")
 
     def __call__(self, payload: bytes, attachment: bytes | None) -> Header:
+        inner, key = self.open(payload)
+        header = self._inner(inner, attachment)
+        self.check_claim(header, key)
+        self._fmt.counters.opened += 1     # one decoder per subscription: a statistic, no lock on the hot path
+        return header
+
+    def check_claim(self, header: Header, key: LinkKey) -> None:
+        if self._claim_index is not None and key.role == "gcs":
+            body = header[5]
+            claimed = body[self._claim_index] if isinstance(body, (list, tuple)) and len(body) > self._claim_index \
+                else None
+            if claimed != key.sender:
+                raise self._refuse("forged_claim", f"client_id {str(claimed)[:64]!r} under {key.sender!r}'s key")
+
+    def open(self, payload: bytes) -> tuple[bytes, LinkKey]:
+        """(inner bytes, the key that sealed them) of an authentic fresh sample; MalformedSample otherwise."""
         if len(payload) < OVERHEAD or payload[0] not in (AUTH_ONLY, ENCRYPTED):
             raise self._refuse("malformed", "not a sealed sample")
         flags, wire_id, epoch, counter = HEAD.unpack_from(payload)
@@ -251,15 +271,7 @@ class _Opener:
         verdict = window.check(counter)
         if verdict is not None:
             raise self._refuse(verdict, f"counter {counter} of epoch {epoch.hex()} under key {key.key_id}")
-        header = self._inner(inner, attachment)
-        if self._claim_index is not None and key.role == "gcs":
-            body = header[5]
-            claimed = body[self._claim_index] if isinstance(body, (list, tuple)) and len(body) > self._claim_index \
-                else None
-            if claimed != key.sender:
-                raise self._refuse("forged_claim", f"client_id {str(claimed)[:64]!r} under {key.sender!r}'s key")
-        self._fmt.counters.opened += 1     # one decoder per subscription: a statistic, no lock on the hot path
-        return header
+        return bytes(inner), key
 
 
 def claim_index(type_support: TypeSupport | None) -> int | None:
@@ -334,3 +346,59 @@ class SealedWireFormat:
 def sealed(inner: WireFormat, keyring: Keyring, encrypt: bool = False) -> SealedWireFormat:
     """``inner``'s samples, sealed with ``keyring``'s link keys (``Node(..., wire=sealed(ENVELOPE, kr))``)."""
     return SealedWireFormat(inner, keyring, encrypt)
+
+
+class ServiceSeal:
+    """Sealing for one service or client on ``service_key`` (``services/``): requests are sealed on
+    ``<key>/@rq`` by the caller's key (a GCS's claim checked against a ``client_id`` field), replies on
+    ``<key>/@rp`` by the server's; every transmitted copy (retries, reply copies) sealed on its own,
+    so the server's idempotency cache still sees one request. Thread safe (Zenoh's threads call it)."""
+
+    def __init__(self, fmt: SealedWireFormat, service_key: str, request: TypeSupport | None,
+                 response: TypeSupport | None) -> None:
+        from .._wire.envelope import unpack_fields
+        self._fmt = fmt
+        self._request_key = f"{service_key}/@rq"
+        self._reply_key = f"{service_key}/@rp"
+        self._lock = threading.Lock()
+        self._requests = _Opener(fmt, unpack_fields, self._request_key, claim_index(request))
+        self._replies = _Opener(fmt, unpack_fields, self._reply_key, claim_index(response))
+        self._seal_request: Callable[[bytes], bytes] | None = None
+        self._seal_reply: Callable[[bytes], bytes] | None = None
+
+    def seal_request(self, inner: bytes) -> bytes:
+        if self._seal_request is None:
+            self._seal_request = self._fmt.sealer(self._request_key)
+        return self._seal_request(inner)
+
+    def seal_reply(self, inner: bytes) -> bytes:
+        if self._seal_reply is None:
+            self._seal_reply = self._fmt.sealer(self._reply_key)
+        return self._seal_reply(inner)
+
+    def open_request(self, payload: bytes) -> bytes | None:
+        """The request's inner envelope, or None (refused: counted on the format, logged rate-limited)."""
+        return self._open(self._requests, payload, claim=True)
+
+    def open_reply(self, payload: bytes) -> bytes | None:
+        return self._open(self._replies, payload, claim=False)
+
+    def _open(self, opener: _Opener, payload: bytes, claim: bool) -> bytes | None:
+        try:
+            with self._lock:
+                inner, key = opener.open(payload)
+                if claim:
+                    opener.check_claim(opener._inner(inner, None), key)
+                self._fmt.counters.opened += 1
+            return inner
+        except MalformedSample:
+            return None
+
+
+def service_seal(wire: WireFormat, service_key: str, request: TypeSupport | None,
+                 response: TypeSupport | None) -> ServiceSeal | None:
+    """The seal of a service's calls on a node whose wire format seals (None: plain envelopes, as before)."""
+    if not isinstance(wire, SealedWireFormat):
+        return None
+    return ServiceSeal(wire, service_key, request, response)
+
