@@ -30,13 +30,12 @@ from typing import Any
 
 from drone_contract.commands import COMMAND_SERVICE
 from drone_contract.messages import CONTROL_TOKEN_PREFIX, Command, CommandResult, valid_client_id
-from drone_contract.streams import DOWN, STREAM_SPECS, UP, StreamSpec
+from drone_contract.streams import DOWN, UP, message_of, wired
 from px4_link import Px4Link
 from px4_link.telemetry import LocalPosition
 from zenoh_robot import Node
 from zenoh_robot.events import SubscriptionEventCallbacks
 from zenoh_robot.loss_feedback import LossMonitor
-from zenoh_robot.message import Message
 from zenoh_robot.tools.stream_metrics import StreamRecorder
 from zenoh_robot.topic_statistics import with_cpu_budget
 
@@ -61,19 +60,6 @@ SETPOINT_CPU_BUDGET_PCT = 1.5
 WATCHDOG_PERIOD_S = 0.05
 
 
-def _stream(name: str, direction: str) -> StreamSpec:
-    spec = STREAM_SPECS[name]
-    if spec.direction != direction:   # the table says who publishes: the wiring must agree
-        raise RuntimeError(f"stream {name} is {spec.direction}, the companion wires it {direction}")
-    return spec
-
-
-def _message(spec: StreamSpec) -> type[Message]:
-    if spec.message is None:   # the image: its type follows the image mode (camera_streamer.py)
-        raise RuntimeError(f"stream {spec.name}: its message type follows the profile, not the table")
-    return spec.message
-
-
 class Companion:
     def __init__(self, node: Node, link: Px4Link, config: CompanionConfig) -> None:
         # First: every setting below is read from the parameters in force (-p wins over the flag).
@@ -87,8 +73,8 @@ class Companion:
         self.sent = {name: StreamRecorder() for name in ("sensor", "state", "image", "image_strip")}
         self._park_sent = 0.0
 
-        events = _stream("events", DOWN)
-        self.events = EventReporter(node.create_publisher(_message(events), events.name, q[events.name]),
+        events = wired("events", DOWN)
+        self.events = EventReporter(node.create_publisher(message_of(events), events.name, q[events.name]),
                                     config.report_interval_s)
         self.worker = Px4Worker(self.events, link.cancel_command)
         self.control = ControlArbiter(config.control_lease_s)
@@ -100,12 +86,12 @@ class Companion:
         self.desk = CommandDesk(link, self.control, self.lifecycle, self.gate, self.failsafe, self.events,
                                 self.worker, live)
 
-        sensor, state = _stream("sensor", DOWN), _stream("state", DOWN)
+        sensor, state = wired("sensor", DOWN), wired("state", DOWN)
         self.telemetry = TelemetryBridge(
-            link, node.create_publisher(_message(sensor), sensor.name, q[sensor.name]),
-            node.create_publisher(_message(state), state.name, q[state.name]),
+            link, node.create_publisher(message_of(sensor), sensor.name, q[sensor.name]),
+            node.create_publisher(message_of(state), state.name, q[state.name]),
             self.sent["sensor"], self.sent["state"], self.events, self.worker, live)
-        image = _stream("image", DOWN)
+        image = wired("image", DOWN)
         self.camera = (CameraStreamer(node, image.name, q[image.name], live, self.sent["image"],
                                       self.sent["image_strip"]) if config.camera else None)
         # Loss feedback (loss_feedback.py): image parity follows the loss the GCS measures.
@@ -113,9 +99,9 @@ class Companion:
         set_image_loss = self.camera.set_loss() if self.camera is not None else None
         if self.link_monitor is not None and set_image_loss is not None:
             self.link_monitor.adapt(set_image_loss)
-        setpoint = _stream("setpoint", UP)
+        setpoint = wired("setpoint", UP)
         self.setpoint_sub = node.create_subscription(
-            _message(setpoint), setpoint.name, self.gate.on_setpoint,
+            message_of(setpoint), setpoint.name, self.gate.on_setpoint,
             q[setpoint.name].replace(deadline=config.setpoint_deadline),
             event_callbacks=SubscriptionEventCallbacks(deadline=self.failsafe.on_deadline_missed),
             topic_statistics=with_cpu_budget(node.enable_topic_statistics, SETPOINT_CPU_BUDGET_PCT))

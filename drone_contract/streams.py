@@ -46,6 +46,22 @@ STREAM_SPECS: dict[str, StreamSpec] = {s.name: s for s in (
     StreamSpec("events", DOWN, FailsafeEvent, "what the companion saw and did: refusals, failsafes, control"),
 )}
 STREAMS = tuple(STREAM_SPECS)
+
+
+def wired(name: str, direction: str) -> StreamSpec:
+    """The contract's stream ``name`` as one side wires it: ``direction`` is the way that side
+    expects it to flow (UP: the GCS publishes, DOWN: the drone does); a mismatch is a wiring bug."""
+    spec = STREAM_SPECS[name]
+    if spec.direction != direction:
+        raise ValueError(f"stream {name} flows {spec.direction} in the contract, wired as {direction}")
+    return spec
+
+
+def message_of(spec: StreamSpec) -> type[Message]:
+    """The stream's message type; the image's follows the profile's image mode instead."""
+    if spec.message is None:
+        raise ValueError(f"stream {spec.name}: its message type follows the profile's image mode")
+    return spec.message
 IMAGE_MODES = ("raw", "jpeg", "sliced", "fec")
 SETPOINT_REPEAT_CEILING = 64
 TRANSPORT_KINDS = ("unicast", "multicast", "auto")

@@ -51,7 +51,7 @@ from drone_contract.messages import (
     FailsafeEvent,
     VehicleState,
 )
-from drone_contract.streams import StreamProfile, stream_profile
+from drone_contract.streams import DOWN, UP, StreamProfile, message_of, stream_profile, wired
 from zenoh_robot import Node
 from zenoh_robot.image_fec import FecAssembler, ImageShare
 from zenoh_robot.image_transport import MAX_SLICES, FrameInfo, ImageSlice
@@ -154,24 +154,30 @@ class DroneView:
         self.done = False
         self._led: PathPoint | None = None     # the last formation target (see target())
         ns = f"/{drone_id}"
-        self.setpoint_pub = node.create_publisher(DroneSetpoint, f"{ns}/setpoint", q["setpoint"])
+        # Names and types from the contract's stream table (drone_contract.streams): the companion
+        # wires the other end from the same rows, and tests/test_contract.py checks both are there.
+        setpoint = wired("setpoint", UP)
+        self.setpoint_pub = node.create_publisher(message_of(setpoint), f"{ns}/{setpoint.name}", q[setpoint.name])
         budget = {k: with_cpu_budget(node.enable_topic_statistics, v) for k, v in STREAM_CPU_BUDGET_PCT.items()}
-        node.create_subscription(SensorCombined, f"{ns}/sensor", self._on_sensor, q["sensor"],
+        sensor, state, events = wired("sensor", DOWN), wired("state", DOWN), wired("events", DOWN)
+        node.create_subscription(message_of(sensor), f"{ns}/{sensor.name}", self._on_sensor, q[sensor.name],
                                  topic_statistics=budget["sensor"])
-        node.create_subscription(VehicleState, f"{ns}/state", self._on_state, q["state"],
+        node.create_subscription(message_of(state), f"{ns}/{state.name}", self._on_state, q[state.name],
                                  topic_statistics=budget["state"])
-        node.create_subscription(FailsafeEvent, f"{ns}/events", self._on_event, q["events"])
+        node.create_subscription(message_of(events), f"{ns}/{events.name}", self._on_event, q[events.name])
+        image = wired("image", DOWN)
+        image_key, image_qos = f"{ns}/{image.name}", q[image.name]
         if cfg.profile.image_mode == "sliced":
             # A frame's slices come in a burst: the queue holds a frame's worth (as ImageSubscription's).
-            node.create_subscription(ImageSlice, f"{ns}/image", self._on_slice,
-                                     q["image"].replace(depth=max(q["image"].depth, 256)),
+            node.create_subscription(ImageSlice, image_key, self._on_slice,
+                                     image_qos.replace(depth=max(image_qos.depth, 256)),
                                      topic_statistics=budget["image"])
         elif cfg.profile.image_mode == "fec":   # shares + parity: rebuilt JPEG filed, decoded on demand
-            node.create_subscription(ImageShare, f"{ns}/image", self._on_share,
-                                     q["image"].replace(depth=max(q["image"].depth, 512)),
+            node.create_subscription(ImageShare, image_key, self._on_share,
+                                     image_qos.replace(depth=max(image_qos.depth, 512)),
                                      topic_statistics=budget["image"])
         else:   # raw rgb8 or one JPEG per Image message
-            node.create_subscription(Image, f"{ns}/image", self._on_raw_image, q["image"],
+            node.create_subscription(Image, image_key, self._on_raw_image, image_qos,
                                      topic_statistics=budget["image"])
         # Retried with one request id until the deadline; the companion runs each call once (services.py).
         self.commands = node.create_client(f"{ns}/{COMMAND_SERVICE}", Command, CommandResult, retry=command_retry(node))

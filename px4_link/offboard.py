@@ -23,7 +23,7 @@ import threading
 import time
 
 from .action import set_mode
-from .commands import CommandAck
+from .commands import CommandAck, CommandTemporarilyRejected
 from .plugin import Core, Event
 from .targets import (
     Geofence,
@@ -39,6 +39,7 @@ from .telemetry import LocalPosition
 
 # PX4's COM_OF_LOSS_T default: a velocity older than this is not what the sender wants now.
 VELOCITY_TIMEOUT_S = 1.0
+PRESTREAM_S = 0.1   # two ticks of the 20 Hz stream before OFFBOARD is asked
 POSITION_MAX_AGE_S = 1.0   # older LOCAL_POSITION_NED is not where the vehicle is
 
 
@@ -118,8 +119,11 @@ class Offboard:
             self._streaming = False
             self._stream_started = None
 
-    def start(self, prestream_s: float = 1.2, confirm_timeout: float = 3.0) -> CommandAck:
-        """Stream for ``prestream_s`` (PX4 wants ~1 s at > 2 Hz first), then OFFBOARD."""
+    def start(self, prestream_s: float = PRESTREAM_S, confirm_timeout: float = 3.0) -> CommandAck:
+        """Stream, then OFFBOARD. PX4 needs no warm-up (commander/HealthAndArmingChecks/checks/
+        offboardCheck.cpp: OFFBOARD is available once offboard_control_mode is recent), only one
+        target that arrived: ``prestream_s`` lets two 20 Hz ticks go out, and a TEMPORARILY_REJECTED
+        (the first target still on its way) is asked again every tick until ``confirm_timeout``."""
         with self._lock:
             if self.setpoint is None:
                 raise TargetRefused("no_setpoint", "offboard.start needs a setpoint first "
@@ -131,7 +135,15 @@ class Offboard:
         wait = prestream_s - (time.monotonic() - started)
         if wait > 0:
             time.sleep(wait)
-        ack = set_mode(self._core, "OFFBOARD", confirm_timeout)
+        give_up = time.monotonic() + confirm_timeout
+        while True:
+            try:
+                ack = set_mode(self._core, "OFFBOARD", confirm_timeout)
+                break
+            except CommandTemporarilyRejected:
+                if time.monotonic() + PRESTREAM_S > give_up:
+                    raise
+                time.sleep(PRESTREAM_S)
         self._active = True
         return ack
 

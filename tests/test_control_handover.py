@@ -113,7 +113,8 @@ def test_gcs_exits_mid_flight_drone_holds_and_control_is_kept(ns: str) -> None:
         hover = r.sim.position
         assert wait_for(lambda: any(e.kind == "control_changed" and "not on the ground" in e.detail
                                     for e in r.op.events), 8), r.op.kinds()
-        assert time.monotonic() - gone_at > 1.5
+        # After the lease (1.5 s), counted from the last setpoint heard, which left before the node closed.
+        assert time.monotonic() - gone_at > 1.2
         _holds_near(r, hover, 1.5)
         # Still op-a's: the observer cannot claim the drone by a plain command, nor steer it.
         assert r.companion.control.holder == "op-a" and r.op.state is not None and r.op.state.controller == "op-a"
