@@ -33,6 +33,10 @@ SERIAL_FILES = frozenset({
     "test_bench_smoke.py", "test_swarm.py",                                   # throughput and delivery figures
     "test_qos_events.py",                          # 0.3 s liveliness leases: a starved spin misses one
     "test_fuzz_storm.py",                          # 70,000-sample storm paced by the subscriber, RSS figures
+    # zenoh-ros2-sdk peers: two of these modules side by side lost the interop test's samples (both
+    # directions matched, nothing delivered, in 2 of 2 runs with -n 2; alone: 3 of 3 pass). Not understood
+    # yet; kept apart until it is.
+    "test_ros2_interop.py", "test_ros2_cli.py", "test_ros2_services.py",
 })
 # Single tests with real-time rate bounds, which failed beside a neighbour in the parallel pass.
 SERIAL_TESTS = frozenset({

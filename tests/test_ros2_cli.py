@@ -8,19 +8,14 @@ zenoh-ros2-sdk would fetch .msg files from GitHub; the peer is handed the defini
 """
 from __future__ import annotations
 
-import json
 import secrets
 import subprocess
 import sys
-import threading
 from collections.abc import Iterator
-from typing import Any
 
 import pytest
-import zenoh
-from conftest import ROOT, free_port, kill_process, wait_for
-
-from zenoh_robot.ros2 import dependencies, msg_definition
+from conftest import ROOT, kill_process, wait_for
+from ros2_peer import Peer, router, start_peer, write_msgs
 
 CLI = [sys.executable, "-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())"]
 STRING = "std_msgs/msg/String"
@@ -52,50 +47,18 @@ while True:
 """
 
 
-class Peer:
-    def __init__(self, proc: subprocess.Popen[str]) -> None:
-        self.proc = proc
-        self.lines: list[dict[str, Any]] = []
-        self.raw: list[str] = []
-        threading.Thread(target=self._read, daemon=True).start()
-
-    def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self.raw.append(line)
-            if line.startswith("{"):
-                self.lines.append(json.loads(line))
-
-    def find(self, key: str) -> list[Any]:
-        return [d[key] for d in list(self.lines) if key in d]
-
-
 @pytest.fixture(scope="module")
 def peer(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[int, int, Peer]]:
     """(router port, ROS domain, the zenoh-ros2-sdk peer)."""
-    root = tmp_path_factory.mktemp("msgs")
-    for name in {STRING, *dependencies(STRING)}:
-        pkg, kind, short = name.split("/")
-        (root / pkg / kind).mkdir(parents=True, exist_ok=True)
-        (root / pkg / kind / f"{short}.msg").write_text(msg_definition(name))
-    port = free_port()
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"router"')
-    conf.insert_json5("listen/endpoints", f'["tcp/127.0.0.1:{port}"]')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    router = zenoh.open(conf)
-    domain = 1 + secrets.randbelow(200)
-    proc = subprocess.Popen([sys.executable, "-c", PEER, str(root), str(port), str(domain)], cwd=ROOT, text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            env={**__import__("os").environ, "PYTHONUNBUFFERED": "1",
-                                 "ZENOH_CONFIG_OVERRIDE": "scouting/multicast/enabled=false"})
-    p = Peer(proc)
-    try:
-        assert wait_for(lambda: p.find("ready"), 30.0), "".join(p.raw)[-3000:]
-        yield port, domain, p
-    finally:
-        kill_process(proc)
-        router.close()
+    root = write_msgs(tmp_path_factory.mktemp("msgs"), [STRING])
+    with router() as port:
+        domain = 1 + secrets.randbelow(200)
+        p = start_peer(PEER, str(root), str(port), str(domain))
+        try:
+            assert wait_for(lambda: p.find("ready"), 30.0), "".join(p.raw)[-3000:]
+            yield port, domain, p
+        finally:
+            kill_process(p.proc)
 
 
 def cli(peer: tuple[int, int, Peer], *args: str, timeout: float = 40.0) -> subprocess.CompletedProcess[str]:
@@ -140,7 +103,7 @@ def test_topic_pub_with_a_ros_type_name_is_heard(peer) -> None:
     _, _, p = peer
     pub = cli(peer, "topic", "pub", "/sdk/heard", STRING, "{data: from the cli}", "--times", "3", "--max-wait", "10")
     assert pub.returncode == 0, pub.stderr
-    assert wait_for(lambda: "from the cli" in p.find("heard"), 10.0), p.find("heard")
+    assert wait_for(lambda: "from the cli" in p.values("heard"), 10.0), p.values("heard")
 
 
 def test_service_list_and_call(peer) -> None:

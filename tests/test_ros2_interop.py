@@ -9,21 +9,19 @@ the data keys only meet if its hashes equal ours.
 """
 from __future__ import annotations
 
-import json
 import secrets
 import subprocess
-import sys
-import threading
 import time
 from pathlib import Path
 from typing import Any
 
 import pytest
 from conftest import free_port, kill_process, wait_for
+from ros2_peer import start_peer, write_msgs
 
 from zenoh_robot import Node, QoSProfile, SessionConfig
 from zenoh_robot.message import type_support
-from zenoh_robot.ros2 import dependencies, msg_definition, ros2_type
+from zenoh_robot.ros2 import ros2_type
 from zenoh_robot.wire import ros2_wire
 
 TYPES = ["std_msgs/msg/String", "geometry_msgs/msg/PoseStamped", "sensor_msgs/msg/Imu"]
@@ -89,56 +87,16 @@ for line in sys.stdin:
 """
 
 
-def _write_msgs(root: Path) -> None:
-    names = set(TYPES)
-    for t in TYPES:
-        names.update(dependencies(t))
-    for name in names:
-        pkg, kind, short = name.split("/")
-        path = root / pkg / kind / f"{short}.msg"
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(msg_definition(name))
-
-
-class Peer:
-    """The zenoh-ros2-sdk child: commands on stdin, JSON lines on stdout."""
-
-    def __init__(self, proc: subprocess.Popen[str]) -> None:
-        self.proc = proc
-        self.lines: list[dict[str, Any]] = []
-        self.raw: list[str] = []
-        threading.Thread(target=self._read, daemon=True).start()
-
-    def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self.raw.append(line)
-            if line.startswith("{"):
-                self.lines.append(json.loads(line))
-
-    def send(self, cmd: str) -> None:
-        assert self.proc.stdin is not None
-        self.proc.stdin.write(cmd + "\n")
-        self.proc.stdin.flush()
-
-    def find(self, key: str, value: Any = None) -> list[dict[str, Any]]:
-        return [d for d in list(self.lines) if key in d and (value is None or d[key] == value)]
-
-
 @pytest.fixture
 def pair(tmp_path: Path):
     """(our node on the ROS 2 wire, the zenoh-ros2-sdk peer) on a domain of their own."""
-    _write_msgs(tmp_path / "msgs")
+    msgs = write_msgs(tmp_path / "msgs", TYPES)
     port = free_port()
     domain = 100 + secrets.randbelow(100)
     config = SessionConfig(listen=[f"tcp/127.0.0.1:{port}"], multicast_scouting=False, shared_memory=False)
     with Node("zr_node", namespace="zr", config=config, wire=ros2_wire(domain)) as node:
-        env_override = "scouting/multicast/enabled=false"
-        proc = subprocess.Popen([sys.executable, "-c", PEER, str(tmp_path / "msgs"), str(port), str(domain)],
-                                stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                                env={**__import__("os").environ, "ZENOH_CONFIG_OVERRIDE": env_override,
-                                     "PYTHONUNBUFFERED": "1"})
-        peer = Peer(proc)
+        peer = start_peer(PEER, str(msgs), str(port), str(domain))
+        proc = peer.proc
         try:
             assert wait_for(lambda: peer.find("ready"), 30.0), "".join(peer.raw)[-3000:]
             yield node, peer

@@ -16,8 +16,8 @@ import threading
 import time
 
 import pytest
-import zenoh
-from conftest import free_port, kill_process, python_proc, wait_for
+from conftest import kill_process, python_proc, wait_for
+from ros2_peer import router as ros2_router
 
 from zenoh_robot import Node
 from zenoh_robot.ros2 import ros2_service_type
@@ -65,16 +65,8 @@ else:
 
 @pytest.fixture
 def router():
-    port = free_port()
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"router"')
-    conf.insert_json5("listen/endpoints", f'["tcp/127.0.0.1:{port}"]')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    session = zenoh.open(conf)
-    try:
+    with ros2_router() as port:
         yield port
-    finally:
-        session.close()
 
 
 def ros2_node(name: str, port: int, domain: int) -> Node:
