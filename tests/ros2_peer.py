@@ -33,11 +33,20 @@ class Peer:
         threading.Thread(target=self._read, daemon=True).start()
 
     def _read(self) -> None:
+        # The peer prints from its subscribers' threads: two objects may share a line ("{...}{...}").
         assert self.proc.stdout is not None
+        decoder = json.JSONDecoder()
         for line in self.proc.stdout:
             self.raw.append(line)
-            if line.startswith("{"):
-                self.lines.append(json.loads(line))
+            at = line.find("{")
+            while at >= 0:
+                try:
+                    obj, end = decoder.raw_decode(line, at)
+                except ValueError:
+                    break
+                if isinstance(obj, dict):
+                    self.lines.append(obj)
+                at = line.find("{", end)
 
     def send(self, cmd: str) -> None:
         assert self.proc.stdin is not None

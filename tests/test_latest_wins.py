@@ -64,6 +64,13 @@ def _session(r: Rig) -> None:
     assert wait_for(lambda: r.companion.lifecycle.state.value == "active", 5.0)
 
 
+def _quiet_op(r: Rig) -> None:
+    """The op's own hover stream stops, and what it had in flight lands, before ours takes over:
+    a hover target stamped after ours would rightly win (latest wins) and the test would read it."""
+    r.op.target = None
+    time.sleep(0.3)
+
+
 def _publisher(r: Rig, ns: str) -> tuple[Any, Valve]:
     # No repeats: each publish is one datagram, so what the valve withholds is exactly what is lost.
     qos = PROFILE.qos["setpoint"].replace(deadline=SETPOINT_DEADLINE, repeat=0)
@@ -89,10 +96,10 @@ def test_after_a_fade_only_the_newest_recovered_setpoint_reaches_px4(ns: str) ->
         pub, valve = _publisher(r, ns)
         seen = _forwarded(r)
         sub = r.companion.setpoint_sub
+        _quiet_op(r)
         for i in range(1, 6):                      # our stream takes over from the op's at 50 Hz
             _send(pub, i)
             time.sleep(0.02)
-        r.op.target = None
         assert wait_for(lambda: seen and _x(seen[-1]) == 5, 3.0), seen
         before = len(seen)
         dropped, lost = sub.counters.dropped, sub.counters.lost
@@ -127,8 +134,8 @@ def test_a_setpoint_older_than_one_forwarded_is_dropped_and_counted(ns: str) -> 
             while not stop.wait(0.05):
                 _send(pub, i)
                 i += 1
+        _quiet_op(r)
         _send(pub, 99)
-        r.op.target = None
         feeder = threading.Thread(target=stream, daemon=True)
         try:
             late_valve.mode = "hold"
@@ -138,7 +145,8 @@ def test_a_setpoint_older_than_one_forwarded_is_dropped_and_counted(ns: str) -> 
             assert wait_for(lambda: any(_x(sp) >= 101 for sp in seen), 3.0), seen
             stale = r.companion.gate.stale
             late_valve.release()                   # the older sample arrives after newer ones
-            assert wait_for(lambda: r.companion.gate.stale > stale, 3.0), "the late sample was not counted"
+            assert wait_for(lambda: r.companion.gate.stale > stale, 5.0), \
+                f"the late sample was not counted (stale {r.companion.gate.stale}, seen {[_x(sp) for sp in seen]})"
             time.sleep(0.2)
             assert 7 not in [_x(sp) for sp in seen], "an older setpoint was forwarded after a newer one"
             xs = [_x(sp) for sp in seen]

@@ -22,15 +22,19 @@ STRING = "std_msgs/msg/String"
 ADD = "example_interfaces/srv/AddTwoInts"
 
 PEER = r"""
-import json, sys, time
+import json, sys, threading, time
 import zenoh_ros2_sdk.message_registry as registry
 registry._registry = registry.MessageRegistry(sys.argv[1])
 from zenoh_ros2_sdk import ROS2Publisher, ROS2ServiceServer, ROS2Subscriber
 port, domain = int(sys.argv[2]), int(sys.argv[3])
 common = dict(domain_id=domain, router_ip="127.0.0.1", router_port=port, namespace="/sdk")
 
-def out(**kw):
-    print(json.dumps(kw), flush=True)
+_out_lock = threading.Lock()
+
+def out(**kw):   # subscribers call it from their own threads: one whole line at a time
+    with _out_lock:
+        sys.stdout.write(json.dumps(kw) + "\n")
+        sys.stdout.flush()
 
 sub = ROS2Subscriber("/sdk/heard", "std_msgs/msg/String", lambda m: out(heard=m.data), node_name="sdk_node", **common)
 pub = ROS2Publisher("/sdk/chatter", "std_msgs/msg/String", node_name="sdk_node", **common)
