@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+import secrets
 import signal
 import socket
 import subprocess
@@ -17,6 +18,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+import pytest
 from conftest import python_proc, stop_process, wait_for
 from px4_helpers import assert_no_px4_failsafe, wait_state_armable
 
@@ -27,6 +29,13 @@ from zenoh_robot import Node, qos
 from zenoh_robot.msgs import Header
 
 OP = "test-op"   # the GCS id the test's processes and nodes share
+
+
+@pytest.fixture(autouse=True)
+def own_domain(monkeypatch: pytest.MonkeyPatch) -> None:
+    """This module's processes (nodes `companion`, `gcs`) in a domain of their own: a `gcs` of another
+    module running beside them would otherwise make one refuse to start (a second /gcs)."""
+    monkeypatch.setenv("ZR_DOMAIN", str(100 + secrets.randbelow(120)))
 
 SETPOINT_QOS = qos.RESILIENT.replace(deadline=SETPOINT_DEADLINE)   # what the companion accepts
 
