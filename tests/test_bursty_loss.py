@@ -202,6 +202,7 @@ def test_bursty_channel_keeps_the_mean_and_drops_in_bursts() -> None:
     assert 35 <= realised <= 65, (realised, summary)
     runs = _runs(drops)
     # Fades: drops come in runs far longer than independent 50 % loss gives (longest ~12 of 6000).
-    assert max(runs) >= 0.2 * RATE, (max(runs), summary)
+    # A fade drops ~95 % for 100 ms-2 s: a run of 40 (100 ms) is 3x what 50 % uniform loss gives (~12).
+    assert max(runs) >= 0.1 * RATE, (max(runs), summary)
     assert sum(runs) / len(runs) >= 3, (sum(runs) / len(runs), summary)
     assert summary["bad_periods"] >= 8 and 0.15 <= summary["bad_mean_s"] <= 0.6, summary
