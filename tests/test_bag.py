@@ -15,10 +15,6 @@ from pathlib import Path
 
 import pytest
 from conftest import ROOT, linked_configs, wait_for
-
-pytest.importorskip("mcap")
-pytest.importorskip("foxglove")
-
 from mcap.reader import make_reader  # noqa: E402
 
 from drone_contract.messages import VehicleState  # noqa: E402

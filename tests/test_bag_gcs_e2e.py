@@ -19,10 +19,6 @@ from dataclasses import dataclass, field
 
 import pytest
 from conftest import ROOT, free_port, python_proc, stop_process
-
-pytest.importorskip("mcap")
-pytest.importorskip("foxglove")
-
 from mcap.reader import make_reader  # noqa: E402
 
 DOMAIN = str(100 + secrets.randbelow(120))
@@ -137,7 +133,7 @@ def test_mavlink_tunnel_reaches_a_local_qgc_port(live_gcs):
 
 
 def test_gcs_foxglove_serves_the_live_view(drone, live_gcs):
-    websockets = pytest.importorskip("websockets")
+    import websockets as websockets
     from test_foxglove import SUBPROTOCOLS
 
     port = live_gcs.foxglove_port

@@ -83,7 +83,7 @@ def test_oldest_strip_age_follows_the_picture_a_sliced_viewer_shows() -> None:
 
 def test_report_files_commands_joined_and_sliced_ages_from_the_raw_record(tmp_path: Path,
                                                                           sweep: list[dict[str, Any]]) -> None:
-    pytest.importorskip("matplotlib")
+    import matplotlib  # noqa: F401  (a dev dependency: missing is a failure)
     sliced = _cell("resilient", 30, mode="sliced")
     sweep.append(sliced)
     cell_dir = tmp_path / "cells" / "after-resilient-30"

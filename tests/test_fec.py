@@ -5,9 +5,6 @@ import random
 
 import numpy as np
 import pytest
-
-pytest.importorskip("zfec")
-
 from conftest import linked_configs  # noqa: E402
 
 from zenoh_robot import Node  # noqa: E402

@@ -15,11 +15,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-import pytest
+import websockets as websockets
 from conftest import free_port, linked_configs, python_proc
-
-pytest.importorskip("foxglove")
-websockets = pytest.importorskip("websockets")
 
 from drone_contract.messages import VehicleState  # noqa: E402
 from zenoh_robot import Node, msgs, qos  # noqa: E402

@@ -180,9 +180,9 @@ def test_gcs_frame_keeper_shows_newest_strips_and_honest_figures() -> None:
 
 
 def test_dashboard_shows_whole_fresh_frames_fresh_strips_and_the_oldest_strip() -> None:
-    pytest.importorskip("rich")
     from types import SimpleNamespace
 
+    import rich  # noqa: F401  (a dev dependency: missing is a failure)
     from rich.console import Console
 
     from gcs.app import ImageStats

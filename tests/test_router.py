@@ -7,11 +7,9 @@ import subprocess
 import time
 from pathlib import Path
 
-import pytest
 import zenoh
 from conftest import free_port, python_proc, wait_for
 
-pytest.importorskip("cryptography")
 from zenoh_robot.session_config import SessionConfig  # noqa: E402
 
 CLI = ("-m", "zenoh_robot.tools.cli.main")

@@ -19,7 +19,7 @@ import pytest
 import zenoh
 from conftest import free_port, wait_for
 
-keys = pytest.importorskip("zenoh_robot.tools.keys")
+import zenoh_robot.tools.keys as keys
 from zenoh_robot.session_config import SessionConfig, SessionConfigError  # noqa: E402
 
 SETTLE = 0.6     # long enough for a put to cross two loopback hops many times over

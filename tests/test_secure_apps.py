@@ -19,7 +19,6 @@ import pytest
 import zenoh
 from conftest import free_port, python_proc, stop_process, wait_for
 
-pytest.importorskip("cryptography")
 from drone_contract.messages import Command, CommandResult, DroneSetpoint  # noqa: E402
 from drone_contract.streams import stream_profile  # noqa: E402
 from zenoh_robot import Node, ServiceCallError  # noqa: E402

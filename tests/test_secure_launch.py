@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 from conftest import ROOT, free_port, python_proc
 
-keys = pytest.importorskip("zenoh_robot.tools.keys")
+import zenoh_robot.tools.keys as keys
 from zenoh_robot.tools.launch import load_launch  # noqa: E402
 
 LAUNCH = ROOT / "configs" / "launch" / "secure.yaml"

@@ -15,7 +15,6 @@ from pathlib import Path
 import pytest
 from conftest import skip_unless_required
 
-pytest.importorskip("cryptography")
 from drone_lab.experiment import secure_sweep as ss  # noqa: E402
 from drone_lab.experiment.netns import LossyLink, unavailable_reason  # noqa: E402
 
