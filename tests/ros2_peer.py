@@ -22,6 +22,24 @@ from zenoh_robot.ros2 import dependencies, msg_definition
 
 ROOT = Path(__file__).resolve().parents[1]
 
+# The start of every peer script: the SDK reads .msg files from argv[1] (it would fetch them from git),
+# argv[2] and argv[3] are the router's port and the ROS domain; ``out`` prints one JSON line at a time
+# (subscribers call it from their own threads), which ``Peer.find`` reads.
+PEER_PRELUDE = r"""
+import json, sys, threading, time
+import zenoh_ros2_sdk.message_registry as registry
+registry._registry = registry.MessageRegistry(sys.argv[1])
+port, domain = int(sys.argv[2]), int(sys.argv[3])
+common = dict(domain_id=domain, router_ip="127.0.0.1", router_port=port, namespace="/sdk")
+
+_out_lock = threading.Lock()
+
+def out(**kw):   # subscribers call it from their own threads: one whole line at a time
+    with _out_lock:
+        sys.stdout.write(json.dumps(kw) + "\n")
+        sys.stdout.flush()
+"""
+
 
 class Peer:
     """The zenoh-ros2-sdk child: commands on stdin, JSON lines on stdout."""

@@ -15,26 +15,14 @@ from collections.abc import Iterator
 
 import pytest
 from conftest import ROOT, kill_process, wait_for
-from ros2_peer import Peer, router, start_peer, write_msgs
+from ros2_peer import PEER_PRELUDE, Peer, router, start_peer, write_msgs
 
 CLI = [sys.executable, "-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())"]
 STRING = "std_msgs/msg/String"
 ADD = "example_interfaces/srv/AddTwoInts"
 
-PEER = r"""
-import json, sys, threading, time
-import zenoh_ros2_sdk.message_registry as registry
-registry._registry = registry.MessageRegistry(sys.argv[1])
+PEER = PEER_PRELUDE + r"""
 from zenoh_ros2_sdk import ROS2Publisher, ROS2ServiceServer, ROS2Subscriber
-port, domain = int(sys.argv[2]), int(sys.argv[3])
-common = dict(domain_id=domain, router_ip="127.0.0.1", router_port=port, namespace="/sdk")
-
-_out_lock = threading.Lock()
-
-def out(**kw):   # subscribers call it from their own threads: one whole line at a time
-    with _out_lock:
-        sys.stdout.write(json.dumps(kw) + "\n")
-        sys.stdout.flush()
 
 sub = ROS2Subscriber("/sdk/heard", "std_msgs/msg/String", lambda m: out(heard=m.data), node_name="sdk_node", **common)
 pub = ROS2Publisher("/sdk/chatter", "std_msgs/msg/String", node_name="sdk_node", **common)

@@ -17,7 +17,7 @@ from typing import Any
 
 import pytest
 from conftest import free_port, kill_process, wait_for
-from ros2_peer import start_peer, write_msgs
+from ros2_peer import PEER_PRELUDE, start_peer, write_msgs
 
 from zenoh_robot import Node, QoSProfile, SessionConfig
 from zenoh_robot.message import type_support
@@ -26,21 +26,9 @@ from zenoh_robot.wire import ros2_wire
 
 TYPES = ["std_msgs/msg/String", "geometry_msgs/msg/PoseStamped", "sensor_msgs/msg/Imu"]
 
-PEER = r"""
-import json, sys, threading, time
-import zenoh_ros2_sdk.message_registry as registry
-registry._registry = registry.MessageRegistry(sys.argv[1])
+PEER = PEER_PRELUDE + r"""
 from zenoh_ros2_sdk import ROS2Publisher, ROS2Subscriber
 from zenoh_ros2_sdk import discovery
-port, domain = int(sys.argv[2]), int(sys.argv[3])
-common = dict(domain_id=domain, router_ip="127.0.0.1", router_port=port, namespace="/sdk")
-
-_out_lock = threading.Lock()
-
-def out(**kw):   # subscribers call it from their own threads: one whole line at a time
-    with _out_lock:
-        sys.stdout.write(json.dumps(kw) + "\n")
-        sys.stdout.flush()
 
 def on(topic):
     def cb(msg):
