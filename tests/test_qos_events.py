@@ -306,3 +306,32 @@ def test_garbage_heartbeats_are_ignored(pair, ns):
     spin_both(a, b, 0.6)
     assert events.get("liveliness")[-1].alive_count == 1   # the automatic heartbeats keep it alive
     assert pub.get_subscription_count() == 1
+
+
+def test_a_forged_token_with_a_publishers_gid_cannot_block_it(pair):
+    """A publisher's gid is on the wire: a peer can declare a token naming it with an incompatible QoS.
+    Before, claims were judged by gid: declaring, withdrawing and re-declaring such a token unmatched the
+    real publisher and then blocked its samples (a blinded subscription). A compatible claim now wins."""
+    from zenoh_robot.graph import PUBLISHER, endpoint_token_key
+
+    a, b = pair
+    got: list[str] = []
+    reliable = QoSProfile(reliability="reliable", depth=10)
+    sub = b.create_subscription(String, "victim", lambda m: got.append(m.data), reliable)
+    pub = a.create_publisher(String, "victim", reliable)
+    assert wait_for(lambda: sub.get_publisher_count() == 1, 5.0)
+    real = next(iter(sub.events.matched.values()))
+    forged = endpoint_token_key(PUBLISHER, "f" * 32, real.endpoint_gid, real.node_namespace, real.node_name,
+                                real.key, real.topic_type, real.topic_type_hash, BE)   # best effort: incompatible
+    for round_ in range(2):     # declare, withdraw, declare again
+        token = a.session.liveliness().declare_token(forged)
+        assert wait_for(lambda: len(b.get_publishers_info_by_topic(real.topic_name)) == 2, 5.0)
+        spin_both(a, b, 0.1)
+        if round_ == 0:
+            token.undeclare()
+            assert wait_for(lambda: len(b.get_publishers_info_by_topic(real.topic_name)) == 1, 5.0)
+    assert sub.events.blocked == frozenset() and sub.get_publisher_count() == 1
+    pub.publish(String("still heard"))
+    assert b.spin_until(lambda: got == ["still heard"], 3.0)
+    assert sub.counters.incompatible == 0
+    token.undeclare()

@@ -30,6 +30,7 @@ from .qos_compat import check_compatibility
 log = logging.getLogger("zenoh_robot.qos_events")
 
 ALIVE_PREFIX = "@zr/alive"
+MAX_CLAIMS = 4096    # endpoint claims one entity judges; the graph's own table is the first bound
 
 
 def heartbeat_key(topic_key: str) -> str:
@@ -68,7 +69,11 @@ class _EntityEvents:
         self.callbacks = callbacks
         self._lock = threading.Lock()
         self.matched: dict[int, TopicEndpointInfo] = {}
-        self._peers: set[int] = set()      # every peer judged once, compatible or not
+        # Every claim judged once, compatible or not. A claim is a whole token, not its gid: anyone can
+        # declare a token carrying another endpoint's gid (it is on the wire), and a gid-keyed table
+        # would let a forged incompatible claim, seen first, shadow the real endpoint's.
+        self._peers: set[TopicEndpointInfo] = set()
+        self.claims_refused = 0            # claims past MAX_CLAIMS: not judged, counted
         self.matched_total = 0
         self.incompatible_total = 0
         self.incompatible_type_total = 0
@@ -101,19 +106,25 @@ class _EntityEvents:
 
     def _match(self, appeared: bool, info: TopicEndpointInfo, offered: QoSProfile, requested: QoSProfile,
                incompatible_cls: type) -> bool | None:
-        """Update matching; returns True (matched), False (incompatible) or None (gone/unchanged)."""
+        """Update matching with one claim (token). Appeared: True (its gid newly matched), False
+        (incompatible) or None (unchanged); gone: True when it was the claim its gid matched by."""
         if not appeared:
             with self._lock:
-                self._peers.discard(info.endpoint_gid)
-                gone = self.matched.pop(info.endpoint_gid, None)
+                self._peers.discard(info)
+                # Only the claim that matched unmatches its gid: another token naming it going away does not.
+                gone = self.matched.pop(info.endpoint_gid) if self.matched.get(info.endpoint_gid) == info else None
                 current = len(self.matched)
-            if gone is not None:
-                self.fire("matched", ev.MatchedInfo(self.matched_total, 0, current, -1))
-            return None
-        with self._lock:    # the graph and a new entity's first look may both report a peer
-            if info.endpoint_gid in self._peers:
+            if gone is None:
                 return None
-            self._peers.add(info.endpoint_gid)
+            self.fire("matched", ev.MatchedInfo(self.matched_total, 0, current, -1))
+            return True
+        with self._lock:    # the graph and a new entity's first look may both report a peer
+            if info in self._peers:
+                return None
+            if len(self._peers) >= MAX_CLAIMS:
+                self.claims_refused += 1
+                return None
+            self._peers.add(info)
         own_type_hash, own_type = self._type_hash, self._type_name
         if info.topic_type_hash != own_type_hash and ANY_TYPE_HASH not in (info.topic_type_hash, own_type_hash):
             with self._lock:
@@ -140,6 +151,8 @@ class _EntityEvents:
             self.fire("incompatible_qos", status)
             return False
         with self._lock:
+            if info.endpoint_gid in self.matched:
+                return None     # a second compatible claim of a matched gid: nothing new
             self.matched[info.endpoint_gid] = info
             self.matched_total += 1
             total, current = self.matched_total, len(self.matched)
@@ -227,6 +240,7 @@ class SubscriptionEvents(_EntityEvents):
         # Lifespan is the publisher's promise (ROS 2); this subscription's own caps it.
         self._own_lifespan_ns = int(sub.qos.lifespan * 1e9) if sub.qos.lifespan else None
         self.blocked: frozenset[int] = frozenset()   # read per sample on the executor: swapped, never mutated
+        self._incompatible: dict[int, set[TopicEndpointInfo]] = {}   # gid -> its incompatible claims
         self.message_lost_total = 0
         self.lifespans_ns: dict[int, int] = {}     # offered lifespan of each matched publisher
         self.alive_count = 0
@@ -247,13 +261,23 @@ class SubscriptionEvents(_EntityEvents):
     def on_peer(self, appeared: bool, info: TopicEndpointInfo) -> None:
         gid = info.endpoint_gid
         result = self._match(appeared, info, info.qos_profile, self.qos, ev.QoSRequestedIncompatibleQoSInfo)
-        if result is False:
-            with self._lock:
+        with self._lock:
+            if appeared and result is False:
+                self._incompatible.setdefault(gid, set()).add(info)
+            elif not appeared and gid in self._incompatible:
+                self._incompatible[gid].discard(info)
+                if not self._incompatible[gid]:
+                    del self._incompatible[gid]
+            # Blocked while some claim of the gid is incompatible and none is compatible: a compatible
+            # claim (the real endpoint's own token) always wins over a forged one.
+            if gid in self._incompatible and gid not in self.matched:
                 self.blocked = self.blocked | {gid}
+            elif gid in self.blocked:
+                self.blocked = self.blocked - {gid}
+        if result is False or (not appeared and result is not True):
             return
         if not appeared:
             with self._lock:
-                self.blocked = self.blocked - {gid}
                 if gid in self.lifespans_ns:
                     self.lifespans_ns = {k: v for k, v in self.lifespans_ns.items() if k != gid}
                 writer = self._writers.pop(gid, None)
