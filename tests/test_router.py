@@ -92,5 +92,9 @@ def test_lossy_router_config_forms_sessions_across_loss() -> None:
     assert values["connect/retry"]["period_init_ms"] == 50
     assert values["transport/link/tx/keep_alive"] == 100 and values["transport/link/tx/batch_size"] == 1300
     lossy.to_zenoh()                       # Zenoh accepts every key
+    from drone_contract.streams import stream_profile
+    apps = stream_profile("resilient").session_config()   # the router tunes the link as the apps do
+    assert (lossy.batch_size, lossy.lease_s, lossy.keep_alive, lossy.lossy) == \
+        (apps.batch_size, apps.lease_s, apps.keep_alive, apps.lossy)
     plain = router_config(parser.parse_args(["router"]))._values()
     assert "transport/unicast/open_timeout" not in plain and "transport/link/tx/keep_alive" not in plain

@@ -36,6 +36,11 @@ MAX_DOMAIN = 232            # ROS_DOMAIN_ID's range: one number means the same t
 # answers there) and not in 224.0.0.0/24 at all (IANA-assigned link-local protocols): 239.255/16
 # is the IPv4 organisation-local scope (RFC 2365), which routers at a site border never forward.
 RESILIENT_GROUP = "239.255.74.71:7460"
+# What a unicast or routed session across a lossy radio link needs (the lossy-link experiment found it,
+# docs/lossy-link.md): batches under the MTU (one lost fragment loses no batch), a 10 s lease held by
+# keep-alives every 100 ms through fades, and ``lossy`` (fast open, UDP dialled first). One place for
+# the apps' resilient profile and ``zenoh-robot router --lossy``: ``SessionConfig(**LOSSY_LINK, ...)``.
+LOSSY_LINK: dict[str, Any] = {"batch_size": 1300, "lease_s": 10.0, "keep_alive": 100, "lossy": True}
 
 
 def fast_open(open_timeout_ms: int = 250, retry_init_ms: int = 50, retry_max_ms: int = 200,

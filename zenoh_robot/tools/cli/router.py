@@ -42,7 +42,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def router_config(args: argparse.Namespace) -> SessionConfig:
-    from zenoh_robot.session_config import SessionConfig, SessionConfigError, fast_open, resolve_domain  # noqa: I001
+    from zenoh_robot.session_config import LOSSY_LINK, SessionConfig, SessionConfigError, resolve_domain
 
     listen = args.listen or [DEFAULT_SECURE_LISTEN if args.secure else DEFAULT_LISTEN]
     try:
@@ -51,11 +51,8 @@ def router_config(args: argparse.Namespace) -> SessionConfig:
             # The router uses no keys of its own; its domain only scopes the ACL it enforces.
             return SessionConfig(mode="router", listen=listen, connect=args.connect, secure=args.secure,
                                  name=args.cert_name, domain=domain, multicast_scouting=not args.no_scouting)
-        lossy: dict[str, Any] = {}
-        if getattr(args, "lossy", False):
-            # A handshake must survive loss (session_config.fast_open); keep-alives every 100 ms hold the
-            # 10 s lease through bursts; batches under the MTU keep one lost fragment from losing a batch.
-            lossy = dict(batch_size=1300, lease_s=10.0, keep_alive=100, accept_timeout_s=1.0, extra=fast_open())
+        # The apps' own lossy-link settings (session_config.LOSSY_LINK), not a copy of them.
+        lossy: dict[str, Any] = dict(LOSSY_LINK, accept_timeout_s=1.0) if getattr(args, "lossy", False) else {}
         return SessionConfig(mode="router", listen=listen, connect=args.connect, domain=domain,
                              multicast_scouting=not args.no_scouting, shared_memory=False, **lossy)
     except SessionConfigError as exc:
