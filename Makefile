@@ -24,7 +24,7 @@ sysdeps:
 	fi
 
 demo: install
-	$(BIN)/zenoh-robot demo --duration $(DURATION) $(ARGS)
+	$(BIN)/zenoh-robot demo --duration $(DURATION) $(if $(PX4),--px4 $(PX4)) $(ARGS)
 
 # ruff over the whole tree; mypy strict on the library layer (configured in pyproject.toml).
 lint: install

@@ -31,8 +31,8 @@ from typing import Any
 from drone_contract.commands import COMMAND_SERVICE
 from drone_contract.messages import CONTROL_TOKEN_PREFIX, Command, CommandResult, valid_client_id
 from drone_contract.streams import DOWN, UP, message_of, wired
-from px4_link import Px4Link
 from px4_link.telemetry import LocalPosition
+from px4_link.vehicle import VehicleLink
 from zenoh_robot import Node
 from zenoh_robot.events import SubscriptionEventCallbacks
 from zenoh_robot.loss_feedback import LossMonitor
@@ -61,7 +61,7 @@ WATCHDOG_PERIOD_S = 0.05
 
 
 class Companion:
-    def __init__(self, node: Node, link: Px4Link, config: CompanionConfig) -> None:
+    def __init__(self, node: Node, link: VehicleLink, config: CompanionConfig) -> None:
         # First: every setting below is read from the parameters in force (-p wins over the flag).
         self.params = CompanionParameters(config)
         config = self.params.declare(node)
@@ -114,6 +114,9 @@ class Companion:
         # so the failsafe never depends on one mechanism alone. It also checks the invariants.
         node.create_timer(WATCHDOG_PERIOD_S, self._watchdog)
         self._tokens = node.watch_liveliness(f"{CONTROL_TOKEN_PREFIX}/*", self._on_token)
+        presence = wired("presence", UP)   # the holder's lease, where its token cannot reach (multicast)
+        node.create_subscription(message_of(presence), presence.name,
+                                 lambda msg: self.control.seen(msg.client_id), q[presence.name])
         self.telemetry.start()
         link.add_event_listener(self._on_link_event)
         if self.camera is not None:
@@ -204,7 +207,8 @@ class Companion:
                 "offboard_state": self.lifecycle.state.value, "events": self.events.sent,
                 "final_mode": self.link.state.mode,
                 "px4_streams": self.telemetry.summary(),
-                "px4": {"ever_connected": self.link.system_id is not None, "connected": self.link.connected},
+                "px4": {"ever_connected": self.link.system_id is not None, "connected": self.link.connected,
+                        **self.link.backend_summary()},
                 "parameters": {"changed": self.params.changed, "refused": self.params.refused},
                 "failsafe": self.failsafe.summary(), "px4_worker": self.worker.summary(),
                 "logs": {"sent": {k: v.to_dict() for k, v in self.sent.items()},

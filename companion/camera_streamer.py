@@ -42,6 +42,8 @@ class CameraStreamer:
         else:
             self.publisher = node.create_publisher(Image, topic, qos)
         self._seq = 0   # the frame's header.seq
+        # Called with each frame after it went out on the contract's stream (the ROS 2 topics: ros2_streams.py)
+        self.frame_listeners: list[Callable[[Any], None]] = []
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -73,6 +75,8 @@ class CameraStreamer:
                     log.warning("camera: end of stream")
                     return
                 self.publish_frame(frame)
+                for listener in self.frame_listeners:
+                    listener(frame)
                 if self._config().camera_rate_hz != cfg.camera_rate_hz:   # a live `param set` (a GCS's downlink)
                     cfg = self._config()
                     rate = RateKeeper(cfg.camera_rate_hz)

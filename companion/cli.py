@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import logging
+import os
 import signal
 import threading
 from collections.abc import Iterator
@@ -14,7 +15,8 @@ from typing import Any
 from drone_contract.link_protection import link_wire, log_startup_line
 from drone_contract.streams import IMAGE_MODES, PROFILES, STREAMS, StreamProfile, stream_profile
 from px4_link import CommandError, Px4Link
-from px4_link.targets import DEFAULT_FENCE_CEILING_M, DEFAULT_FENCE_FLOOR_M, DEFAULT_FENCE_RADIUS_M
+from px4_link.targets import DEFAULT_FENCE_CEILING_M, DEFAULT_FENCE_FLOOR_M, DEFAULT_FENCE_RADIUS_M, Geofence
+from px4_link.vehicle import VehicleLink
 from zenoh_robot import Node
 from zenoh_robot.names import validate_node_name
 from zenoh_robot.parameters import ParameterError, ParameterStore, add_param_argument, params_from_args
@@ -39,17 +41,23 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--id", default="uav1", help="drone id, the namespace of its topics (default uav1)")
     p.add_argument("--px4", default=DEFAULT_PX4,
                    help=f"PX4 MAVLink connection (default {DEFAULT_PX4}, where PX4 SITL sends); "
-                        "'sim' starts the built-in simulator")
+                        "'sim' starts the built-in simulator; PX4's own Zenoh module (no MAVLink): 'zenoh' "
+                        "(an embedded router on tcp/127.0.0.1:7447, PX4 SITL's default, that PX4 joins), "
+                        "'zenoh:<endpoint>' (a client of the router there), 'zenoh-sim' (the built-in simulator "
+                        "speaking PX4's Zenoh)")
+    p.add_argument("--px4-msgs", type=Path, metavar="DIR",
+                   help="with --px4 zenoh*: PX4's msg/ directory, whose definitions (and so type hashes) PX4 was "
+                        "built with (default: the bundled px4_msgs of PX4 main 2026-03)")
     p.add_argument("--sysid", type=int, default=1, help="system id of the built-in simulator (with --px4 sim)")
     p.add_argument("--profile", choices=sorted(PROFILES), default="resilient")
     p.add_argument("--config", type=Path, help="QoS YAML overriding streams (setpoint, sensor, state, image, events)")
     p.add_argument("--iface", help="network interface towards the GCS for the multicast transport "
                    "(profiles resilient, resilient_multicast; required by the latter)")
     add_session_arguments(p)
-    p.add_argument("--link-keys", metavar="DIR",
+    p.add_argument("--link-keys", metavar="DIR", default=os.environ.get("ZR_LINK_KEYS"),
                    help="seal every topic sample (ChaCha20-Poly1305, replay window, per-role keys) with this "
                         "node's keyring DIR/<id>.json from `zenoh-robot keys link` (docs/security.md); "
-                        "re-read on SIGHUP")
+                        "re-read on SIGHUP; default $ZR_LINK_KEYS")
     p.add_argument("--link-encrypt", action="store_true", help="with --link-keys: encrypt samples too")
     p.add_argument("--no-topic-statistics", action="store_true",
                    help="do not publish per-stream statistics (what `zenoh-robot stats` shows)")
@@ -85,6 +93,14 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="comma-separated PX4 parameters a GCS may set (default: %(default)s)")
     p.add_argument("--duration", type=float, help="stop after this many seconds")
     p.add_argument("--record", type=Path, help="write the setpoint stream's figures here (JSON) at exit")
+    p.add_argument("--vehicle-record", type=Path, metavar="FILE",
+                   help="sample the vehicle side every 20 ms into FILE (JSONL): PX4's mode, armed, position, the "
+                        "offboard session and the source stamp of the target PX4 is given (what the lossy-link "
+                        "experiment measures)")
+    p.add_argument("--ros2-topics", action="store_true",
+                   help="also publish the drone as standard ROS 2 types on rmw_zenoh's wire (/<id>/imu, pose, fix, "
+                        "battery, image/compressed; ROS domain: --ros-domain-id, else env ROS_DOMAIN_ID, else 0); "
+                        "--ros2 or --ros-domain-id imply it (docs/ros2.md)")
     p.add_argument("--mavlink-tunnel", action="store_true",
                    help="forward PX4's MAVLink over Zenoh (<id>/mavlink/down|up) for a QGC on the GCS "
                         "(gcs --mavlink-out)")
@@ -115,6 +131,32 @@ def px4_connection(spec: str, sysid: int) -> Iterator[str]:
     port = _free_udp_port()
     with Simulator(sysid, port=0, target_port=port):
         yield f"udpin:127.0.0.1:{port}"
+
+
+@contextlib.contextmanager
+def vehicle_link(args: argparse.Namespace, geofence: Geofence) -> Iterator[tuple[VehicleLink, Any, str]]:
+    """(link, MAVLink tee or None, what it is connected to): px4_link over MAVLink, or px4_zenoh over PX4's
+    own Zenoh module on a session of its own (never the GCS-facing node's)."""
+    from .mavlink_tunnel import maybe_tee
+    if args.px4 == "zenoh-sim" or args.px4 == "zenoh" or args.px4.startswith("zenoh:"):
+        if args.mavlink_tunnel:
+            raise ValueError(f"--mavlink-tunnel needs PX4's MAVLink; --px4 {args.px4} has none")
+        from px4_zenoh import Px4ZenohLink, parse_px4_spec
+        from px4_zenoh.session import Px4Endpoint, free_tcp_endpoint
+        where = parse_px4_spec(args.px4) or Px4Endpoint("router", free_tcp_endpoint())
+        with Px4ZenohLink(where, msg_dir=args.px4_msgs, geofence=geofence) as zlink:
+            if args.px4 != "zenoh-sim":
+                yield zlink, None, str(where)
+                return
+            from px4_zenoh.sim import ZenohSimulator
+            with ZenohSimulator(connect=where.endpoint, sysid=args.sysid):
+                yield zlink, None, f"{where} (built-in Zenoh simulator)"
+        return
+    if args.px4_msgs is not None:
+        raise ValueError("--px4-msgs: only with --px4 zenoh, zenoh:<endpoint> or zenoh-sim")
+    with px4_connection(args.px4, args.sysid) as px4_conn, maybe_tee(args.mavlink_tunnel, px4_conn) as (tee, conn), \
+            Px4Link(conn, geofence=geofence) as link:
+        yield link, tee, conn
 
 
 def _free_udp_port() -> int:
@@ -169,17 +211,21 @@ def run(args: argparse.Namespace) -> int:
     from zenoh_robot import MultiThreadedExecutor
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    from .mavlink_tunnel import MavlinkTunnel, maybe_tee
-    with px4_connection(args.px4, args.sysid) as px4_conn, \
-            maybe_tee(args.mavlink_tunnel, px4_conn) as (tee, connection), \
-            Px4Link(connection, geofence=in_force.geofence()) as link, \
-            Node("companion", namespace=args.id, config=session, executor=MultiThreadedExecutor(3), wire=wire,
+    from .mavlink_tunnel import MavlinkTunnel
+    px4_side = contextlib.ExitStack()
+    try:
+        link, tee, connection = px4_side.enter_context(vehicle_link(args, in_force.geofence()))
+    except (ValueError, ConnectionError, FileNotFoundError, KeyError) as exc:
+        px4_side.close()
+        raise CliError(f"--px4 {args.px4}: {exc}") from None
+    with px4_side, Node("companion", namespace=args.id, config=session, executor=MultiThreadedExecutor(3), wire=wire,
                  parameter_overrides=params, enable_topic_statistics=not args.no_topic_statistics) as node:
         log.info("companion %s: PX4 at %s, profile %s", args.id, connection, profile.name)
         if not link.wait_connected(timeout=3.0):
             log.warning("no PX4 heartbeat yet on %s; waiting in the background (the sensor rate is asked "
                         "when PX4 appears)", connection)
         companion = Companion(node, link, config)
+        ros2_topics = _ros2_streams(args, session, link, companion)
         if tee is not None:
             MavlinkTunnel(node, tee, allow_control=args.mavlink_tunnel_allow_control)
         if link.connected:   # else the companion asks on PX4's first heartbeat; px4_link after reconnects
@@ -190,6 +236,9 @@ def run(args: argparse.Namespace) -> int:
             companion.telemetry.request_streams()   # logs what PX4 refused; never raises a CommandError
         spinner = threading.Thread(target=node.spin, name="companion-spin", daemon=True)
         spinner.start()
+        if args.vehicle_record:
+            threading.Thread(target=_record_vehicle, args=(companion, link, args.vehicle_record, stop),
+                             name="vehicle-record", daemon=True).start()
         try:
             stop.wait(timeout=args.duration)
         except KeyboardInterrupt:
@@ -197,8 +246,43 @@ def run(args: argparse.Namespace) -> int:
         finally:
             node.shutdown()
             spinner.join(timeout=2.0)
+            if ros2_topics is not None:   # after the camera stopped (node.shutdown), before the link goes
+                ros2_topics.close()
         summary = companion.summary()
         log.info("%s", summary_line(args.id, connection, summary))
         if args.record:
             write_summary(args.record, summary)
+        stop.set()     # the vehicle record's last lines
     return 0
+
+
+def _ros2_streams(args: argparse.Namespace, session: Any, link: VehicleLink, companion: Companion) -> Any:
+    """The ROS 2 topics (ros2_streams.py) when asked for, else None."""
+    from zenoh_robot.session_args import wire_from_args
+    if not args.ros2_topics and wire_from_args(args) is ENVELOPE:
+        return None
+    from .ros2_streams import Ros2Streams
+    streams = Ros2Streams(link, args.id, getattr(args, "ros_domain_id", None), session)
+    if companion.camera is not None:
+        companion.camera.frame_listeners.append(streams.on_frame)
+    return streams
+
+
+def _record_vehicle(companion: Companion, link: VehicleLink, path: Path, stop: threading.Event,
+                    period_s: float = 0.02) -> None:
+    """One JSON line per ``period_s`` (wall ns ``t``, as the GCS stamps its setpoints): a target's
+    age at the vehicle is ``t - sp_stamp``, sampled, so under by at most one period."""
+    import json
+    import time
+
+    from px4_link.telemetry import LocalPosition
+    with path.open("w", buffering=1) as f:     # line-buffered: the process may end before the thread
+        while not stop.wait(period_s):
+            pos = link.telemetry.latest(LocalPosition)
+            last = companion.gate.last_forwarded
+            f.write(json.dumps({
+                "t": time.time_ns(), "mode": link.mode, "armed": link.armed,
+                "session": companion.lifecycle.state.value,
+                "pos": None if pos is None else [round(pos.x, 3), round(pos.y, 3), round(pos.z, 3)],
+                "sp_stamp": None if last is None else last[1], "sp_seq": None if last is None else last[2],
+                "failsafes": companion.failsafe.triggered}) + "\n")

@@ -32,9 +32,9 @@ from typing import Any
 
 from drone_contract.commands import COMMAND_SPECS, COMMANDS, CommandName, command_name
 from drone_contract.messages import Command, CommandResult, valid_client_id
-from px4_link import Px4Link
 from px4_link.commands import CommandError
 from px4_link.targets import TargetRefused
+from px4_link.vehicle import VehicleLink
 
 from .config import CompanionConfig
 from .control import ControlArbiter, HandOver
@@ -72,7 +72,7 @@ class CommandDesk:
     # Answered by the control claim itself, never by PX4.
     CONTROL_ONLY = (CommandName.TAKE_CONTROL, CommandName.HAND_OVER)
 
-    def __init__(self, link: Px4Link, control: ControlArbiter, lifecycle: OffboardLifecycle,
+    def __init__(self, link: VehicleLink, control: ControlArbiter, lifecycle: OffboardLifecycle,
                  gate: SetpointGate, failsafe: DeadlineFailsafe, events: EventReporter, worker: Px4Worker,
                  config: Callable[[], CompanionConfig]) -> None:
         self._link, self._control, self._lifecycle, self._gate = link, control, lifecycle, gate

@@ -11,8 +11,11 @@ The companion obeys setpoints and flight commands from one client (a GCS id) at 
 - a holder that is gone (its liveliness token ``zr_gcs/<client_id>`` is gone and nothing
   has come from it for ``lease_s``) is released only when the caller says the vehicle may
   be left without a controller (landed or disarmed, no session): control never lapses in
-  the air, where the setpoint deadline has already put the drone in HOLD. A holder that
-  never declared a token (a test node, a script, a multicast peer) lives by the lease alone;
+  the air, where the setpoint deadline has already put the drone in HOLD. A holder whose
+  token never arrives (a test node, a script, a GCS over Zenoh's UDP multicast transport,
+  which carries no liveliness) lives by the lease alone: its setpoints, commands and the
+  presence a running GCS sends twice a second (``<id>/presence``) each renew it (``seen``),
+  so a GCS waiting for a landing keeps control, and one that stops sending loses it;
 - another client takes over only with ``force`` (``take_control --force`` /
   ``gcs --take-control``); the previous holder is told (a ``control_lost`` event).
 

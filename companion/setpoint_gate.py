@@ -29,9 +29,9 @@ from dataclasses import dataclass
 from typing import Any
 
 from drone_contract.messages import DroneSetpoint, valid_client_id
-from px4_link import Px4Link
 from px4_link.targets import PositionTarget, Target, TargetRefused, TargetValidator, VehicleMotion, VelocityTarget
 from px4_link.telemetry import LocalPosition
+from px4_link.vehicle import VehicleLink
 from zenoh_robot.ratelimit import RateLimiter
 from zenoh_robot.tools.stream_metrics import StreamRecorder
 
@@ -63,7 +63,7 @@ class SetpointGate:
     MAX_CANDIDATES = 16
     RESUME_EVERY_S = 3.0     # resume_on_setpoints: one attempt at a time, not one per setpoint
 
-    def __init__(self, link: Px4Link, control: ControlArbiter, lifecycle: OffboardLifecycle,
+    def __init__(self, link: VehicleLink, control: ControlArbiter, lifecycle: OffboardLifecycle,
                  failsafe: DeadlineFailsafe, events: EventReporter, worker: Px4Worker,
                  config: Callable[[], CompanionConfig]) -> None:
         self._link, self._control, self._lifecycle = link, control, lifecycle
@@ -132,6 +132,11 @@ class SetpointGate:
             return
         self._flying = client
         self._failsafe.fed(now)
+
+    @property
+    def last_forwarded(self) -> tuple[str, int, int] | None:
+        """(client, source stamp ns, seq) of the target px4_link streams to PX4 now (None: none yet)."""
+        return self._last_forwarded
 
     def on_superseded(self, pub_id: int, seq: int, source_stamp_ns: int, received_ns: int) -> None:
         """A setpoint recovered with a newer one (the subscription delivered only that): it reached the

@@ -16,9 +16,9 @@ from collections.abc import Callable
 from typing import Any
 
 from drone_contract.messages import VehicleState
-from px4_link import Px4Link
 from px4_link.commands import CommandError, CommandTimeout, NotConnected
 from px4_link.telemetry import Attitude, Battery, Imu, LocalPosition, SysStatus
+from px4_link.vehicle import VehicleLink
 from px4_link.wire import message_id
 from zenoh_robot.msgs import Header, SensorCombined
 from zenoh_robot.publisher import PublisherClosed
@@ -61,7 +61,7 @@ SUMMARY_STREAMS = ("HIGHRES_IMU", "ATTITUDE", "LOCAL_POSITION_NED", "GLOBAL_POSI
                    "GPS_RAW_INT", "SYS_STATUS", "EXTENDED_SYS_STATE", "BATTERY_STATUS")
 
 
-def ask_streams(link: Px4Link, plan: dict[str, float]) -> dict[str, str]:
+def ask_streams(link: VehicleLink, plan: dict[str, float]) -> dict[str, str]:
     """Ask PX4 for each stream of ``plan`` at its rate (0: off); returns {stream: why} for those
     not applied. All are remembered first, so px4_link asks for every one again after a PX4
     reconnect or reboot even when this round stopped early."""
@@ -98,7 +98,7 @@ def streams_in_force(config: CompanionConfig) -> str:
 
 
 class TelemetryBridge:
-    def __init__(self, link: Px4Link, sensor_pub: Any, state_pub: Any, sent_sensor: StreamRecorder,
+    def __init__(self, link: VehicleLink, sensor_pub: Any, state_pub: Any, sent_sensor: StreamRecorder,
                  sent_state: StreamRecorder, events: EventReporter, worker: Px4Worker,
                  config: Callable[[], CompanionConfig]) -> None:
         self._link, self._sensor_pub, self._state_pub = link, sensor_pub, state_pub

@@ -100,5 +100,17 @@ class FailsafeEvent(Message):
             self.header = Header()
 
 
+@message(name="zenoh_robot/GcsPresence")
+class GcsPresence(Message):
+    """A GCS saying it still runs, at a low rate, to each drone it controls: the companion renews
+    the holder's lease by it where the GCS's liveliness token cannot reach (a UDP multicast session)."""
+    header: Header = None  # type: ignore[assignment]
+    client_id: str = ""
+
+    def __post_init__(self) -> None:
+        if self.header is None:
+            self.header = Header()
+
+
 # A mission fails when one of these reaches it (setpoint_rejected only when addressed to it).
 FAILSAFE_KINDS = ("setpoint_deadline_missed", "offboard_lost", "failsafe_failed", "control_lost")

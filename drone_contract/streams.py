@@ -19,10 +19,10 @@ from typing import Any
 from zenoh_robot.message import Message
 from zenoh_robot.msgs import SensorCombined
 from zenoh_robot.qos import RESILIENT, HistoryPolicy, Priority, QoSError, QoSProfile, ReliabilityPolicy
-from zenoh_robot.session_config import SessionConfig
+from zenoh_robot.session_config import LOSSY_LINK, SessionConfig
 
 from .limits import SETPOINT_DEADLINE_S as SETPOINT_DEADLINE
-from .messages import DroneSetpoint, FailsafeEvent, VehicleState
+from .messages import DroneSetpoint, FailsafeEvent, GcsPresence, VehicleState
 
 UP = "up"         # GCS -> drone
 DOWN = "down"     # drone -> GCS
@@ -44,6 +44,7 @@ STREAM_SPECS: dict[str, StreamSpec] = {s.name: s for s in (
     StreamSpec("state", DOWN, VehicleState, "mode, arming, position, battery, the companion's lifecycle"),
     StreamSpec("image", DOWN, None, "the camera, as the profile's image mode carries it"),
     StreamSpec("events", DOWN, FailsafeEvent, "what the companion saw and did: refusals, failsafes, control"),
+    StreamSpec("presence", UP, GcsPresence, "the GCS in control is still running (renews its control lease)"),
 )}
 STREAMS = tuple(STREAM_SPECS)
 
@@ -155,12 +156,15 @@ PROFILES: dict[str, StreamProfile] = {
                                 redundancy=2, repeat=3),
             "image": QoSProfile(ReliabilityPolicy.BEST_EFFORT, depth=1, priority=Priority.DATA_LOW),
             "events": RESILIENT.replace(depth=10, priority=Priority.INTERACTIVE_HIGH),
+            # Twice a second, each sent 4 times: the lease (5 s) outlives ~40 copies lost in a row.
+            "presence": QoSProfile(ReliabilityPolicy.BEST_EFFORT, depth=1, priority=Priority.INTERACTIVE_HIGH,
+                                   repeat=3),
         },
         image_mode="fec", jpeg_quality=60, loss_feedback=True,
         # Unicast or routed: the handshake and links the lossy-link experiment found to form and survive
         # (SessionConfig.lossy: fast open, UDP first); every kind: batches under the MTU, a 10 s lease
         # held by keep-alives every 100 ms.
-        transport={"batch_size": 1300, "lease_s": 10.0, "keep_alive": 100, "lossy": True}, transport_kind="auto",
+        transport=LOSSY_LINK, transport_kind="auto",
     ),
 }
 # The resilient streams on the multicast transport, which they are measured on (docs/lossy-link.md):

@@ -36,7 +36,46 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--pattern", default="square", choices=("square", "circle", "line", "hover"))
     p.add_argument("--profile", default="resilient", help="stream profile (default resilient)")
     p.add_argument("--drone", default="uav1")
+    p.add_argument("--px4", choices=("mavlink", "zenoh"), default="mavlink",
+                   help="how the companion talks to PX4: mavlink (the MAVLink simulator, default) or zenoh (PX4's "
+                        "Zenoh protocol, no MAVLink: `python -m px4_zenoh.sim` joins the companion's router on "
+                        "PX4 SITL's tcp/127.0.0.1:7447)")
     p.set_defaults(func=run)
+
+
+PX4_ZENOH_ENDPOINT = ("127.0.0.1", 7447)   # PX4 SITL's default router locator (zenoh/net.txt)
+
+
+def _tcp_port_free(addr: tuple[str, int]) -> bool:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        try:
+            s.bind(addr)
+        except OSError:
+            return False
+        return True
+
+
+def _px4_processes(args: argparse.Namespace, py: str, port: int, console: Console) -> tuple[list[str], list[str]]:
+    """(simulator command or [], the companion's --px4 value) for ``--px4``."""
+    if args.px4 == "mavlink":
+        return [py, "-m", "px4_link.sim", "--port", "0", "--target-port", str(port)], [f"udpin:127.0.0.1:{port}"]
+    if _tcp_port_free(PX4_ZENOH_ENDPOINT):
+        # as on a drone: the companion's embedded router on PX4's locator, the simulated PX4 a client of it
+        host, tcp = PX4_ZENOH_ENDPOINT
+        return [py, "-m", "px4_zenoh.sim", "--connect", f"tcp/{host}:{tcp}"], ["zenoh"]
+    # the companion cannot listen on another port yet: the simulator runs inside it on a free one
+    console.print("demo: tcp/127.0.0.1:7447 is taken (a zenohd?); the Zenoh simulator runs inside the companion")
+    return [], ["zenoh-sim"]
+
+
+def _wait_listening(addr: tuple[str, int], proc: subprocess.Popen[bytes], deadline: float) -> None:
+    """Until something accepts TCP connections on ``addr`` (or ``proc`` ended, or ``deadline``)."""
+    while time.monotonic() < deadline and proc.poll() is None:
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+            s.settimeout(0.2)
+            if s.connect_ex(addr) == 0:
+                return
+        time.sleep(0.1)
 
 
 def _free_udp_port() -> int:
@@ -91,11 +130,17 @@ def run(args: argparse.Namespace) -> int:
     logs = {name: open(work / f"{name}.log", "w") for name in ("sim", "companion")}
     console.print(f"demo: simulator, companion and GCS on localhost for {args.duration:g} s; logs in {work}")
     # Every child in its own session: a terminal's Ctrl-C reaches this process only, which stops the rest in order.
-    sim = subprocess.Popen([py, "-m", "px4_link.sim", "--port", "0", "--target-port", str(port)],
-                           stdout=logs["sim"], stderr=subprocess.STDOUT, start_new_session=True)
-    companion = subprocess.Popen([py, "-m", "companion", "--id", args.drone, "--px4", f"udpin:127.0.0.1:{port}",
-                                  "--profile", args.profile, "--record", str(work / "companion.json")],
+    sim_cmd, px4_spec = _px4_processes(args, py, port, console)
+    companion = subprocess.Popen([py, "-m", "companion", "--id", args.drone, "--px4", *px4_spec,
+                                  "--profile", args.profile, "--record", str(work / "companion.json"),
+                                  "--ros2-topics"],   # the drone as standard ROS 2 types too (docs/ros2.md)
                                  stdout=logs["companion"], stderr=subprocess.STDOUT, start_new_session=True)
+    # after the companion: a Zenoh PX4 is a client of the companion's router and retries every 5 s, as PX4
+    # does; started once the router listens, the simulated PX4 joins at its first try
+    if px4_spec == ["zenoh"]:
+        _wait_listening(PX4_ZENOH_ENDPOINT, companion, time.monotonic() + 15.0)
+    sim = subprocess.Popen(sim_cmd or [py, "-c", "pass"], stdout=logs["sim"], stderr=subprocess.STDOUT,
+                           start_new_session=True)
     pattern_s = args.duration - SETUP_S   # so the GCS lands and ends by itself before the deadline
     gcs_cmd = [py, "-m", "gcs", "--drones", args.drone, "--mission", "--duration", f"{pattern_s:g}",
                "--pattern", args.pattern, "--profile", args.profile, "--record", str(work / "gcs.json")]

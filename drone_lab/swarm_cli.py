@@ -1,4 +1,4 @@
-"""``zenoh-robot swarm``: the scaling sweep (one GCS, N drones, peer and router) and swarm launch files."""
+"""``zenoh-robot swarm``: the scaling sweep (one GCS, N drones that fly, peer and router) and swarm launch files."""
 from __future__ import annotations
 
 import argparse
@@ -20,8 +20,17 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--drones", type=_ints, default=[1, 2, 5, 10], help="drone counts (default 1,2,5,10)")
     p.add_argument("--modes", default="peer,router", help="peer, router or both (default peer,router)")
     p.add_argument("--camera", choices=("on", "off", "both"), default="on")
-    p.add_argument("--duration", type=float, default=15.0, help="measured seconds per cell (default 15)")
-    p.add_argument("--warmup", type=float, default=8.0, help="seconds before measuring (default 8)")
+    p.add_argument("--duration", type=float, default=15.0,
+                   help="measured seconds per cell: the pattern's flight (default 15)")
+    p.add_argument("--warmup", type=float, default=8.0, help="--hover: seconds before measuring (default 8)")
+    p.add_argument("--runs", type=int, default=1, help="runs per cell (the report gives median and range; default 1)")
+    p.add_argument("--hover", action="store_true",
+                   help="do not fly: the GCS streams hover setpoints that the grounded drones ignore (the sweep "
+                        "before issue #29); default: every drone arms, flies the pattern in formation and lands")
+    p.add_argument("--pattern", default="square", help="the formation's pattern (default square)")
+    p.add_argument("--formation", default="grid", choices=("line", "grid"), help="slots (default grid)")
+    p.add_argument("--spacing", type=float, default=5.0, help="m between slots (default 5)")
+    p.add_argument("--size", type=float, default=4.0, help="pattern size, m (default 4)")
     p.add_argument("--sensor-rate", type=float, default=None, metavar="HZ",
                    help="SensorCombined rate the GCS asks of each drone (default 50, the swarm launch files'; "
                         "0: not asked, the drone's own 200 Hz)")
@@ -30,7 +39,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--downlink", choices=("swarm", "default", "both"), default="swarm",
                    help="swarm: the rates above; default: none asked (the drones' own); both: a cell of each")
     p.add_argument("--out", type=Path, default=Path("results/swarm"))
-    p.add_argument("--report-only", action="store_true", help="redraw the table and figure from --out")
+    p.add_argument("--report-only", action="store_true",
+                   help="rebuild every result from the cells' raw records under --out (runner.json and the "
+                        "processes' records), then redraw the tables and figure")
     p.add_argument("--launch", type=int, metavar="N",
                    help="print a launch file for a router, N companions with simulators and a GCS, and exit")
     p.set_defaults(func=run)
@@ -42,6 +53,7 @@ def run(args: argparse.Namespace) -> int:
         SWARM_SENSOR_HZ,
         SwarmCell,
         load_results,
+        reanalyse,
         run_sweep,
         swarm_launch,
     )
@@ -56,7 +68,8 @@ def run(args: argparse.Namespace) -> int:
         return 0
     out: Path = args.out
     if args.report_only:
-        results = load_results(out / "results.jsonl")
+        # Cells with raw records are analysed again; older results (no runner.json) are read as recorded.
+        results = reanalyse(out) if any(out.glob("*/runner.json")) else load_results(out / "results.jsonl")
         if not results:
             raise CliError(f"no results in {out / 'results.jsonl'}")
     else:
@@ -73,10 +86,19 @@ def run(args: argparse.Namespace) -> int:
         choices: dict[str, list[tuple[float | None, float | None]]] = {
             "swarm": [swarm_rates], "default": [(None, None)], "both": [(None, None), swarm_rates]}
         downlinks = choices[args.downlink]
-        cells = [SwarmCell(n, m, c, args.duration, args.warmup, sensor_rate=s, camera_rate=f)
-                 for n in args.drones for s, f in downlinks for m in modes for c in cams]
-        print(f"swarm: {len(cells)} cells, about {len(cells) * (args.duration + args.warmup + 8) / 60:.0f} min; "
-              f"results in {out}", flush=True)
+        if args.runs < 1:
+            raise CliError("--runs: at least 1")
+        from gcs.patterns import PATTERNS
+        if args.pattern not in PATTERNS:
+            raise CliError(f"--pattern: one of {', '.join(PATTERNS)}")
+        fly = not args.hover
+        cells = [SwarmCell(n, m, c, args.duration, args.warmup, sensor_rate=s, camera_rate=f, fly=fly,
+                           pattern=args.pattern, formation=args.formation, spacing=args.spacing, size=args.size,
+                           run=r + 1)
+                 for r in range(args.runs) for n in args.drones for s, f in downlinks for m in modes for c in cams]
+        # A flying cell: start-up, pre-arm checks, climb and landing (~35 s at a few drones, more when loaded).
+        per_cell = args.duration + (35 if fly else args.warmup + 8)
+        print(f"swarm: {len(cells)} cells, about {len(cells) * per_cell / 60:.0f} min; results in {out}", flush=True)
         run_sweep(out, cells, say=lambda s: print(s, flush=True))
         results = load_results(out / "results.jsonl")
     files = write_report(results, out)

@@ -49,6 +49,7 @@ from drone_contract.messages import (
     CommandResult,
     DroneSetpoint,
     FailsafeEvent,
+    GcsPresence,
     VehicleState,
 )
 from drone_contract.streams import DOWN, UP, StreamProfile, message_of, stream_profile, wired
@@ -77,6 +78,13 @@ MAX_TARGET_SPEED = GCS_MAX_TARGET_SPEED_MS   # within its max_speed
 # at the drone's own 200 Hz / 30 fps sensor 1.6, image 1.1. The budgets leave ~3x for a loaded host
 # and sum to 4.5, under the 5 % per drone of issue #18: a stream over its budget is worth a look.
 STREAM_CPU_BUDGET_PCT = {"sensor": 2.0, "state": 0.5, "image": 2.0}
+# The presence this GCS sends each drone it controls: well inside the companion's control lease (5 s by
+# default, never under its 1 s setpoint deadline), so a GCS that no longer streams (waiting for a landing)
+# keeps control where its liveliness token does not reach the drone (UDP multicast carries none).
+PRESENCE_PERIOD_S = 0.5
+# A formation drone has reached its slot's path once its target is that path (no longer a lead towards it)
+# and the drone is this close to it; its path error counts from then on.
+PATH_JOIN_M = 1.0
 
 
 def default_client_id() -> str:
@@ -142,7 +150,14 @@ class DroneView:
         self.sent = {"setpoint": StreamRecorder()}
         self.image = ImageStats()
         self.frames = FrameKeeper()
+        # Path error: the horizontal distance from the drone to its own commanded path (its slot's copy of
+        # the pattern), from the moment it first reached that path: the lead-in from home to a far slot is a
+        # transit the GCS commands on purpose, not an error of the flight.
         self.max_path_error = 0.0
+        self.path_error_sum = 0.0
+        self.path_error_samples = 0
+        self.on_path = False               # joined its path: errors count from here
+        self._target_on_path = False       # the target is the path itself (formation: no longer led)
         # Targets: see the module docstring.
         self.fly = gcs.config.auto_fly          # fly the pattern once the session is active
         self._hover: PathPoint | None = None
@@ -181,6 +196,8 @@ class DroneView:
                                      topic_statistics=budget["image"])
         # Retried with one request id until the deadline; the companion runs each call once (services.py).
         self.commands = node.create_client(f"{ns}/{COMMAND_SERVICE}", Command, CommandResult, retry=command_retry(node))
+        presence = wired("presence", UP)
+        self.presence_pub = node.create_publisher(message_of(presence), f"{ns}/{presence.name}", q[presence.name])
 
     # -- telemetry -------------------------------------------------------------------
     def _on_sensor(self, msg: SensorCombined, info: Any) -> None:
@@ -193,10 +210,30 @@ class DroneView:
         if self.gcs.downlink is not None:   # a join (or rejoin): ask for this GCS's downlink rates
             self.gcs.downlink.on_state(self.id, previous_at, self.state_at, float(msg.sensor_rate_requested_hz),
                                        msg.controller)
-        if msg.mode == "OFFBOARD" and self._anchor is not None:
-            x, y = msg.position[0] - self._anchor.x, msg.position[1] - self._anchor.y
-            self.max_path_error = max(self.max_path_error,
-                                      path_distance(x, y, self.pattern_name, self.gcs.config.size))
+        if msg.mode == "OFFBOARD" and self._anchor is not None and self._target_on_path and not self.done:
+            # In the pattern's own frame: the path flown is anchor + p(t) - p(0).
+            p0 = self.pattern(0.0)
+            x, y = msg.position[0] - self._anchor.x + p0.x, msg.position[1] - self._anchor.y + p0.y
+            err = path_distance(x, y, self.pattern_name, self.gcs.config.size)
+            if not self.on_path and err > PATH_JOIN_M:
+                return
+            self.on_path = True
+            self.max_path_error = max(self.max_path_error, err)
+            self.path_error_sum += err
+            self.path_error_samples += 1
+
+    def lost_pct(self, stream: str) -> float:
+        """Share of ``stream`` that never arrived (NaN before there is anything to say). Strips are numbered
+        frame * MAX_SLICES + index (FEC: one per frame), so their sequence numbers leave gaps no strip fills:
+        theirs is the frame keeper's count of strips expected against strips that arrived."""
+        if stream == "image_strip":
+            k = self.frames
+            return 100.0 * (1 - k.strips_fresh / k.strips_expected) if k.strips_expected else float("nan")
+        return self.streams[stream].lost_pct()
+
+    @property
+    def mean_path_error(self) -> float:
+        return self.path_error_sum / self.path_error_samples if self.path_error_samples else float("nan")
 
     @property
     def in_control(self) -> bool:
@@ -285,6 +322,7 @@ class DroneView:
         toward = min(max(alt, z - MAX_LEAD_M), z + MAX_LEAD_M)   # climb (or descend) from where it is
         if not self.session_active:
             self._anchor = self._led = None
+            self.on_path = self._target_on_path = False
             self._hover = PathPoint(x, y, toward, self._hover.yaw if self._hover else 0.0)
             return self._hover
         if self._hover is None:
@@ -296,20 +334,24 @@ class DroneView:
             # One clock for the whole formation; the slot shifts this drone's copy of the path.
             self._anchor = PathPoint(*self.slot, 0.0)
             p0, p = self.pattern(0.0), self.pattern(self.gcs.formation_time())
-            tx, ty = lead(x, y, self.slot[0] + p.x - p0.x, self.slot[1] + p.y - p0.y, MAX_LEAD_M)
+            px, py = self.slot[0] + p.x - p0.x, self.slot[1] + p.y - p0.y
+            tx, ty = lead(x, y, px, py, MAX_LEAD_M)
             # Led from the last target, never faster than MAX_TARGET_SPEED: no jump to refuse.
             prev = self._led or self._hover
             tx, ty = lead(prev.x, prev.y, tx, ty, MAX_TARGET_SPEED / self.gcs.config.rate_hz)
+            self._target_on_path = self._target_on_path or (tx, ty) == (px, py)
             self._led = PathPoint(tx, ty, min(max(p.z, z - MAX_LEAD_M), z + MAX_LEAD_M), p.yaw)
             return self._led
         if self._anchor is None:
             self._anchor, self._t0 = self._hover, time.monotonic()
+            self.on_path = self._target_on_path = True   # the pattern starts where the drone is
         p0, p = self.pattern(0.0), self.pattern(time.monotonic() - self._t0)
         return PathPoint(self._anchor.x + p.x - p0.x, self._anchor.y + p.y - p0.y,
                       min(max(p.z, z - MAX_LEAD_M), z + MAX_LEAD_M), p.yaw)
 
     def start_pattern(self) -> None:
         self.fly, self._anchor, self._frozen = True, None, None
+        self.on_path = self._target_on_path = False
 
     def freeze(self) -> None:
         """Keep sending the current target (a jump back to the start would be refused)."""
@@ -331,6 +373,9 @@ class DroneView:
                                                        t.x, t.y, t.z, t.yaw, False))
         self.sent["setpoint"].record(sent.seq, sent.stamp_ns)
         self.setpoints_sent += 1
+
+    def send_presence(self) -> None:
+        self.presence_pub.publish(GcsPresence(Header.now(), self.gcs.config.client_id))
 
     @property
     def link_age(self) -> float:
@@ -363,6 +408,7 @@ class Gcs:
             # Discovery: any namespace publishing a VehicleState on <id>/state is a drone.
             self._discovery = node.session.declare_subscriber("*/state", self._on_any_state)
         node.create_timer(1.0 / config.rate_hz, self._stream)
+        node.create_timer(PRESENCE_PERIOD_S, self._presence)
         # Loss feedback (loss_feedback.py): setpoint copies follow the loss the drones measure.
         self.link_monitor = LossMonitor(node) if config.profile.loss_feedback else None
         if self.link_monitor is not None:
@@ -453,6 +499,12 @@ class Gcs:
             t = drone.target()
             if t is not None and drone.may_stream:
                 drone.send_setpoint(t)
+
+    def _presence(self) -> None:
+        # Even while streaming stops (landing, paused): the lease is the holder's as long as this GCS runs.
+        for drone in list(self.drones.values()):
+            if drone.in_control:
+                drone.send_presence()
 
     def image_path(self, drone_id: str) -> Path:
         """--save-image FILE: FILE itself for one drone given, FILE_<id> otherwise (told once, in the log)."""

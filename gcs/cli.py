@@ -5,6 +5,7 @@ import argparse
 import json
 import logging
 import math
+import os
 import sys
 import threading
 import time
@@ -48,8 +49,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     c.add_argument("--timeout", type=float, default=8.0)
     add_session_arguments(c)
     c.add_argument("--gcs-id", default=None, help="this GCS's id (default user@host, shared with `gcs` runs)")
-    c.add_argument("--link-keys", metavar="DIR", help="seal the command with this GCS's link keyring DIR/<gcs id>.json "
-                   "(needed when the companion runs with --link-keys)")
+    c.add_argument("--link-keys", metavar="DIR", default=os.environ.get("ZR_LINK_KEYS"),
+                   help="seal the command with this GCS's link keyring DIR/<gcs id>.json "
+                   "(needed when the companion runs with --link-keys; default $ZR_LINK_KEYS)")
     c.add_argument("--drones", help="with 'all': comma-separated drone ids (default: discover)")
     c.add_argument("--discover", type=float, default=2.0, help="with 'all' and no --drones: listen this long, s")
     p.set_defaults(func=run)
@@ -71,10 +73,10 @@ def add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mission", action="store_true",
                    help="fly every drone of --drones at once: offboard, arm, pattern for --duration, land; "
                         "without it the pattern is flown once an operator starts a drone's offboard session")
-    p.add_argument("--link-keys", metavar="DIR",
+    p.add_argument("--link-keys", metavar="DIR", default=os.environ.get("ZR_LINK_KEYS"),
                    help="seal every topic sample (ChaCha20-Poly1305, replay window, per-role keys) with this "
                         "node's keyring DIR/<gcs id>.json from `zenoh-robot keys link` (docs/security.md); "
-                        "re-read on SIGHUP")
+                        "re-read on SIGHUP; default $ZR_LINK_KEYS")
     p.add_argument("--link-encrypt", action="store_true", help="with --link-keys: encrypt samples too")
     p.add_argument("--insecure-ok", action="store_true",
                    help="fly --mission over a network (--iface, or --connect to another host) without --secure: "
@@ -287,14 +289,17 @@ def summarize(gcs: Gcs, profile: str) -> dict[str, Any]:
     out["downlink_asked"] = {"sensor_rate_hz": gcs.config.sensor_rate_hz, "camera_rate_hz": gcs.config.camera_rate_hz}
     for d in gcs.drones.values():
         streams = {name: rec.summary().as_dict() for name, rec in d.streams.items()}
-        for name, rec in d.streams.items():
-            streams[name]["lost_pct"] = rec.lost_pct()
+        for name in d.streams:
+            streams[name]["lost_pct"] = d.lost_pct(name)
         out["drones"][d.id] = {
             "setpoints_sent": d.setpoints_sent, "streams": streams,
             "frames": d.image.frames, "frames_complete": d.image.complete,
             "frames_decoded": d.frames.decoded, "decode_cpu_s": d.frames.decode_s,
             "slot": list(d.slot), "pattern": d.pattern_name,
             "max_path_error_m": d.max_path_error,
+            # Against the drone's own (slot's) path, from when it joined it (gcs/app.py, PATH_JOIN_M).
+            "mean_path_error_m": d.mean_path_error, "path_error_samples": d.path_error_samples,
+            "joined_path": d.on_path,
             "final_state": d.state.to_dict() if d.state else None,
             "events": [e.to_dict() for e in d.events],
             "downlink": gcs.downlink.status[d.id].as_dict()
@@ -337,7 +342,7 @@ def _print_summary(console: Console, summary: dict[str, Any]) -> None:
                       f"{s['age_p99_ms']:.1f}", f"{s['period_avg_ms']:.1f}")
         console.print(f"{drone}: setpoints sent {d['setpoints_sent']}, frames {d['frames']} "
                       f"({d['frames_complete']} whole), largest distance from the path "
-                      f"{d['max_path_error_m']:.2f} m")
+                      f"{d['max_path_error_m']:.2f} m (mean {d['mean_path_error_m']:.2f} m, against its own path)")
         if d.get("downlink"):
             asked = {k: v for k, v in summary.get("downlink_asked", {}).items() if v is not None}
             console.print(f"{drone}: downlink asked {asked}: {d['downlink']['status']} {d['downlink']['detail']}")

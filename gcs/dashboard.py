@@ -102,7 +102,8 @@ def stream_table(d: DroneView, rates: RateMeter) -> Table:
         t.add_column(col, justify="left" if col == "stream" else "right")
     for name, rec in d.streams.items():
         s = rec.summary()
-        lost = "-" if math.isnan(rec.lost_pct()) else f"{rec.lost_pct():.1f}"
+        lost_pct = d.lost_pct(name)
+        lost = "-" if math.isnan(lost_pct) else f"{lost_pct:.1f}"
         t.add_row(name, _hz(rates.rate(f"{d.id}/{name}", len(rec))), _ms(s.age_avg_ms), _ms(s.age_p99_ms),
                   _ms(s.period_max_ms), str(s.received), lost)
     t.add_row("setpoint (sent)", _hz(rates.rate(f"{d.id}/setpoint", d.setpoints_sent)), "", "", "",

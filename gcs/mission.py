@@ -43,14 +43,21 @@ def run_mission(gcs: Gcs, drone_id: str, duration: float, log: Callable[..., Non
         _fly(gcs, drone, duration, out, log, abort or threading.Event(), why or (lambda: "aborted"))
         out["ok"] = True
         out["result"] = (f"ok: flew the {drone.pattern_name} pattern for {duration:.0f} s, landed and disarmed "
-                         f"(largest distance from the path {drone.max_path_error:.2f} m)")
+                         f"(largest distance from the path {drone.max_path_error:.2f} m, "
+                         f"mean {drone.mean_path_error:.2f} m)")
     except MissionFailed as exc:
         out["result"] = f"FAILED: {exc}"
         if drone.state is not None and drone.state.armed and drone.in_control:
             drone.freeze()
             res = drone.command("hold")   # whatever went wrong, do not leave it following a stale plan
             log(f"mission: hold after failure: {'ok' if res.success else 'FAILED'} {res.message}")
+    # Against the drone's own path (its formation slot's), from when it joined it (gcs/app.py).
     out["max_path_error_m"] = drone.max_path_error
+    out["mean_path_error_m"] = drone.mean_path_error
+    out["joined_path"] = drone.on_path
+    out["asked_s"] = duration
+    out.setdefault("offboard_s", 0.0)
+    out["offboard_share"] = out["offboard_s"] / duration if duration > 0 else float("nan")
     out["failures"] = list(drone.failures)
     log(f"mission: {drone.id}: {out['result']}")
     return out
@@ -127,7 +134,10 @@ def _fly(gcs: Gcs, drone: DroneView, duration: float, out: dict[str, Any], log: 
     def command(name: str, value: float = 0.0) -> None:
         # One call: the client retries it under one request id and the companion runs it once
         # (services.py); a second call here would be a new command that could run twice.
+        t0 = time.monotonic()
         res = drone.command(name, value)
+        out.setdefault("commands", []).append({"command": name, "ok": res.success,
+                                                "latency_s": time.monotonic() - t0, "detail": res.message})
         step(name, res.success, res.message)
 
     connected = until(lambda: bool(drone.state and drone.state.connected and drone.setpoints_sent > 5), 30.0)
@@ -151,14 +161,22 @@ def _fly(gcs: Gcs, drone: DroneView, duration: float, out: dict[str, Any], log: 
                                                f"after 30 s (asked {alt:g} m)")
     drone.start_pattern()
     log(f"mission: {drone.id}: flying the {drone.pattern_name} pattern for {duration:.0f} s")
-    end = time.monotonic() + duration
+    start = time.monotonic()
+    end = start + duration
+    # The pattern's window (wall clock), for figures taken over the flight itself (drone_lab's swarm).
+    out["pattern_window"] = [time.time(), float("nan")]
     while time.monotonic() < end:
         check()
         s = drone.state
         if s is not None and (s.mode != "OFFBOARD" or s.offboard_state != "active"):
             step("offboard", False, f"drone left the offboard session: mode {s.mode}, "
                                     f"companion {s.offboard_state or '?'} {s.failsafe}".strip())
+        out["offboard_s"] = min(time.monotonic() - start, duration)   # in OFFBOARD, as the drone last said
+        out["pattern_window"][1] = time.time()
         time.sleep(0.2)
+    s = drone.state
+    if s is not None and s.mode == "OFFBOARD" and s.offboard_state == "active":
+        out["offboard_s"] = duration
     drone.freeze()
     landing = True
     command("land")

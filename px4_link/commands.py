@@ -105,8 +105,10 @@ class CommandSender:
 
     def __init__(self, send: Callable[[int, Sequence[float], int], None],
                  timeout: float = 1.0, retries: int = 3,
-                 context: Callable[[], str] | None = None) -> None:
+                 context: Callable[[], str] | None = None,
+                 double_acked: frozenset[int] = DOUBLE_ACKED) -> None:
         self._send = send
+        self._double_acked = double_acked   # PX4's MAVLink ACKs these twice; its uORB ACK comes once
         self.timeout = timeout
         self.retries = retries
         self._context = context  # extra text for errors, e.g. the vehicle's last STATUSTEXT
@@ -197,7 +199,7 @@ class CommandSender:
                                     # Keep listening without resending: the vehicle is on it.
                                     deadline = time.monotonic() + timeout
                                     continue
-                                if command in DOUBLE_ACKED and not self._second_seen:
+                                if command in self._double_acked and not self._second_seen:
                                     self._echo = (command, time.monotonic() + ECHO_WINDOW_S)
                                 return self._finish(command, result, param2, attempts, start)
                             if self._cancelled:

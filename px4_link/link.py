@@ -9,6 +9,7 @@ link-wide calls; see core.py for the threading contract.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 from .action import Action
 from .commands import CommandAck
@@ -132,6 +133,10 @@ class Px4Link:
     @property
     def stats(self) -> LinkStats:
         return self._core.stats
+
+    def backend_summary(self) -> dict[str, Any]:
+        """For the companion's summary (``vehicle.VehicleLink``)."""
+        return {"backend": "mavlink", "connection": self.connection}
 
     def wait_connected(self, timeout: float = 10.0) -> bool:
         """Block until a vehicle heartbeat is seen; False on timeout."""

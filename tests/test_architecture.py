@@ -16,9 +16,9 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("zenoh_robot", "px4_link", "companion", "gcs", "drone_contract", "drone_lab")
+PACKAGES = ("zenoh_robot", "px4_link", "px4_zenoh", "companion", "gcs", "drone_contract", "drone_lab")
 # The drone wing: the contract, the apps, the lab and px4_link; none of it below the tools.
-DRONE_WING = ("companion", "gcs", "px4_link", "drone_contract", "drone_lab")
+DRONE_WING = ("companion", "gcs", "px4_link", "px4_zenoh", "drone_contract", "drone_lab")
 
 
 def _module_name(path: Path) -> str:
@@ -177,7 +177,14 @@ def test_no_import_cycle_among_the_projects_modules() -> None:
 
 
 def test_px4_link_never_imports_zenoh() -> None:
-    assert _offenders("px4_link", ("zenoh", "zenoh_robot", "companion", "gcs", "drone_contract", "drone_lab")) == []
+    assert _offenders("px4_link", ("zenoh", "zenoh_robot", "px4_zenoh", "companion", "gcs", "drone_contract",
+                                   "drone_lab")) == []
+
+
+def test_px4_zenoh_is_a_backend_below_the_apps() -> None:
+    """PX4 over Zenoh is a vehicle backend: the companion uses it, it never uses the apps, the lab or the
+    contract, and it does not speak MAVLink (that is px4_link's job)."""
+    assert _offenders("px4_zenoh", ("companion", "gcs", "drone_contract", "drone_lab", "pymavlink")) == []
 
 
 def test_the_library_never_imports_mavlink_or_the_apps() -> None:

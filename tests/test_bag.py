@@ -19,10 +19,11 @@ from mcap.reader import make_reader  # noqa: E402
 
 from drone_contract.messages import VehicleState  # noqa: E402
 from zenoh_robot import Node, msgs, qos  # noqa: E402
+from zenoh_robot.tools.bag.encodings import PROTOBUF, RAW_ENVELOPE_SCHEMA  # noqa: E402
 from zenoh_robot.tools.bag.info import Record, iter_records, read_info  # noqa: E402
 from zenoh_robot.tools.bag.play import BagPlayer  # noqa: E402
 from zenoh_robot.tools.bag.record import BagRecorder  # noqa: E402
-from zenoh_robot.tools.bag.schemas import RAW_ENCODING  # noqa: E402
+from zenoh_robot.wire import ENVELOPE  # noqa: E402
 
 CLI = [sys.executable, "-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())"]
 
@@ -82,7 +83,10 @@ def test_record_cli_writes_mcap_that_reads_back(talker, ns, tmp_path):
             assert "header" in props
         assert set(json.loads(summary.schemas[topics[f"/{ns}/state"].schema_id].data)["properties"]) >= {
             "position", "attitude", "mode", "armed"}
-        assert topics[f"/_zr/raw/{ns}/setpoint"].message_encoding == RAW_ENCODING
+        # Foxglove decodes the raw channels too: a protobuf message with its FileDescriptorSet schema
+        assert topics[f"/_zr/raw/{ns}/setpoint"].message_encoding == PROTOBUF
+        raw_schema = summary.schemas[topics[f"/_zr/raw/{ns}/setpoint"].schema_id]
+        assert (raw_schema.name, raw_schema.encoding) == (RAW_ENVELOPE_SCHEMA, "protobuf")
         assert topics[f"/_zr/raw/{ns}/setpoint"].metadata["zr.qos"], "the publisher's QoS is kept for replay"
         assert summary.schemas[topics[f"/{ns}/state/pose"].schema_id].name == "foxglove.PoseInFrame"
         assert summary.schemas[topics[f"/{ns}/state/fix"].schema_id].name == "foxglove.LocationFix"
@@ -183,6 +187,16 @@ def test_play_republishes_bit_exact_into_a_live_subscriber(talker, ns, tmp_path)
         assert wait_for(lambda: len(got) >= len(recorded) * 0.8, 5.0), (len(got), len(recorded))
         player.close()
     raw = [r for r in iter_records(path) if isinstance(r, Record) and r.channel.topic == f"/_zr/raw/{ns}/setpoint"]
+    # A protobuf runtime decodes the raw channel from the file's own FileDescriptorSet, as Foxglove does:
+    # each message's one field is an envelope, whose sequence number is at least the record's (an envelope
+    # that also recovered older samples is recorded with the first of them).
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+    pool = descriptor_pool.DescriptorPool()
+    for file in descriptor_pb2.FileDescriptorSet.FromString(raw[0].schema.data).file:
+        pool.Add(file)
+    Envelope = message_factory.GetMessageClass(pool.FindMessageTypeByName(raw[0].schema.name))
+    envelopes = [Envelope.FromString(r.message.data).envelope for r in raw]
+    assert all(ENVELOPE.unpack(e).seq >= r.message.sequence for e, r in zip(envelopes, raw, strict=True))
     # every wire copy goes out again (repeats included); the subscription delivers each sample once
     assert c.published == len(raw) and c.per_topic == {f"/{ns}/setpoint": len(raw)}
     assert len({m.header.seq for m, _, _ in got}) == len(got)

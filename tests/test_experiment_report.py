@@ -50,7 +50,8 @@ def test_one_table_set_per_start_and_transport_with_every_column(sweep: list[dic
     assert "## Loss applied after set-up, transport unicast" in md
     row = next(line for line in md.splitlines() if line.startswith("| 50% | resilient |"))
     # setpoint delivered, max gap, p99 gap, gaps > 500 ms, p99 age; sensor delivered, p99 age
-    assert row == "| 50% | resilient | 100.0% | 137 ms | 134 ms | 0 | 38 ms | 97.5% | 12 ms |"
+    # runs, setpoints in window, delivered, max gap, p99 gap, gaps > 500 ms, p99 age; sensor; kB/s each way
+    assert row == "| 50% | resilient | 1 | 80 | 100.0% | 137 ms | 134 ms | 0 | 38 ms | 97.5% | 12 ms | 69.1 | 507.1 |"
     img = [line for line in md.splitlines() if line.startswith("| 50% | resilient | fec |")]
     # A FEC frame's strips are exactly as fresh as its frames.
     assert img == ["| 50% | resilient | fec | 26.2 | 88% | 88% | n/a | 69.1 | 507.1 |"]
@@ -100,7 +101,8 @@ def test_report_files_commands_joined_and_sliced_ages_from_the_raw_record(tmp_pa
                                     "executed_but_unanswered": 2}) + "\n")
     assert main([str(tmp_path), "--commands", str(commands)]) == 0
     md = (tmp_path / "results.md").read_text()
-    assert "| 50% | resilient | 100.0% | 137 ms | 134 ms | 0 | 38 ms | 97.5% | 12 ms | 98% of 100 |" in md
+    assert ("| 50% | resilient | 1 | 80 | 100.0% | 137 ms | 134 ms | 0 | 38 ms | 97.5% | 12 ms | 69.1 | 507.1 "
+            "| 98% of 100 |") in md
     assert "| 0% | best_effort |" in md and "- |" in md.split("| 0% | best_effort |")[1].splitlines()[0]
     assert "## Commands" in md
     # The sliced cell's oldest strip: at the last arrival strip 1 is still frame 0's (105 ms old).
@@ -117,5 +119,53 @@ def test_a_cell_where_the_link_failed_the_stack_is_a_zero_not_a_gap() -> None:
     failed["topics"]["setpoint"] = {**_stream(0.0, 8000.0, 8000.0, 1, 0.0, sent=0), "delivered_pct": 0.0}
     md = markdown_report([failed, _cell("resilient", 70)])
     row = next(line for line in md.splitlines() if line.startswith("| 70% | reliable |"))
-    assert row.startswith("| 70% | reliable | 0.0% |")
+    assert row.startswith("| 70% | reliable | 1 | 0 | 0.0% |")
     assert "Cells where the link failed the stack" in md and "- 70% reliable: setpoint, sensor not sent" in md
+
+
+def _flown(profile: str, loss: float, run: int, age: float, share: float = 1.0, failsafes: int = 0,
+           **extra: Any) -> dict[str, Any]:
+    cmds = {"offboard_start": {"ok": True, "s": 0.9}, "arm": {"ok": True, "s": 0.01}, "land": {"ok": True, "s": 1.1},
+            "hold": {"ok": True, "s": 2.2, "probe": True}}
+    return _cell(profile, loss, run=run, loss_model=extra.pop("loss_model", "uniform"), flight={
+        "mission_ok": failsafes == 0, "offboard_share_window": share, "failsafes": failsafes,
+        "vehicle_target": {"age_max_ms": age, "stale_over_500ms": int(age > 500)},
+        "path_error_window": {"mean_m": 0.2 + run / 100, "max_m": 0.8}, "commands": cmds}, **extra)
+
+
+def test_runs_give_median_and_range_and_the_flight_table_shows_what_the_vehicle_did() -> None:
+    """Issue #29: three runs of a cell are one row (median [min-max]); the flight table says what PX4 did
+    (OFFBOARD share, failsafes, the target's age at the vehicle, path error, commands); a bursty row is
+    named by its model; an invalid run is listed with its reason, and its figures are in no median."""
+    runs = [_flown("resilient", 50, 0, 180.0), _flown("resilient", 50, 1, 220.0), _flown("resilient", 50, 2, 200.0),
+            _flown("resilient~bursty", 50, 0, 845.0, share=0.9, failsafes=1, loss_model="bursty",
+                   mission_failed="FAILED: offboard: drone left the offboard session"),
+            _flown("resilient", 50, 3, 9000.0, invalid="sensor not sent through the whole window")]
+    md = markdown_report(runs)
+    assert "### Flight" in md
+    row = next(line for line in md.splitlines() if line.startswith("| 50% | resilient | 3 | 3/3 |"))
+    # OFFBOARD, failsafes, target age max (median [range]), > 500 ms, path error mean, max, commands ok, ...
+    assert row.startswith("| 50% | resilient | 3 | 3/3 | 100% | 0 | 200 ms [180 ms-220 ms] | 0 "
+                          "| 0.21 m [0.20 m-0.22 m] | 0.80 m | 12/12 | 0.90 | 0.01 | 1.10 | 2.20 | 69.1 | 507.1 |"), row
+    bursty = next(line for line in md.splitlines() if line.startswith("| 50% bursty | resilient~bursty | 1 | 0/1 |"))
+    assert "| 90% | 1 | 845 ms | 1 |" in bursty
+    assert "- 50% resilient run 3: invalid: sensor not sent" in md
+    assert "- 50% resilient~bursty run 0: FAILED: offboard: drone left" in md
+    assert "9.0 s" not in md    # the invalid run's age is in no figure
+    streams = next(line for line in md.splitlines() if line.startswith("| 50% | resilient | 3 | 80 |"))
+    assert streams.endswith("| 69.1 | 507.1 |")
+
+
+def test_report_only_regenerates_from_the_kept_raw_results(tmp_path: Path) -> None:
+    """One command redraws every table from results.jsonl, the invalid lines included in the listing."""
+    from zenoh_robot.tools.cli.main import main as cli
+
+    lines = [_flown("resilient", 70, i, 150.0 + i) for i in range(3)]
+    lines.append(_flown("reliable", 70, 0, 4000.0, invalid="setpoint not sent through the whole window"))
+    (tmp_path / "results.jsonl").write_text("".join(json.dumps(r) + "\n" for r in lines))
+    assert cli(["experiment", "--report-only", str(tmp_path)]) == 0
+    md = (tmp_path / "results.md").read_text()
+    assert "| 70% | resilient | 3 | 3/3 | 100% | 0 | 151 ms [150 ms-152 ms] |" in md
+    assert "- 70% reliable run 0: invalid: setpoint not sent" in md
+    csv_lines = (tmp_path / "results.csv").read_text().splitlines()
+    assert "vehicle_target_age_max_ms" in csv_lines[0] and len(csv_lines) == 1 + 4 * 6

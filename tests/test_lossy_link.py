@@ -216,3 +216,38 @@ def test_router_cell_from_a_lossy_start(tmp_path: Path) -> None:
     router_log = (tmp_path / "cell" / "router.log").read_text()
     assert "router: 2 connected" in router_log, router_log
     assert r["command"]["answered"], r["command"]
+
+
+@pytest.mark.netns
+def test_a_cell_flies_its_mission_through_50_percent_loss(tmp_path: Path) -> None:
+    """Issue #29: the cell flies. The GCS's mission arms the drone, enters OFFBOARD and flies the square
+    through 50 % uniform loss (on once the drone is up in OFFBOARD) and lands; the cell records what the
+    vehicle did: armed in OFFBOARD through the whole window with no failsafe, the target PX4 is given
+    never older than PX4's 500 ms, the path error, and the commands through the real companion."""
+    from drone_lab.experiment.cell import CellSpec, run_cell
+
+    reason = unavailable_reason()
+    if reason:
+        skip_unless_required(f"flying cell test: network namespaces are unavailable: {reason}")
+    r = run_cell(CellSpec("resilient", 50, duration=8.0, warmup=2.0), tmp_path / "cell")
+    assert not r.get("error") and not r.get("invalid") and not r.get("mission_failed"), r
+    fl = r["flight"]
+    assert fl["mission_ok"], fl["mission_result"]
+    assert fl["airborne"] and fl["armed_in_window"], fl
+    assert fl["offboard_share_window"] == 1.0 and fl["failsafes"] == 0, fl
+    assert r["offboard_kept"]
+    assert 40.0 <= r["channel"]["mean_pct"] <= 60.0, r["channel"]    # the loss was on in the window
+    target = fl["vehicle_target"]
+    assert target["samples"] >= 200, target                           # ~8 s at 50 Hz
+    assert 0 < target["age_max_ms"] < 500.0 and target["stale_over_500ms"] == 0, target
+    err = fl["path_error_window"]
+    assert err["samples"] >= 200 and 0 <= err["mean_m"] <= err["max_m"] < 3.0, err
+    cmds = fl["commands"]
+    for name in ("offboard_start", "arm", "land"):
+        assert cmds[name]["ok"] and 0 <= cmds[name]["s"] < 10.0, (name, cmds)
+    # The hold from a second GCS crossed the loss and the real companion answered it (a refusal: it holds
+    # no control), while the mission flew on.
+    assert cmds["hold"]["ok"] and "refused" in cmds["hold"]["detail"], cmds["hold"]
+    assert r["topics"]["setpoint"]["sent"] >= 70, r["topics"]["setpoint"]
+    assert r["bandwidth_kBps"]["gcs"] > 0 and r["bandwidth_kBps"]["drone"] > 0, r["bandwidth_kBps"]
+    assert (tmp_path / "cell" / "vehicle.jsonl").stat().st_size > 0

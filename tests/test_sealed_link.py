@@ -25,7 +25,9 @@ from typing import Any
 import pytest
 import zenoh
 from conftest import free_port, wait_for
+from cryptography.hazmat.primitives import hashes
 from cryptography.hazmat.primitives.ciphers.aead import ChaCha20Poly1305
+from cryptography.hazmat.primitives.kdf.hkdf import HKDF
 
 from drone_contract.messages import DroneSetpoint, VehicleState
 from drone_contract.streams import PROFILES
@@ -35,7 +37,7 @@ from zenoh_robot.keyring import Keyring, KeyringError
 from zenoh_robot.message import type_support
 from zenoh_robot.tools import keys
 from zenoh_robot.wire import ENVELOPE, sealed
-from zenoh_robot.wire.sealed import OVERHEAD, WINDOW, ReplayWindow
+from zenoh_robot.wire.sealed import HEAD_SIZE, OVERHEAD, WINDOW, ReplayWindow
 
 REFRESH_S = 0.5     # the revocation bound these tests hold the nodes to
 
@@ -93,10 +95,11 @@ def test_keys_link_writes_private_keyrings_by_role(tmp_path: Path) -> None:
         assert stat.S_IMODE((link / f"{name}.json").stat().st_mode) == 0o600
     held = {n: {(k["sender"], k["scope"]) for k in json.loads((link / f"{n}.json").read_text())["keys"]}
             for n in ("gcs1", "uav1", "uav2", "uav3")}
-    assert held["uav1"] == {("uav1", "uav1"), ("gcs1", "uav1")}     # never uav2's key: it cannot forge uav2
-    assert held["uav3"] == {("uav3", "uav3")}
-    assert held["gcs1"] == {("uav1", "uav1"), ("uav2", "uav2"), ("gcs1", "uav1"), ("gcs1", "uav2")}
-    assert "secret" not in repr(Keyring(link, "uav1")) and "Keyring('uav1', 2 keys" in repr(Keyring(link, "uav1"))
+    fleet = ("fleet", "zr_link")       # the loss probes' key: every node of the fleet holds it
+    assert held["uav1"] == {("uav1", "uav1"), ("gcs1", "uav1"), fleet}     # never uav2's key: it cannot forge uav2
+    assert held["uav3"] == {("uav3", "uav3"), fleet}
+    assert held["gcs1"] == {("uav1", "uav1"), ("uav2", "uav2"), ("gcs1", "uav1"), ("gcs1", "uav2"), fleet}
+    assert "secret" not in repr(Keyring(link, "uav1")) and "Keyring('uav1', 3 keys" in repr(Keyring(link, "uav1"))
     # Rotation adds a newer key per sender; the newest seals, the old one still opens.
     old = Keyring(link, "gcs1").sealing_key("uav1")
     keys.make_link_keys(tmp_path, rotate=True, gcs={"gcs1": ["uav1", "uav2"]}, drones=["uav3"])
@@ -199,9 +202,12 @@ def system(transport: str, fleet: Path) -> Iterator[System]:
 
 def _seal(secret: bytes, key_id: str, key_expr: str, inner: bytes, epoch: bytes | None = None,
           counter: int = 1) -> bytes:
-    """What a holder of ``secret`` can put on ``key_expr`` (the documented layout, sealed independently)."""
+    """What a holder of ``secret`` can put on ``key_expr`` (the documented layout, sealed independently:
+    the subkey of the key expression, head + inner as associated data of an empty plaintext)."""
+    subkey = HKDF(algorithm=hashes.SHA256(), length=32, salt=None,
+                  info=b"zenoh-robot sealed sample v1\x00" + key_expr.encode()).derive(secret)
     head = struct.pack(">B4s8sI", 0x5A, bytes.fromhex(key_id), epoch or os.urandom(8), counter)
-    tag = ChaCha20Poly1305(secret).encrypt(head[5:], b"", head + key_expr.encode() + inner)
+    tag = ChaCha20Poly1305(subkey).encrypt(head[5:], b"", head + inner)
     return head + inner + tag
 
 
@@ -329,6 +335,82 @@ def test_sealing_adds_a_fixed_overhead_and_encrypts_on_request(fleet: Path) -> N
             other(seal(inner), None)
     with pytest.raises(ValueError, match="holds no link key"):
         sealed(ENVELOPE, drone_ring).sealer("uav2/state")
+
+
+def test_truncated_garbled_and_foreign_samples_are_refused_and_counted(fleet: Path, other_fleet: Path) -> None:
+    """Every way a sealed sample can be wrong, at the decoder: refused by name, counted, never decoded;
+    the legitimate stream opens before and after (no refusal moves the replay window)."""
+    gcs_ring, drone_ring = Keyring(fleet, "gcs1"), Keyring(fleet, "uav1")
+    for encrypt in (False, True):
+        seal = sealed(ENVELOPE, gcs_ring, encrypt=encrypt).sealer("uav1/setpoint")
+        fmt = sealed(ENVELOPE, drone_ring)
+        opened = fmt.keyed_decoder(type_support(DroneSetpoint), "uav1/setpoint")
+        inner = _setpoint("gcs1")
+        assert opened(seal(inner), None)[5][1] == "gcs1"
+        good = seal(inner)
+        tries: list[tuple[bytes, str]] = [
+            (good[:OVERHEAD - 1], "malformed"),                         # shorter than a seal
+            (good[:-1], "bad_tag"),                                     # the tag cut
+            (good[:HEAD_SIZE] + good[HEAD_SIZE + 3:], "bad_tag"),       # bytes cut from the middle
+            (b"", "malformed"),
+            (bytes([0x00]) + good[1:], "malformed"),                    # not a seal's flags
+            (bytes([good[0] ^ 1]) + good[1:], "bad_tag"),               # authenticate-only <-> encrypted
+        ]
+        for i in (1, 7, 15, HEAD_SIZE + 2, len(good) // 2, len(good) - 3):   # one bit flipped: id, epoch, counter,
+            flipped = bytearray(good)                                    # body, tag
+            flipped[i] ^= 0x10
+            tries.append((bytes(flipped), "unknown_key" if i < 5 else "bad_tag"))
+        secret, kid = _key(other_fleet, "gcs1", "gcs1", "uav1")
+        tries.append((_seal(secret, kid, "uav1/setpoint", inner), "unknown_key"))   # another fleet's key
+        secret, kid = _key(fleet, "uav1", "uav1", "uav1")
+        tries.append((_seal(secret, kid, "uav1/setpoint", inner), "wrong_key"))     # the drone's own key
+        for payload, reason in tries:
+            before = fmt.snapshot()
+            with pytest.raises(envelope.MalformedSample, match=reason):
+                opened(payload, None)
+            after = fmt.snapshot()
+            assert after[reason] == before[reason] + 1 and after["opened"] == before["opened"], (reason, payload[:20])
+        assert opened(good, None)[5][1] == "gcs1"                       # the real one still opens, once
+        with pytest.raises(envelope.MalformedSample, match="replayed"):
+            opened(good, None)
+        assert fmt.snapshot()["replayed"] == 1
+
+
+def test_fleet_probes_seal_under_the_fleet_key_and_outsiders_are_refused(fleet: Path, other_fleet: Path) -> None:
+    """The loss-feedback probes (``/zr_link``, outside every drone's namespace) seal under the fleet key
+    every node holds: a drone's and a GCS's open each other's; another fleet's are unknown."""
+    from zenoh_robot.loss_feedback import LinkProbe
+    ts = type_support(LinkProbe)
+    probe = envelope.pack(ts.name, ts.hash, 9, 1, time.time_ns(), ts.encode(LinkProbe(id=1, seq=1)))
+    drone, gcs = sealed(ENVELOPE, Keyring(fleet, "uav1")), sealed(ENVELOPE, Keyring(fleet, "gcs1"))
+    at_gcs = gcs.keyed_decoder(ts, "zr_link")
+    at_drone = drone.keyed_decoder(ts, "zr_link")
+    assert at_gcs(drone.sealer("zr_link")(probe), None)[3] == 1
+    assert at_drone(gcs.sealer("zr_link")(probe), None)[3] == 1
+    outsider = sealed(ENVELOPE, Keyring(other_fleet, "uav1")).sealer("zr_link")
+    with pytest.raises(envelope.MalformedSample, match="unknown_key"):
+        at_drone(outsider(probe), None)
+    with pytest.raises(ValueError, match="holds no link key"):     # no other root-namespace key seals
+        drone.sealer("statistics")
+
+
+def test_replay_window_refuses_old_copies_after_an_epoch_switch(fleet: Path) -> None:
+    """Two publishers' epochs interleaved (the decoder's hot entry switching): each epoch keeps its own
+    window, replays of either are refused, and a new epoch opens."""
+    fmt = sealed(ENVELOPE, Keyring(fleet, "uav1"))
+    opened = fmt.keyed_decoder(type_support(DroneSetpoint), "uav1/setpoint")
+    a = sealed(ENVELOPE, Keyring(fleet, "gcs1")).sealer("uav1/setpoint")
+    b = sealed(ENVELOPE, Keyring(fleet, "gcs1")).sealer("uav1/setpoint")
+    inner = _setpoint("gcs1")
+    copies = [(a(inner), b(inner)) for _ in range(50)]
+    for x, y in copies:
+        opened(x, None)
+        opened(y, None)
+    for x, y in copies[::7]:
+        for payload in (x, y):
+            with pytest.raises(envelope.MalformedSample, match="replayed"):
+                opened(payload, None)
+    assert fmt.snapshot()["replayed"] == 2 * len(copies[::7]) and fmt.snapshot()["opened"] == 100
 
 
 def test_startup_line_names_the_seal_and_key_ids_never_the_keys(fleet: Path) -> None:

@@ -46,3 +46,22 @@ def test_secure_session_forms_and_delivers_through_loss(link: LossyLink, tmp_pat
     # The session was up before the loss started: both ends heard each other within the warm-up.
     assert sp["setup_s"] is not None and sp["setup_s"] < cell.warmup, sp
     assert set(lossy["exit_codes"].values()) == {0}, lossy["exit_codes"]
+
+
+def test_sealed_resilient_cell_runs_sealed_and_delivers_through_loss(tmp_path: Path) -> None:
+    """One of the sweep's sealed rows, short: cell.py's resilient cell (the companion with its simulator,
+    the GCS) with both apps given their link keys through ZR_LINK_KEYS, at 50 % uniform loss. Both
+    start-up lines must name the seal, and the setpoints must still arrive (the sweep compares the
+    figures with the plain row; here a seal that broke the stream would deliver nothing)."""
+    reason = unavailable_reason()
+    if reason:
+        skip_unless_required(reason)
+    keys_dir = ss.make_cell_link_keys(tmp_path / "keys")
+    assert (keys_dir / "uav1.json").exists()
+    r = ss.run_sealed_cell(50, True, ss.cell_options(["duration=6", "warmup=3"]), tmp_path, keys_dir)
+    assert r["protection"] == {"gcs": True, "drone": True}, r["protection"]
+    assert "error" not in r, r.get("error")
+    sp, se = r["topics"]["setpoint"], r["topics"]["sensor"]
+    assert sp["sent"] and sp["delivered_pct"] >= 80.0, sp
+    assert se["sent"] and se["delivered_pct"] >= 20.0, se
+    assert r["bandwidth_kBps"]["gcs"] > 0 and r["bandwidth_kBps"]["drone"] > 0

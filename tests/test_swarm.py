@@ -66,6 +66,49 @@ def companion(conf: Path, drone: str, sysid: int, camera: str) -> subprocess.Pop
                        "--zenoh", str(conf), "--camera", camera, "--camera-rate", "30", "--no-topic-statistics")
 
 
+def test_formation_path_error_is_each_drones_distance_from_its_own_slot_path(ns: str, tmp_path: Path) -> None:
+    """Two drones fly a line formation 6 m apart (both take off at the simulators' common origin): each one's
+    path error is its distance from its own slot's path, so the second drone's 6 m transit to its slot is not
+    counted (it read 5, 10, 15, 20 m for slots that far away)."""
+    from gcs.cli import summarize
+    from gcs.mission import run_swarm_mission
+    spacing = 6.0
+    with swarm(ns, tmp_path, 2, "none", pattern="hover", altitude=2.0, formation="line", spacing=spacing,
+               auto_fly=False) as g:
+        ids = sorted(g.drones)
+        res = run_swarm_mission(g, ids, 4.0, lambda *a: None)
+        assert res["ok"], res["result"]
+        far = g.drones[ids[1]]
+        assert far.slot == (0.0, spacing)
+        errors = {d: res["drones"][d]["max_path_error_m"] for d in ids}
+        assert all(e < 2.0 for e in errors.values()), errors
+        for d in ids:
+            m = res["drones"][d]
+            assert m["joined_path"], m
+            assert 0.0 <= m["mean_path_error_m"] <= m["max_path_error_m"], m
+            assert m["offboard_share"] == 1.0 and m["asked_s"] == 4.0, m
+            assert [c["command"] for c in m["commands"]] == ["offboard_start", "arm", "land"], m["commands"]
+            assert all(c["ok"] and c["latency_s"] >= 0.0 for c in m["commands"]), m["commands"]
+        summary = summarize(g, "resilient")["drones"][ids[1]]
+        assert summary["max_path_error_m"] < 2.0 and summary["joined_path"], summary["max_path_error_m"]
+
+
+def test_summary_counts_image_strips_as_the_dashboard_does(ns: str, tmp_path: Path) -> None:
+    """The summary's image_strip "lost %" is the share of strips that never arrived (the dashboard's fresh
+    strips), not the gaps between strip numbers (frame * MAX_SLICES + index) that no strip fills: it read
+    "lost 100 %" beside "fresh strips 100 %"."""
+    from gcs.cli import summarize
+    with swarm(ns, tmp_path, 1, "test", pattern="hover") as g:
+        d = next(iter(g.drones.values()))
+        assert wait_for(lambda: d.frames.strips_expected >= 30, 15), d.frames.strips_expected
+        streams = summarize(g, "resilient")["drones"][d.id]["streams"]
+        fresh = 100.0 * d.frames.strips_fresh / d.frames.strips_expected
+        assert fresh >= 80.0, fresh
+        assert streams["image_strip"]["lost_pct"] <= 20.0, streams["image_strip"]
+        assert abs(streams["image_strip"]["lost_pct"] - (100.0 - fresh)) < 5.0
+        assert streams["image"]["lost_pct"] <= 20.0     # frames: numbered one by one, as before
+
+
 def _parallel(g: Gcs, name: str, value: float = 0.0) -> dict[str, str]:
     out: dict[str, str] = {}
 
@@ -211,3 +254,18 @@ def test_swarm_report_marginal_cost_is_the_slope_within_one_downlink() -> None:
     assert [r["cpu_gcs_marginal_pct"] for r in rows][2:] == [3.0, 4.0]
     assert rows[0]["cpu_gcs_marginal_pct"] != rows[0]["cpu_gcs_marginal_pct"]   # NaN: nothing smaller
     assert rows[2]["downlink"] == "50 / 15"
+
+
+def test_swarm_flight_table_gives_median_and_range_over_runs() -> None:
+    from drone_lab.experiment.swarm_report import flight_table, flight_verdicts
+
+    def run(r: int, err: float, share: float) -> dict[str, object]:
+        return {"summary": {"drones": 2, "mode": "peer", "camera": True, "sensor_asked_hz": 50.0,
+                            "camera_asked_fps": 15.0, "fly": True, "run": r, "flew_ok": 2 if share == 1 else 1,
+                            "path_error_mean_m": err / 2, "path_error_max_m": err, "offboard_share_min": share,
+                            "cpu_total_pct": 120.0, "cores": 2, "load_avg_1m": 1.0}}
+    results = [run(1, 0.5, 1.0), run(2, 0.9, 0.5), run(3, 0.7, 1.0)]
+    row = flight_table(results).splitlines()[2]   # type: ignore[arg-type]
+    assert "| 3 |" in row and "0.70 (0.50-0.90)" in row and "100 (50-100)" in row, row
+    verdict = flight_verdicts(results)[0]   # type: ignore[arg-type]
+    assert verdict.startswith("N=2 peer: 5 of 6 drone flights flew") and "SATURATE" not in verdict, verdict

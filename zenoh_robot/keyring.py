@@ -13,6 +13,10 @@ A sample opens only under a key of its namespace whose sender is not the receivi
 drone never holds, and never accepts, another's key. Keys are symmetric: a drone could seal with
 the pair key of its GCS, but only that drone accepts that key, so it can forge only to itself.
 
+A fleet key (role and sender ``fleet``) covers the fleet's own bookkeeping topics outside any
+drone's namespace (``zr_link``: the loss-feedback probes every node sends and hears): every node holds
+it and seals with it, so it proves membership of the fleet, not which member sent a probe.
+
 Rotation: a keyring holds several keys per (sender, scope); the newest (``created``) seals, every
 one opens until it is removed from the file. Revocation: ``<dir>/revoked.json`` (a list of key
 ids) is re-read with the keyring, at most ``refresh_s`` after it changes (or at once on
@@ -32,6 +36,8 @@ from pathlib import Path
 
 REVOKED_FILE = "revoked.json"
 KEY_ID = re.compile(r"^[0-9a-f]{8}$")     # 4 bytes on the wire
+FLEET = "fleet"     # the role and sender of a key every node of the fleet holds (see the module doc)
+ROLES = ("gcs", "drone", FLEET)
 DEFAULT_REFRESH_S = 2.0
 
 
@@ -44,7 +50,7 @@ class LinkKey:
     """One link key. ``secret`` is excluded from the repr: a key must never reach a log."""
     key_id: str
     sender: str
-    role: str           # the sender's role: "gcs" (claims checked against it) or "drone"
+    role: str           # the sender's role: "gcs" (claims checked against it), "drone", or "fleet" (shared)
     scope: str          # the drone namespace whose keys it seals
     secret: bytes = field(repr=False)
     created: float = 0.0
@@ -61,8 +67,10 @@ def parse_key(entry: dict[str, object]) -> LinkKey:
                       float(entry.get("created", 0.0)))  # type: ignore[arg-type]
     except (KeyError, TypeError, ValueError) as exc:
         raise KeyringError(f"malformed link key entry: {type(exc).__name__}") from None  # never echo the secret
-    if not KEY_ID.match(key.key_id) or len(key.secret) != 32 or key.role not in ("gcs", "drone"):
-        raise KeyringError(f"link key {key.key_id[:16]!r}: id is 8 hex digits, secret 32 bytes, role gcs|drone")
+    if not KEY_ID.match(key.key_id) or len(key.secret) != 32 or key.role not in ROLES \
+            or (key.role == FLEET) != (key.sender == FLEET):
+        raise KeyringError(f"link key {key.key_id[:16]!r}: id is 8 hex digits, secret 32 bytes, role gcs|drone|fleet "
+                           "(sender fleet exactly for role fleet)")
     return key
 
 
@@ -132,11 +140,12 @@ class Keyring:
 
     # -- lookups ------------------------------------------------------------------------------
     def sealing_key(self, scope: str) -> LinkKey | None:
-        """The key this node seals ``scope``'s samples with: its newest unrevoked one, or None."""
+        """The key this node seals ``scope``'s samples with: its newest unrevoked one (else the fleet's
+        for that scope), or None."""
         self.refresh()
         with self._lock:
-            mine = [k for k in self._by_id.values()
-                    if k.sender == self.node and k.scope == scope and k.wire_id not in self._revoked]
+            live = [k for k in self._by_id.values() if k.scope == scope and k.wire_id not in self._revoked]
+            mine = [k for k in live if k.sender == self.node] or [k for k in live if k.role == FLEET]
         return max(mine, key=lambda k: k.created) if mine else None
 
     def opening_key(self, wire_id: bytes) -> tuple[LinkKey | None, bool]:

@@ -1,10 +1,14 @@
-"""One experiment cell: a profile at a loss rate, GCS and drone in their own namespaces.
+"""One experiment cell: a profile at a loss rate, GCS and drone in their own namespaces, flying.
 
-The GCS (``python -m gcs``) runs in one namespace; the companion with its built-in
+The GCS (``python -m gcs --mission``) runs in one namespace; the companion with its built-in
 PX4 simulator (``python -m companion --px4 sim``) in the other. They talk over the
-veth as a real deployment would, with the transport of the profile. Both ends keep a
-raw record of what they sent and received; the cell joins them over the measurement
-window, so delivered % is exact (unique sequence numbers received / sent).
+veth as a real deployment would, with the transport of the profile. The GCS flies a mission:
+OFFBOARD, arm, climb, the pattern, land. The loss comes on ``warmup`` s into the pattern
+(``start="after"``) or is there from start-up; the window is the ``duration`` s after that, and
+the loss stays on through the landing. Both ends keep a raw record of what they sent and
+received; the cell joins them over the window, so delivered % is exact (unique sequence numbers
+received / sent). The companion's vehicle record (``--vehicle-record``) and the mission's steps
+give the flight's figures (flight.py).
 """
 from __future__ import annotations
 
@@ -22,6 +26,7 @@ from drone_contract.streams import stream_profile
 from zenoh_robot.session_config import RESILIENT_GROUP, SessionConfig
 from zenoh_robot.tools.stream_metrics import StreamRecorder, analyse
 
+from .flight import OFFBOARD_GAP_MS, flight_figures
 from .netns import LOSS_MODELS as LOSS_MODEL_NAMES
 from .netns import BurstModel, LossyLink
 
@@ -29,7 +34,11 @@ DRONE_ID = "uav1"
 PORT = 7447
 MCAST = RESILIENT_GROUP
 STARTUP_TIMEOUT_S = 60.0   # launch -> both apps up; streams began 6-11 s after launch on a loaded 2-core machine
-OFFBOARD_GAP_MS = 500.0     # PX4 leaves OFFBOARD when setpoints stop for longer (the 2 Hz rule)
+# Both apps up -> the pattern flown: the mission's own bounds (connected 30 s, armable 30 s, climb 30 s).
+AIRBORNE_TIMEOUT_S = 100.0
+LANDING_TIMEOUT_S = 75.0    # the pattern's end -> the GCS's exit (land and disarm: the mission waits 40 s)
+PATTERN_SIZE_M = 10.0
+TAIL_S = 2.0                # the pattern goes on this long after the window: the land is never inside it
 
 
 @dataclass(frozen=True)
@@ -44,6 +53,13 @@ class CellSpec:
     startup_timeout: float = STARTUP_TIMEOUT_S   # launch -> both apps up (a client's up = its session formed)
     loss_model: str = "uniform"   # "bursty": the netns two-state channel at the same mean (netns.BurstyChannel)
     burst_mean_s: float = 0.3     # the bursty channel's mean fade (clamped 0.1-2 s)
+    pattern: str = "square"       # what the GCS's mission flies (gcs --pattern)
+    run: int = 0                  # the repeat of this cell (the report gives median and range over runs)
+
+    @property
+    def pattern_s(self) -> float:
+        """How long the mission flies its pattern: warm-up, window and a tail, all inside it."""
+        return self.warmup + self.duration + TAIL_S
 
     @property
     def label(self) -> str:
@@ -117,6 +133,21 @@ def transport_for(profile: str, link: LossyLink, side: str, transport: str = "de
     return cfg.to_json5()
 
 
+def _wait_log(path: Path, mark: str, procs: dict[str, subprocess.Popen[bytes]], timeout: float) -> float | None:
+    """Monotonic time ``mark`` appeared in ``path`` (None: not within ``timeout``, or an app exited)."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        try:
+            if mark in path.read_text(errors="replace"):
+                return time.monotonic()
+        except OSError:
+            pass
+        if any(p.poll() is not None for p in procs.values()):
+            return None
+        time.sleep(0.05)
+    return None
+
+
 def _wait_started(workdir: Path, procs: dict[str, subprocess.Popen[bytes]], timeout: float) -> float | None:
     """Seconds until both apps have logged their start (the GCS has its drone, the companion its PX4);
     None on timeout or exit. The streams follow within ~1-2 s: the warm-up covers that."""
@@ -170,11 +201,15 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
             procs["router"] = _start_router(link, workdir)
         if spec.transport == "router-shim":
             procs.update(_start_shims(link, workdir))
-        common = ["--profile", spec.profile, "--duration", str(spec.startup_timeout + spec.warmup + spec.duration + 30)]
-        drone_cmd = [sys.executable, "-m", "companion", "--id", DRONE_ID, "--px4", "sim",
-                     "--zenoh", str(workdir / "drone.json5"), "--record", str(workdir / "drone.json"), *common]
-        gcs_cmd = [sys.executable, "-m", "gcs", "--drones", DRONE_ID, "--no-dashboard", "--pattern", "thesis",
-                   "--zenoh", str(workdir / "gcs.json5"), "--record", str(workdir / "gcs.json"), *common]
+        backstop = spec.startup_timeout + AIRBORNE_TIMEOUT_S + spec.pattern_s + LANDING_TIMEOUT_S + 30
+        drone_cmd = [sys.executable, "-m", "companion", "--id", DRONE_ID, "--px4", "sim", "--profile", spec.profile,
+                     "--zenoh", str(workdir / "drone.json5"), "--record", str(workdir / "drone.json"),
+                     "--vehicle-record", str(workdir / "vehicle.jsonl"), "--duration", str(backstop)]
+        # The mission flies the pattern for pattern_s, then lands; the GCS exits once the drone is down.
+        gcs_cmd = [sys.executable, "-m", "gcs", "--drones", DRONE_ID, "--no-dashboard", "--mission", "--insecure-ok",
+                   "--pattern", spec.pattern, "--size", str(PATTERN_SIZE_M), "--profile", spec.profile,
+                   "--duration", str(spec.pattern_s),
+                   "--zenoh", str(workdir / "gcs.json5"), "--record", str(workdir / "gcs.json")]
         launch_ns = time.time_ns()
         for side, cmd in (("drone", drone_cmd), ("gcs", gcs_cmd)):
             log = open(workdir / f"{side}.log", "w")
@@ -182,25 +217,42 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
             procs[side] = subprocess.Popen(link.exec_in(side) + cmd, stdout=log, stderr=subprocess.STDOUT,
                                            preexec_fn=_default_sigint)
         try:
-            startup_s = _wait_started(workdir, {k: procs[k] for k in ("gcs", "drone")}, spec.startup_timeout)
+            apps = {k: procs[k] for k in ("gcs", "drone")}
+            startup_s = _wait_started(workdir, apps, spec.startup_timeout)
             # Still running yet not started: the companion's open is waiting for its session (client).
             waiting = startup_s is None and all(p.poll() is None for p in procs.values())
-            time.sleep(0 if waiting else spec.warmup)    # no session: nothing to measure, say so at once
+            airborne = None if startup_s is None else _wait_log(
+                workdir / "gcs.log", f"mission: {DRONE_ID}: flying the", apps, AIRBORNE_TIMEOUT_S)
+            pattern_at = time.time_ns()
+            # In the air and in OFFBOARD, the pattern flown clean for the warm-up; no flight: say so at once.
+            time.sleep(spec.warmup if airborne is not None else 0)
             if spec.start == "after":
                 link.set_loss(spec.loss)
             tx0 = {side: link.tx_bytes(side) for side in link.sides}
             t0 = time.time_ns()
-            time.sleep(0 if waiting else spec.duration)
+            probe_at = time.monotonic() + spec.duration / 2
+            command = None
+            if airborne is not None:
+                time.sleep(max(0.0, probe_at - time.monotonic()))
+                # A hold from a second GCS, across the loss, mid-window: answered (refused: that GCS holds no
+                # control) by the real companion, without disturbing the mission.
+                command = _command_probe(link, workdir) if _probe_reaches(spec) else None
+                time.sleep(max(0.0, t0 / 1e9 + spec.duration - time.time()))
             t1 = time.time_ns()
             tx1 = {side: link.tx_bytes(side) for side in link.sides}
             channel = link.timeline_summary(t0, t1)
-            apps_ran = all(procs[k].poll() is None for k in ("gcs", "drone"))
-            routed = spec.transport.startswith("router") and not waiting
-            command = _command_through_router(link, workdir) if routed else None
+            apps_ran = all(p.poll() is None for p in apps.values())
+            # The loss stays on through the landing: the land command crosses it too.
+            if airborne is not None:
+                try:
+                    procs["gcs"].wait(timeout=TAIL_S + LANDING_TIMEOUT_S)
+                except subprocess.TimeoutExpired:
+                    pass     # stopped below; its mission record says how far the landing got
+            landed_s = round((time.time_ns() - t1) / 1e9, 2)
             link.set_loss(0)
-            time.sleep(1.0)       # the last samples of the window land
+            time.sleep(1.0)       # the last samples land
             # A companion still in its session's open (Rust) cannot take Ctrl-C: kill it after a moment.
-            _stop({k: procs[k] for k in ("gcs", "drone")}, timeout=5.0 if waiting else 30.0)
+            _stop(apps, timeout=5.0 if waiting else 30.0)
             if "router" in procs:      # after the apps: they say goodbye through it
                 _stop({"router": procs["router"]}, timeout=10.0)
             shims = {k: p for k, p in procs.items() if k.startswith("shim-")}
@@ -212,12 +264,31 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
                     p.kill()
                     p.wait()
     result = analyse_cell(spec, workdir, t0, t1, {k: p.returncode for k, p in procs.items()})
+    result["run"] = spec.run
+    result["pattern"] = spec.pattern
+    result["flight"] = flight_figures(workdir, (t0, t1), spec.pattern, PATTERN_SIZE_M, spec.pattern_s, DRONE_ID)
+    result["flight"]["airborne"] = airborne is not None
+    result["flight"]["pattern_to_loss_s"] = round((t0 - pattern_at) / 1e9, 2)
+    result["flight"]["window_to_gcs_exit_s"] = landed_s
+    if command is not None:
+        result["flight"]["commands"]["hold"] = {"ok": bool(command["answered"]), "s": command["s"],
+                                                "detail": command["reply"], "probe": True}
+    fl = result["flight"]
+    # Kept = flown through the whole window in OFFBOARD, armed, no failsafe (what PX4 did, not inferred).
+    result["offboard_kept"] = bool(fl["armed_in_window"] and fl["offboard_share_window"] == 1.0
+                                   and not fl["failsafes"])
+    if not fl["mission_ok"] and result.get("invalid"):
+        # The mission failed (a failsafe, the link): the GCS stopped streaming early. A result, not a rerun.
+        result["mission_failed"] = f"{fl['mission_result']} ({result.pop('invalid')})"
+    elif airborne is None and startup_s is not None and not waiting:
+        result["mission_failed"] = f"never flew the pattern: {fl['mission_result']}"
+        result.pop("invalid", None)
     # Everything each side put on the wire in the window (all streams, copies and joins included).
     result["bandwidth_kBps"] = {side: (tx1[side] - tx0[side]) / 1000 / max(1e-9, (t1 - t0) / 1e9) for side in tx0}
     result["startup_s"] = startup_s        # launch -> both apps started (None: not within the timeout)
     result.update(formation(workdir, launch_ns))
     if command is not None:
-        result["command"] = command
+        result["command"] = command     # the probe's raw answer (flight.commands.hold is its figure)
     if result.get("invalid") and apps_ran and startup_s is not None:
         # Both apps ran through the window, yet a sender had nothing to send: the GCS streams
         # setpoints only to a drone it hears, the drone senses only while its session lives. That is
@@ -293,10 +364,16 @@ def _last_json(path: Path) -> dict[str, Any] | None:
         return None
 
 
-def _command_through_router(link: LossyLink, workdir: Path, timeout: float = 6.0) -> dict[str, Any]:
-    """One service call GCS -> companion across the router and the loss (still on): ``gcs cmd uav1 hold``
-    from a second GCS client. Any answer counts, a refusal too (this GCS holds no control): the query
-    crossed the router both ways."""
+def _probe_reaches(spec: CellSpec) -> bool:
+    """A second GCS process can reach the companion: through the router, or on the multicast group.
+    The plain and unicast cells listen on the GCS's fixed port, which a second process cannot share."""
+    return spec.transport.startswith("router") or (spec.profile == "resilient" and spec.transport == "default")
+
+
+def _command_probe(link: LossyLink, workdir: Path, timeout: float = 6.0) -> dict[str, Any]:
+    """One service call GCS -> companion across the loss: ``gcs cmd uav1 hold`` from a second GCS. Any
+    answer counts, a refusal too (this GCS holds no control): the query crossed both ways and the real
+    companion answered it."""
     cmd = [sys.executable, "-m", "zenoh_robot.tools.cli.main", "gcs", "cmd", DRONE_ID, "hold", "--timeout",
            str(timeout), "--zenoh", str(workdir / "gcs.json5"), "--gcs-id", "cell-probe"]
     t = time.monotonic()
@@ -364,7 +441,8 @@ def analyse_cell(spec: CellSpec, workdir: Path, t0: int, t1: int, exit_codes: di
     for topic, (received, sent) in pairs.items():
         result["topics"][topic] = analyse(rec(received), rec(sent), t0, t1).as_dict()
     sp = result["topics"]["setpoint"]
-    result["offboard_kept"] = sp["unique"] > 0 and sp["longest_gap_ms"] <= OFFBOARD_GAP_MS
+    # Arrivals only (what reached the companion); the flight's own record decides offboard_kept.
+    result["setpoint_gap_ok"] = sp["unique"] > 0 and sp["longest_gap_ms"] <= OFFBOARD_GAP_MS
     # A window the senders did not stream through measures their start-up or exit, not the link:
     # every stream then "goes silent" at once at its edge. Say so instead of reporting a gap.
     late = [name for name, sent in (("setpoint", g["sent"]["setpoint"]), ("sensor", d["sent"]["sensor"]))

@@ -1,13 +1,19 @@
-"""Results of a sweep as CSV, markdown tables and figures (issue #17's "Done when").
+"""Results of a sweep as CSV, markdown tables and figures (issues #17 and #29).
 
-One table set per (start mode, transport): the control streams (setpoint delivered %,
-longest gap, p99 gap, gaps over PX4's 500 ms, p99 age; sensor delivered % and p99
-age) and the images with the bandwidth (whole fresh frames/s and %, fresh strips %,
-the age of the oldest strip in the picture for sliced images, kB/s each way). Cells
-that measured nothing valid (``error``: no records; ``invalid``: a sender did not
-stream through the whole window) are left out of the tables and listed under them
-with their reason, so a broken cell never reads as a rate. Command success per loss
-comes from the commands experiment's ``--jsonl`` file (``commands.py``), if given.
+One table set per (start mode, transport), one row per (loss, profile and loss model), each
+figure the median over the cell's runs with its range (``median [min-max]``):
+- the flight (issue #29: every cell flies): runs whose mission succeeded, time armed in
+  OFFBOARD over the window, companion failsafes, the age of the target the vehicle is given
+  (max, and how often over PX4's 500 ms), path error against the pattern (mean, max), the
+  mission's commands through the real companion (success, latency) and kB/s each way;
+- the control streams (setpoints in the window: what "100 %" rests on, delivered %, longest
+  gap, p99 gap, gaps over 500 ms, p99 age; sensor delivered % and p99 age; kB/s each way);
+- the images with the bandwidth (whole fresh frames/s and %, fresh strips %, the age of the
+  oldest strip in the picture for sliced images, kB/s each way).
+Cells that measured nothing valid (``error``: no records; ``invalid``: a sender did not
+stream through the whole window) are left out of the figures and listed under them with
+their reason, so a broken cell never reads as a rate. Command success per loss from the
+commands experiment's ``--jsonl`` file (``commands.py``), if given.
 
 ``python -m drone_lab.experiment.report OUT_DIR [--commands FILE.jsonl]`` redraws
 everything from ``OUT_DIR/results.jsonl`` (``zenoh-robot experiment --report-only`` does the
@@ -19,7 +25,8 @@ import argparse
 import csv
 import json
 import math
-from collections.abc import Iterable
+import statistics
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -40,13 +47,35 @@ THESIS_SETPOINT = {
 def write_csv(results: list[dict[str, Any]], path: Path) -> None:
     with path.open("w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["start", "transport", "profile", "loss", "topic", *FIELDS, "offboard_kept", "invalid", "error"])
+        w.writerow(["start", "transport", "profile", "loss", "run", "topic", *FIELDS, "offboard_kept",
+                    *FLIGHT_CSV, "invalid", "error"])
         for r in results:
+            fl = [get(r) for get in FLIGHT_CSV.values()]
             for topic in TOPICS + ("state", "image_whole", "image_strip"):
                 s = r.get("topics", {}).get(topic, {})
-                w.writerow([r.get("start"), r.get("transport", "default"), r.get("profile"), r.get("loss"), topic,
-                            *(s.get(k) for k in FIELDS), r.get("offboard_kept"), r.get("invalid", ""),
-                            r.get("error", "")])
+                w.writerow([r.get("start"), r.get("transport", "default"), r.get("profile"), r.get("loss"),
+                            r.get("run", 0), topic, *(s.get(k) for k in FIELDS), r.get("offboard_kept"), *fl,
+                            r.get("invalid", ""), r.get("error", "")])
+
+
+def _flight(r: dict[str, Any], *path: str) -> Any:
+    node: Any = r.get("flight") or {}
+    for key in path:
+        node = node.get(key) if isinstance(node, dict) else None
+    return node
+
+
+FLIGHT_CSV: dict[str, Callable[[dict[str, Any]], Any]] = {
+    "mission_ok": lambda r: _flight(r, "mission_ok"),
+    "offboard_share": lambda r: _flight(r, "offboard_share_window"),
+    "failsafes": lambda r: _flight(r, "failsafes"),
+    "vehicle_target_age_max_ms": lambda r: _flight(r, "vehicle_target", "age_max_ms"),
+    "vehicle_target_stale_over_500ms": lambda r: _flight(r, "vehicle_target", "stale_over_500ms"),
+    "path_error_mean_m": lambda r: _flight(r, "path_error_window", "mean_m"),
+    "path_error_max_m": lambda r: _flight(r, "path_error_window", "max_m"),
+    "kBps_gcs": lambda r: (r.get("bandwidth_kBps") or {}).get("gcs"),
+    "kBps_drone": lambda r: (r.get("bandwidth_kBps") or {}).get("drone"),
+}
 
 
 def _nan(v: object) -> bool:
@@ -84,6 +113,28 @@ def skipped_reason(r: dict[str, Any]) -> str | None:
     return None
 
 
+def median_range(values: Iterable[Any], fmt: Callable[[float], str]) -> str:
+    """``median [min-max]`` of the numbers among ``values`` (one value: itself; none: ``-``)."""
+    nums = [float(v) for v in values if not _nan(v) and not isinstance(v, bool)]
+    if not nums:
+        return "-"
+    mid = fmt(statistics.median(nums))
+    return mid if len(nums) == 1 or min(nums) == max(nums) else f"{mid} [{fmt(min(nums))}-{fmt(max(nums))}]"
+
+
+def runs_of(rows: list[dict[str, Any]]) -> list[list[dict[str, Any]]]:
+    """``rows`` (one transport's valid cells) as one list of runs per (loss, profile), in table order."""
+    out: dict[tuple[float, str], list[dict[str, Any]]] = {}
+    for r in rows:
+        out.setdefault((float(r.get("loss", 0)), str(r.get("profile"))), []).append(r)
+    return [out[k] for k in sorted(out, key=lambda k: (k[0], _profile_key(k[1])))]
+
+
+def _loss_label(r: dict[str, Any]) -> str:
+    model = r.get("loss_model", "uniform")
+    return f"{float(r['loss']):g}%" if model in (None, "uniform") else f"{float(r['loss']):g}% {model}"
+
+
 def groups(results: Iterable[dict[str, Any]]) -> dict[tuple[str, str], list[dict[str, Any]]]:
     """Cells by (start mode, transport), each sorted by loss then profile."""
     out: dict[tuple[str, str], list[dict[str, Any]]] = {}
@@ -114,23 +165,80 @@ def _command_cell(commands: dict[float, dict[str, Any]] | None, loss: float) -> 
     return f"{row.get('success_rate', math.nan) * 100:.0f}% of {row.get('calls', '?')}"
 
 
+def _topic(name: str, key: str) -> Callable[[dict[str, Any]], Any]:
+    return lambda r: r.get("topics", {}).get(name, {}).get(key)
+
+
+def _bw(side: str) -> Callable[[dict[str, Any]], Any]:
+    return lambda r: (r.get("bandwidth_kBps") or {}).get(side)
+
+
+def _row(runs: list[dict[str, Any]], columns: Sequence[tuple[Callable[[dict[str, Any]], Any],
+                                                               Callable[[Any], str]]]) -> list[str]:
+    return [median_range((get(r) for r in runs), fmt) for get, fmt in columns]
+
+
+def _int(v: float) -> str:
+    return f"{v:.0f}"
+
+
 def streams_table(rows: list[dict[str, Any]], commands: dict[float, dict[str, Any]] | None = None) -> str:
-    """What keeps PX4 in OFFBOARD and the vehicle observed: setpoints and sensors."""
-    head = ["loss", "profile", "setpoint delivered", "max gap", "p99 gap", "gaps > 500 ms", "setpoint p99 age",
-            "sensor delivered", "sensor p99 age"]
+    """What reached each end: setpoints and sensors, with what the link carried (kB/s)."""
+    head = ["loss", "profile", "runs", "setpoints in window", "setpoint delivered", "max gap", "p99 gap",
+            "gaps > 500 ms", "setpoint p99 age", "sensor delivered", "sensor p99 age", "GCS -> drone kB/s",
+            "drone -> GCS kB/s"]
     if commands is not None:
         head.append("commands answered in time")
+    columns = [(_topic("setpoint", "sent"), _int), (_topic("setpoint", "delivered_pct"), _pct),
+               (_topic("setpoint", "longest_gap_ms"), _fmt_ms), (_topic("setpoint", "gap_p99_ms"), _fmt_ms),
+               (_topic("setpoint", "gaps_over_500ms"), _int), (_topic("setpoint", "age_p99_ms"), _fmt_ms),
+               (_topic("sensor", "delivered_pct"), _pct), (_topic("sensor", "age_p99_ms"), _fmt_ms),
+               (_bw("gcs"), _num), (_bw("drone"), _num)]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for r in rows:
-        t = r.get("topics", {})
-        sp, se = t.get("setpoint", {}), t.get("sensor", {})
-        cells = [f"{float(r['loss']):g}%", str(r["profile"]), _pct(sp.get("delivered_pct")),
-                 _fmt_ms(sp.get("longest_gap_ms")), _fmt_ms(sp.get("gap_p99_ms")), str(sp.get("gaps_over_500ms", "-")),
-                 _fmt_ms(sp.get("age_p99_ms")), _pct(se.get("delivered_pct")), _fmt_ms(se.get("age_p99_ms"))]
+    for runs in runs_of(rows):
+        r = runs[0]
+        cells = [_loss_label(r), str(r["profile"]), str(len(runs)), *_row(runs, columns)]
         if commands is not None:
             cells.append(_command_cell(commands, float(r["loss"])))
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+def _command(name: str) -> Callable[[dict[str, Any]], Any]:
+    return lambda r: _flight(r, "commands", name, "s")
+
+
+def _commands_ok(runs: list[dict[str, Any]]) -> str:
+    """Mission commands (and the hold probe) that succeeded, over all runs."""
+    done = [c for r in runs for c in (_flight(r, "commands") or {}).values()]
+    return f"{sum(1 for c in done if c.get('ok'))}/{len(done)}" if done else "-"
+
+
+def flight_table(rows: list[dict[str, Any]]) -> str:
+    """The flight itself: OFFBOARD kept, failsafes, the target's age at the vehicle, path error, the
+    commands through the real companion, and the bytes the link carried meanwhile."""
+    head = ["loss", "profile", "runs", "mission ok", "OFFBOARD (window)", "failsafes", "target age at vehicle max",
+            "target > 500 ms", "path error mean", "path error max", "commands ok", "offboard_start s", "arm s",
+            "land s", "hold s (probe)", "GCS -> drone kB/s", "drone -> GCS kB/s"]
+    columns = [(lambda r: _flight(r, "offboard_share_window"), lambda v: f"{100 * v:.0f}%"),
+               (lambda r: _flight(r, "failsafes"), _int),
+               (lambda r: _flight(r, "vehicle_target", "age_max_ms"), _fmt_ms),
+               (lambda r: _flight(r, "vehicle_target", "stale_over_500ms"), _int),
+               (lambda r: _flight(r, "path_error_window", "mean_m"), lambda v: f"{v:.2f} m"),
+               (lambda r: _flight(r, "path_error_window", "max_m"), lambda v: f"{v:.2f} m")]
+    tail = [(_command("offboard_start"), _sec), (_command("arm"), _sec), (_command("land"), _sec),
+            (_command("hold"), _sec), (_bw("gcs"), _num), (_bw("drone"), _num)]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for runs in runs_of(rows):
+        r = runs[0]
+        ok = sum(1 for x in runs if _flight(x, "mission_ok"))
+        lines.append("| " + " | ".join([_loss_label(r), str(r["profile"]), str(len(runs)), f"{ok}/{len(runs)}",
+                                        *_row(runs, columns), _commands_ok(runs), *_row(runs, tail)]) + " |")
+    return "\n".join(lines)
+
+
+def _sec(v: float) -> str:
+    return f"{v:.2f}"
 
 
 def images_table(rows: list[dict[str, Any]]) -> str:
@@ -138,30 +246,40 @@ def images_table(rows: list[dict[str, Any]]) -> str:
     head = ["loss", "profile", "image mode", "whole fresh frames/s", "whole fresh %", "fresh strips %",
             "oldest strip p99 age", "GCS -> drone kB/s", "drone -> GCS kB/s"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for r in rows:
-        t = r.get("topics", {})
-        whole, strip = t.get("image_whole", {}), t.get("image_strip", {})
+    for runs in runs_of(rows):
+        r = runs[0]
         mode = str(r.get("config", {}).get("image_mode", "-"))
-        oldest = r.get("image_oldest_strip", {}).get("age_p99_ms") if mode == "sliced" else None
-        bw = r.get("bandwidth_kBps", {})
+        # A FEC frame is whole or not shown: its strips are exactly as fresh as its frames.
+        columns = [(_topic("image_whole", "rate_hz"), _num), (_topic("image_whole", "delivered_pct"), _pct0),
+                   (_topic("image_whole" if mode == "fec" else "image_strip", "delivered_pct"), _pct0)]
+        oldest = median_range((x.get("image_oldest_strip", {}).get("age_p99_ms") for x in runs), _fmt_ms)
         lines.append("| " + " | ".join([
-            f"{float(r['loss']):g}%", str(r["profile"]), mode, _num(whole.get("rate_hz")),
-            # A FEC frame is whole or not shown: its strips are exactly as fresh as its frames.
-            _pct(whole.get("delivered_pct"), 0), _pct((whole if mode == "fec" else strip).get("delivered_pct"), 0),
-            _fmt_ms(oldest) if mode == "sliced" else "n/a", _num(bw.get("gcs")), _num(bw.get("drone")),
+            _loss_label(r), str(r["profile"]), mode, *_row(runs, columns), oldest if mode == "sliced" else "n/a",
+            *_row(runs, [(_bw("gcs"), _num), (_bw("drone"), _num)]),
         ]) + " |")
     return "\n".join(lines)
 
 
+def _pct0(v: Any) -> str:
+    return _pct(v, 0)
+
+
 def skipped_list(rows: list[dict[str, Any]]) -> str:
     bad = [(r, skipped_reason(r)) for r in rows]
-    items = [f"- {float(r.get('loss', math.nan)):g}% {r.get('profile')}: {why}" for r, why in bad if why]
-    failed = [f"- {float(r.get('loss', math.nan)):g}% {r.get('profile')}: {r['link_failed']}"
+    items = [f"- {float(r.get('loss', math.nan)):g}% {r.get('profile')}{_run_tag(r)}: {why}" for r, why in bad if why]
+    failed = [f"- {float(r.get('loss', math.nan)):g}% {r.get('profile')}{_run_tag(r)}: {r['link_failed']}"
               for r in rows if r.get("link_failed")]
+    flights = [f"- {float(r.get('loss', math.nan)):g}% {r.get('profile')}{_run_tag(r)}: {r['mission_failed']}"
+               for r in rows if r.get("mission_failed")]
     parts = (["Cells left out (not measurements):", *items] if items else []) + \
         (["Cells where the link failed the stack (both apps ran; counted as 0 % delivered):", *failed]
-         if failed else [])
+         if failed else []) + \
+        (["Flights that failed (a result: their figures are in the tables):", *flights] if flights else [])
     return "\n".join(parts)
+
+
+def _run_tag(r: dict[str, Any]) -> str:
+    return f" run {r['run']}" if "run" in r else ""
 
 
 def oldest_strip_ages(strips: dict[str, Any], t0_ns: int, t1_ns: int) -> dict[str, float]:
@@ -193,7 +311,8 @@ def add_oldest_strip_ages(results: list[dict[str, Any]], out_dir: Path) -> None:
     for r in results:
         if r.get("config", {}).get("image_mode") != "sliced" or "image_oldest_strip" in r or not r.get("window_ns"):
             continue
-        path = out_dir / "cells" / f"{r.get('start')}-{r.get('profile')}-{float(r.get('loss', 0)):g}" / "gcs.json"
+        name = r.get("cell_dir") or f"{r.get('start')}-{r.get('profile')}-{float(r.get('loss', 0)):g}"
+        path = out_dir / "cells" / str(name) / "gcs.json"
         try:
             drones = json.loads(path.read_text())["drones"]
             strips = next(iter(drones.values()))["logs"]["received"]["image_strip"]
@@ -270,6 +389,8 @@ def markdown_report(results: list[dict[str, Any]], commands: dict[float, dict[st
         md += [f"## Loss {'applied after set-up' if start == 'after' else 'present from start-up'}, "
                f"transport {transport}", ""]
         if rows:
+            if any(r.get("flight") for r in rows):
+                md += ["### Flight", "", flight_table([r for r in rows if r.get("flight")]), ""]
             md += ["### Setpoints and sensors", "", streams_table(rows, commands), "",
                    "### Images and bandwidth", "", images_table(rows), ""]
         else:
@@ -282,7 +403,18 @@ def markdown_report(results: list[dict[str, Any]], commands: dict[float, dict[st
            "OFFBOARD limit. Whole fresh frames: frames whose every strip is from that frame (a raw or FEC frame "
            "is one piece). Oldest strip age: at each strip arrival, now minus the publication of the oldest "
            "strip in the picture (sliced images only). kB/s: everything each side put on its veth "
-           "(all streams, copies, probes and Zenoh's own packets).", ""]
+           "(all streams, copies, probes and Zenoh's own packets), in the window. Each figure: the median over "
+           "the cell's runs, [min-max] when they differ; setpoints in window: how many sent, what \"100 %\" "
+           "rests on (none lost of n bounds the loss rate under 3/n at 95 %).", "",
+           "Flight: the GCS's mission (`gcs --mission`: OFFBOARD, arm, climb, the pattern, land) through the "
+           "loss. OFFBOARD (window): share of the window PX4 was armed in OFFBOARD; failsafes: the companion's "
+           "deadline HOLDs; target age at vehicle: now minus the GCS stamp of the target px4_link streams to "
+           "PX4 (sampled every 20 ms by `companion --vehicle-record`; px4_link re-sends it at 20 Hz, so this, "
+           "not PX4's stream, is the gap that matters), and how often it went over 500 ms; path error: the "
+           "vehicle's horizontal distance from the pattern's path in the window; commands: the mission's "
+           "offboard_start, arm and land through the real companion (latency from its step times, within "
+           "0.2 s) and a hold from a second GCS mid-window (refused: it holds no control; process start-up "
+           "and session included).", ""]
     if commands is not None:
         md += ["Commands answered in time: the commands experiment (`python -m drone_lab.experiment."
                "commands --jsonl FILE`), its own run over the same kind of link, joined by loss.", ""]
@@ -312,7 +444,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--commands", type=Path, help="the commands experiment's --jsonl file")
     args = ap.parse_args(argv)
     from .sweep import load_results
-    results = load_results(args.out / "results.jsonl")
+    results = load_results(args.out / "results.jsonl", include_invalid=True)
     if not results:
         print(f"no results in {args.out / 'results.jsonl'}")
         return 2

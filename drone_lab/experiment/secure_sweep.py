@@ -23,13 +23,18 @@ once the sessions are up, ``--start startup`` from the first packet. Needs root 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
+import os
+import statistics
 import subprocess
 import sys
 import tempfile
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -268,6 +273,199 @@ def markdown(results: list[dict[str, Any]]) -> str:
     return "\n".join(rows) + "\n"
 
 
+# --- sealed resilient beside plain resilient, through cell.py's flying cells ----------------------
+
+LINK_KEYS_ENV = "ZR_LINK_KEYS"     # the companion's and the GCS's --link-keys default (their CLIs read it)
+SEALED_LOSSES = (0, 30, 50, 70, 90)
+CELL_PROBE_ID = "cell-probe"       # the GCS id of cell.py's command probe through a router (`gcs cmd`)
+
+
+def make_cell_link_keys(keys_dir: Path) -> Path:
+    """Link keyrings for a cell's apps: uav1, the GCS under its default id (cell.py passes none) and the
+    router cell's command probe; returns the directory the apps' ``--link-keys`` takes."""
+    from gcs.app import default_client_id
+    from zenoh_robot.tools import keys
+    keys.make_link_keys(keys_dir, gcs={default_client_id(): ["uav1"], CELL_PROBE_ID: ["uav1"]})
+    return keys_dir / keys.LINK_DIR
+
+
+def cell_options(pairs: list[str]) -> dict[str, Any]:
+    """``NAME=VALUE`` cell options, typed by ``cell.CellSpec``'s fields (whatever that version has)."""
+    from .cell import CellSpec
+    fields = {f.name: f for f in dataclasses.fields(CellSpec)}
+    options: dict[str, Any] = {}
+    for pair in pairs:
+        name, _, raw = pair.partition("=")
+        if name not in fields or name in ("profile", "loss"):
+            known = ", ".join(sorted(set(fields) - {"profile", "loss"}))
+            raise ValueError(f"cell option {name!r}: CellSpec has {known}")
+        default = fields[name].default
+        options[name] = type(default)(raw) if isinstance(default, (int, float)) and not isinstance(default, bool) \
+            else raw
+    return options
+
+
+@contextmanager
+def _env(name: str, value: str | None) -> Iterator[None]:
+    before = os.environ.get(name)
+    if value is None:
+        os.environ.pop(name, None)
+    else:
+        os.environ[name] = value
+    try:
+        yield
+    finally:
+        if before is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = before
+
+
+def protection_of(workdir: Path) -> dict[str, bool]:
+    """Per app, whether its start-up line says its samples were sealed (the row's proof of what ran)."""
+    out = {}
+    for side in ("gcs", "drone"):
+        try:
+            text = (workdir / f"{side}.log").read_text(errors="replace")
+        except OSError:
+            text = ""
+        out[side] = "link protection: per-sample AEAD" in text
+    return out
+
+
+def run_sealed_cell(loss: float, sealed: bool, options: dict[str, Any], out_dir: Path,
+                    link_keys: Path) -> dict[str, Any]:
+    """One resilient cell of ``cell.py`` (its flying cell, whatever it does now), sealed or not."""
+    from .cell import CellSpec, run_cell
+    spec = CellSpec("resilient", float(loss), **options)
+    kind = "sealed" if sealed else "plain"
+    workdir = out_dir / "cells" / f"{spec.start}-{kind}-{spec.label}-{loss:g}-r{options.get('run', 0)}"
+    with _env(LINK_KEYS_ENV, str(link_keys) if sealed else None):
+        result = run_cell(spec, workdir)
+    result["sealed"] = sealed
+    result["protection"] = protection_of(workdir)
+    result["row"] = f"{spec.label}{'+sealed' if sealed else ''}"
+    if sealed and not all(result["protection"].values()):
+        result["error"] = f"an app ran unsealed: {result['protection']} (see {workdir}/*.log)"
+    return result
+
+
+def run_sealed_sweep(out_dir: Path, losses: list[float], options: dict[str, Any], runs: int = 1,
+                     log: Any = print) -> list[dict[str, Any]]:
+    """Per loss and run, the sealed and the plain resilient cell back to back (order alternating),
+    one line each to ``sealed.jsonl`` as it finishes."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    results: list[dict[str, Any]] = []
+    with tempfile.TemporaryDirectory(prefix="zr-link-keys-") as tmp:
+        link_keys = make_cell_link_keys(Path(tmp))
+        n = 0
+        for run in range(runs):
+            for loss in losses:
+                order = (True, False) if n % 2 == 0 else (False, True)
+                n += 1
+                for sealed in order:
+                    opts = {**options, "run": run} if "run" in {f.name for f in _cell_fields()} else dict(options)
+                    try:
+                        r = run_sealed_cell(loss, sealed, opts, out_dir, link_keys)
+                    except Exception as exc:   # one broken cell must not lose the sweep
+                        r = {"loss": loss, "sealed": sealed, "row": "resilient" + ("+sealed" if sealed else ""),
+                             "error": f"{type(exc).__name__}: {exc}", "topics": {}}
+                    results.append(r)
+                    with (out_dir / "sealed.jsonl").open("a") as f:
+                        f.write(json.dumps(r) + "\n")
+                    log(sealed_line(r))
+    return results
+
+
+def _cell_fields() -> tuple[dataclasses.Field[Any], ...]:
+    from .cell import CellSpec
+    return dataclasses.fields(CellSpec)
+
+
+def _fps(r: dict[str, Any]) -> float | None:
+    whole = r.get("topics", {}).get("image_whole") or {}
+    v = whole.get("rate_hz")
+    return None if v is None or (isinstance(v, float) and math.isnan(v)) else float(v)
+
+
+def sealed_line(r: dict[str, Any]) -> str:
+    head = f"{r['row']:22s} {r['loss']:3g}%"
+    if r.get("error"):
+        return f"{head}: ERROR {r['error']}"
+    t = r["topics"]
+    bw = r.get("bandwidth_kBps") or {}
+    return (f"{head} | setpoint {_num(t['setpoint']['delivered_pct'], '5.1f', '%')} gap "
+            f"{_num(t['setpoint']['longest_gap_ms'], '.0f')} ms | sensor "
+            f"{_num(t['sensor']['delivered_pct'], '5.1f', '%')}"
+            f" | image {_num(_fps(r), '.1f')} fps whole | kB/s gcs {_num(bw.get('gcs'), '.1f')} drone "
+            f"{_num(bw.get('drone'), '.1f')}" + ("" if r.get("offboard_kept") is None else
+                                                f" | offboard {'kept' if r['offboard_kept'] else 'LOST'}"))
+
+
+def sealed_markdown(results: list[dict[str, Any]]) -> str:
+    """One row per (loss, sealed): median over runs, the range in brackets when runs > 1."""
+    rows = ["| loss % | profile | runs | setpoint delivered | setpoint longest gap | offboard kept | sensor delivered "
+            "| image fps (whole frames) | fresh strips | kB/s GCS -> drone | kB/s drone -> GCS |",
+            "|---|---|---|---|---|---|---|---|---|---|---|"]
+    groups: dict[tuple[float, str], list[dict[str, Any]]] = {}
+    for r in results:
+        groups.setdefault((float(r["loss"]), r["row"]), []).append(r)
+
+    def cell(rs: list[dict[str, Any]], get: Any, fmt: str, unit: str = "") -> str:
+        xs = [v for v in (get(r) for r in rs if not r.get("error")) if v is not None and not
+              (isinstance(v, float) and math.isnan(v))]
+        if not xs:
+            return "-"
+        m = statistics.median(xs)
+        return f"{m:{fmt}}{unit}" + (f" ({min(xs):{fmt}}-{max(xs):{fmt}})" if len(xs) > 1 else "")
+
+    for (loss, row), rs in sorted(groups.items(), key=lambda kv: (kv[0][0], "+sealed" in kv[0][1], kv[0][1])):
+        errors = [r["error"] for r in rs if r.get("error")]
+        ok = [r for r in rs if not r.get("error")]
+        kept = [bool(r["offboard_kept"]) for r in ok if r.get("offboard_kept") is not None]
+        rows.append(
+            f"| {loss:g} | {row} | {len(ok)}{f' ({len(errors)} failed)' if errors else ''} "
+            f"| {cell(ok, lambda r: r['topics']['setpoint']['delivered_pct'], '.1f', ' %')} "
+            f"| {cell(ok, lambda r: r['topics']['setpoint']['longest_gap_ms'], '.0f', ' ms')} "
+            f"| {f'{sum(kept)}/{len(kept)}' if kept else '-'} "
+            f"| {cell(ok, lambda r: r['topics']['sensor']['delivered_pct'], '.1f', ' %')} "
+            f"| {cell(ok, _fps, '.1f')} "
+            f"| {cell(ok, lambda r: r['topics'].get('image_strip', {}).get('delivered_pct'), '.1f', ' %')} "
+            f"| {cell(ok, lambda r: (r.get('bandwidth_kBps') or {}).get('gcs'), '.1f')} "
+            f"| {cell(ok, lambda r: (r.get('bandwidth_kBps') or {}).get('drone'), '.1f')} |")
+    return "\n".join(rows) + "\n"
+
+
+def sealed_main(argv: list[str]) -> int:
+    p = argparse.ArgumentParser(prog=f"python -m {MODULE} sealed",
+                                description="the sealed resilient profile (--link-keys) beside plain resilient "
+                                            "through cell.py's cells, at each loss, same run")
+    p.add_argument("--out", type=Path, default=Path("secure-lossy"), help="results directory (raw jsonl, table)")
+    p.add_argument("--losses", default=",".join(str(x) for x in SEALED_LOSSES), help="loss %% per direction")
+    p.add_argument("--runs", type=int, default=1, help="runs per cell (median and range in the table)")
+    p.add_argument("--cell", action="append", default=[], metavar="NAME=VALUE",
+                   help="a cell.CellSpec option, e.g. duration=20, loss_model=bursty, transport=router; repeatable")
+    p.add_argument("--report-only", action="store_true", help="redraw the table from OUT/sealed.jsonl")
+    args = p.parse_args(argv)
+    if args.report_only:
+        results = [json.loads(x) for x in (args.out / "sealed.jsonl").read_text().splitlines() if x.strip()]
+    else:
+        reason = unavailable_reason()
+        if reason:
+            print(f"secure_sweep sealed: {reason}", file=sys.stderr)
+            return 2
+        try:
+            options = cell_options(args.cell)
+        except ValueError as exc:
+            print(f"secure_sweep sealed: {exc}", file=sys.stderr)
+            return 2
+        results = run_sealed_sweep(args.out, [float(x) for x in args.losses.split(",")], options, args.runs)
+    table = sealed_markdown(results)
+    (args.out / "sealed.md").write_text(table)
+    print(table)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m drone_lab.experiment.secure_sweep", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -285,6 +483,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--starts", default=",".join(STARTS), help="after (loss once up), startup (loss from the start)")
     p.add_argument("--duration", type=float, default=8.0, help="measurement window per cell, s")
     p.add_argument("--warmup", type=float, default=3.0, help="launch to window start, s")
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["sealed"]:
+        return sealed_main(argv[1:])
     args = p.parse_args(argv)
     if args.cmd == "endpoint":
         endpoint(args.side, json.loads(args.config), args.duration, args.out, args.drain, args.setpoint_repeat)

@@ -132,10 +132,104 @@ def figure(results: list[dict[str, Any]], path: Path) -> Path | None:
 
 def write_report(results: list[dict[str, Any]], out: Path) -> dict[str, Path]:
     out.mkdir(parents=True, exist_ok=True)
-    md = ["# Swarm sweep", "", table(results), "", *[f"- {v}" for v in verdicts(results)], ""]
+    flying = [r for r in results if r["summary"].get("fly")]
+    hovering = [r for r in results if not r["summary"].get("fly")]
+    md = ["# Swarm sweep", ""]
+    if flying:
+        md += ["## Flying: every drone arms, flies the pattern from its formation slot, lands", "",
+               "Median over runs (range in brackets). Path error: the drone's distance from its own slot's path, "
+               "from when it joined it; OFFBOARD: time in OFFBOARD over the pattern time asked, worst drone; "
+               "commands: offboard_start, arm and land through the real companion.", "",
+               flight_table(flying), "", *[f"- {v}" for v in flight_verdicts(flying)], ""]
+        invalid = [r for r in flying if r.get("errors")]
+        if invalid:
+            md += ["Cells with errors (kept, not dropped):", "",
+                   *[f"- {r['name']}: {'; '.join(map(str, r['errors']))[:300]}" for r in invalid], ""]
+    if hovering:
+        md += ["## Streaming only (hover setpoints to grounded drones)" if flying else "", "", table(hovering), "",
+               *[f"- {v}" for v in verdicts(hovering)], ""]
     (out / "results.md").write_text("\n".join(md))
     files = {"table": out / "results.md"}
     fig = figure(results, out / "swarm.png")
     if fig is not None:
         files["figure"] = fig
     return files
+
+
+# -- flying cells (issue #29): runs aggregated, median and range ------------------------------
+FLIGHT_COLUMNS = [
+    ("flew_ok", "flew ok (of N)", "{:.0f}"), ("path_error_mean_m", "path err mean m", "{:.2f}"),
+    ("path_error_max_m", "path err max m", "{:.2f}"), ("offboard_share_min", "OFFBOARD % (worst)", "pct"),
+    ("commands_ok_pct", "commands ok %", "{:.0f}"), ("command_latency_max_s", "cmd latency max s", "{:.2f}"),
+    ("holds", "HOLDs", "{:.0f}"), ("setpoint_delivered_min", "setpoint % (min)", "{:.1f}"),
+    ("sensor_delivered_min", "sensor % (min)", "{:.1f}"), ("image_fps_avg", "img fps", "{:.1f}"),
+    ("cpu_gcs_pct", "GCS % core", "{:.0f}"), ("cpu_gcs_per_drone_pct", "GCS %/drone", "{:.1f}"),
+    ("cpu_companion_avg_pct", "companion % core", "{:.0f}"), ("cpu_total_pct", "all % core", "{:.0f}"),
+    ("load_avg_1m", "load 1m", "{:.1f}"),
+]
+
+
+def _flight_key(s: dict[str, Any]) -> tuple[Any, ...]:
+    return (s["drones"], s["mode"], s["camera"], s.get("sensor_asked_hz", OLD_SENSOR_HZ),
+            s.get("camera_asked_fps", OLD_CAMERA_FPS))
+
+
+def _median(xs: list[Any]) -> float:
+    xs = sorted(x for x in xs if isinstance(x, (int, float)) and x == x)
+    if not xs:
+        return float("nan")
+    m = len(xs) // 2
+    return float(xs[m] if len(xs) % 2 else (xs[m - 1] + xs[m]) / 2)
+
+
+def _cell(fmt: str, xs: list[Any]) -> str:
+    """Median, and the range over runs when there are several."""
+    good = [x for x in xs if isinstance(x, (int, float)) and x == x]
+    if not good:
+        return "-"
+    scale, f = (100.0, "{:.0f}") if fmt == "pct" else (1.0, fmt)
+    med = f.format(_median(good) * scale)
+    if len(good) < 2:
+        return med
+    return f"{med} ({f.format(min(good) * scale)}-{f.format(max(good) * scale)})"
+
+
+def flight_groups(results: list[dict[str, Any]]) -> dict[tuple[Any, ...], list[dict[str, Any]]]:
+    groups: dict[tuple[Any, ...], list[dict[str, Any]]] = {}
+    for r in results:
+        s = r["summary"]
+        if s.get("fly"):
+            groups.setdefault(_flight_key(s), []).append(s)
+    return dict(sorted(groups.items(), key=lambda kv: (kv[0][1], kv[0][0])))
+
+
+def flight_table(results: list[dict[str, Any]]) -> str:
+    head = "| N | mode | camera | asked Hz / fps | runs | " + " | ".join(c[1] for c in FLIGHT_COLUMNS) + " |"
+    sep = "|" + "|".join("---" for _ in range(5 + len(FLIGHT_COLUMNS))) + "|"
+    body = []
+    for (n, mode, cam, hz, fps), runs in flight_groups(results).items():
+        cells = [_cell(f, [s.get(k, float("nan")) for s in runs]) for k, _, f in FLIGHT_COLUMNS]
+        body.append(f"| {n} | {mode} | {cam} | {hz:g} / {fps:g} | {len(runs)} | " + " | ".join(cells) + " |")
+    return "\n".join([head, sep, *body])
+
+
+def flight_verdicts(results: list[dict[str, Any]]) -> list[str]:
+    """Per group: did every drone fly, and did the machine hold the swarm (not asserted)."""
+    out = []
+    for (n, mode, _cam, _hz, _fps), runs in flight_groups(results).items():
+        flew = sum(s.get("flew_ok", 0) for s in runs)
+        asked = n * len(runs)
+        cores = max((s.get("cores", 0) for s in runs), default=0) or float("nan")
+        total = _median([s.get("cpu_total_pct", float("nan")) for s in runs])
+        load = _median([s.get("load_avg_1m", float("nan")) for s in runs])
+        own = total == total and cores == cores and total >= 90.0 * cores
+        loaded = load == load and cores == cores and load > cores
+        out.append(f"N={n} {mode}: {flew} of {asked} drone flights flew, landed and disarmed over {len(runs)} run(s); "
+                   f"worst OFFBOARD share {_cell('pct', [s.get('offboard_share_min') for s in runs])} %, "
+                   f"path error max {_cell('{:.2f}', [s.get('path_error_max_m') for s in runs])} m; "
+                   f"the swarm's processes took {total:.0f} % of a core ({cores:g} cores, load {load:.1f})"
+                   + (": they SATURATE the machine, this cell measures the machine as much as the swarm"
+                      if own else "")
+                   + ("; the machine was LOADED beyond its cores (the load average counts every process on it)"
+                      if loaded else ""))
+    return out

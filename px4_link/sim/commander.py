@@ -160,6 +160,9 @@ class Commander:
     setpoints_since_landed: int = 0
     estimator_warmup_s: float = PX4_ESTIMATOR_WARMUP_S
     estimate_lost: bool = False    # an injected estimate loss (sim/faults.py)
+    # COM_OF_LOSS_T -> failsafe latency: the MAVLink build's (OFFBOARD_LOSS_LATENCY_S) by default; PX4's
+    # Zenoh build reacts in ~0.1 s (px4_zenoh_traces loss: 1.096 s), which px4_zenoh.sim passes.
+    offboard_loss_latency_s: float = OFFBOARD_LOSS_LATENCY_S
 
     def __post_init__(self) -> None:
         self._lock = threading.RLock()
@@ -497,7 +500,7 @@ class Commander:
         if self.mode != "OFFBOARD":
             return
         silent = math.inf if self._sp_last is None else self.now - self._sp_last
-        if silent <= float(self.params["COM_OF_LOSS_T"]) + OFFBOARD_LOSS_LATENCY_S:
+        if silent <= float(self.params["COM_OF_LOSS_T"]) + self.offboard_loss_latency_s:
             return
         if not self.armed:
             # failsafe/framework.cpp getSelectedAction: no action while disarmed; PX4 stays in

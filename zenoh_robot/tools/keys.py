@@ -24,11 +24,14 @@ import fcntl
 import ipaddress
 import json
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from zenoh_robot.acl import ROLES, KeysError, NodeEntry, acl_config, check_name, domain_prefix, load_roles, save_roles
+from zenoh_robot.keyring import FLEET
+from zenoh_robot.loss_feedback import LINK_TOPIC
 
 try:
     from cryptography import x509
@@ -195,6 +198,17 @@ def write_node_config(keys_dir: str | Path, name: str, mode: str | None = None) 
 # -- link keys: the symmetric keys of sealed samples (zenoh_robot.wire.sealed, zenoh_robot.keyring) ----------
 LINK_DIR = "link"
 LINK_MASTER = "keys.json"
+FLEET_SCOPE = LINK_TOPIC.strip("/")     # the loss-feedback probes' key (outside every drone's namespace)
+# A GCS's link key is named by its client id (what its setpoints and commands claim), and `gcs`
+# defaults that to user@host: the contract's client id syntax, never "." or ".." (a file name).
+_GCS_LINK_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.@:+-]{0,63}$")
+
+
+def check_gcs_link_name(name: str) -> str:
+    """``name`` if it can name a GCS's link keyring (a client id such as ``gcs1`` or ``pilot@ground``)."""
+    if not isinstance(name, str) or not _GCS_LINK_NAME.match(name):
+        raise KeysError(f"invalid GCS id {name!r}: letters, digits and _.@:+-, up to 64, not starting with . @ : + -")
+    return name
 
 
 def _link_entry(sender: str, role: str, scope: str) -> dict[str, Any]:
@@ -216,7 +230,7 @@ def make_link_keys(keys_dir: str | Path, gcs: dict[str, list[str]] | None = None
     gcs_map = {n: list(e.drones) for n, e in load_roles(d).items() if e.role == "gcs"} if d.is_dir() else {}
     drone_set = {n for n, e in load_roles(d).items() if e.role == "drone"} if d.is_dir() else set()
     for name, ds in (gcs or {}).items():
-        gcs_map[check_name(name)] = sorted({*gcs_map.get(name, []), *(check_name(x) for x in ds)})
+        gcs_map[check_gcs_link_name(name)] = sorted({*gcs_map.get(name, []), *(check_name(x) for x in ds)})
     drone_set |= {check_name(x) for x in drones or []}
     drone_set |= {x for ds in gcs_map.values() for x in ds}
     if not drone_set:
@@ -228,7 +242,8 @@ def make_link_keys(keys_dir: str | Path, gcs: dict[str, list[str]] | None = None
         fcntl.flock(lock, fcntl.LOCK_EX)
         keys: list[dict[str, Any]] = json.loads(master_path.read_text()) if master_path.exists() else []
         have = {(k["sender"], k["scope"]) for k in keys}
-        wanted = [(x, "drone", x) for x in sorted(drone_set)]
+        wanted = [(FLEET, FLEET, FLEET_SCOPE)]     # the fleet's bookkeeping (loss probes): every node holds it
+        wanted += [(x, "drone", x) for x in sorted(drone_set)]
         wanted += [(g, "gcs", x) for g, ds in sorted(gcs_map.items()) for x in ds]
         for sender, role, scope in wanted:
             if rotate or (sender, scope) not in have:
@@ -242,9 +257,11 @@ def _write_keyrings(link: Path, keys: list[dict[str, Any]], gcs_map: dict[str, l
     paths = []
     for node in sorted(drone_set | set(gcs_map)):
         if node in gcs_map:
-            mine = [k for k in keys if (k["sender"] == node) or (k["role"] == "drone" and k["scope"] in gcs_map[node])]
+            mine = [k for k in keys if (k["sender"] == node) or (k["role"] == "drone" and k["scope"] in gcs_map[node])
+                    or k["role"] == FLEET]
         else:
-            mine = [k for k in keys if k["scope"] == node and (k["sender"] == node or k["role"] == "gcs")]
+            mine = [k for k in keys if (k["scope"] == node and (k["sender"] == node or k["role"] == "gcs"))
+                    or k["role"] == FLEET]
         path = link / f"{node}.json"
         _write_private(path, json.dumps({"node": node, "keys": mine}, indent=1).encode())
         paths.append(path)

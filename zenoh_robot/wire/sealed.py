@@ -11,38 +11,51 @@ Payload (33 bytes more than the inner one)::
 
 The nonce is epoch + counter (12 bytes): the epoch is random per sealer (one per publisher, new
 on every start), the counter counts every transmitted copy; at 2**32 a new epoch is drawn. The
-associated data is the header and the Zenoh key expression, so a sample re-put on another key
-fails; authenticate-only adds the inner bytes to it (AEAD of an empty plaintext). Encryption costs
-~0.2 us more on a setpoint and ~12 us on a 60 kB image share (docs/security.md): off unless asked.
+Zenoh key expression is bound by the key, not by the associated data: each (link key, key
+expression) pair seals under its own subkey, HKDF-SHA256(secret, info = :data:`SUBKEY_INFO` + key
+expression), derived once per publisher or per (subscription, key). A sample re-put on another key
+then fails its tag, and the associated data is the payload's own contiguous prefix: authenticate-only
+seals ``head + inner`` as associated data of an empty plaintext, encryption ``head``; no bytes are
+joined or copied to build it. Encryption is off unless asked (it hides nothing a radio observer
+needs less than the timing; docs/security.md has the cost).
 
-Replay: the receiver keeps, per (key id, epoch), a 1024-wide bitmap of counters seen (newest 64
-epochs per key, LRU, evictions counted); a counter seen twice or older than the window is refused
-and counted. Repeats and redundancy copies are the same sample sent again, so each transmitted copy
-is sealed on its own (the publisher hands every copy to :meth:`SealingEncoder.sealer`'s function):
-two copies never share a counter, a repeat is never a "replay", and the inner deduplicator still
-delivers the sample once. Loss and reordering within the window cost nothing.
+Replay: the receiver keeps, per (key id, epoch), a 1024-slot ring of the counters seen (slot
+``counter % 1024`` holds the last counter put there; newest 64 epochs per key, LRU, evictions
+counted); a counter seen twice or older than the window is refused and counted. Repeats and
+redundancy copies are the same sample sent again, so each transmitted copy is sealed on its own
+(the publisher hands every copy to :meth:`SealingEncoder.sealer`'s function): two copies never
+share a counter, a repeat is never a "replay", and the inner deduplicator still delivers the sample
+once. Loss and reordering within the window cost nothing.
 
 Keys (``zenoh_robot.keyring``): chosen by the key expression's first segment (the drone's
 namespace). A sample opens only under a key of that scope whose sender is not this node, and
 unrevoked. A GCS's key is a claim: a sealed sample whose type has a ``client_id`` field must
 name the key's sender there, or it is refused (so "the GCS in control" is a key, not a string).
 
-Threading: the format is per node; its counters are locked. A sealer is called under its
-publisher's lock and on the repeater thread: its counter is locked. A decoder (replay windows)
-belongs to one subscription, called one sample at a time.
+Cost: the per-sample path is one AEAD call, two byte joins and a few integer operations; keys,
+subkeys and the current replay window are looked up only when the sender or the keyring changes
+(a keyring is re-checked every ``refresh_s``, the revocation bound). docs/security.md has the figures.
+
+Threading: the format is per node; its refusal counters are locked. A sealer is called under its
+publisher's lock and on the repeater thread: its counter is an ``itertools.count`` (atomic under
+the GIL), its key and epoch one tuple swapped whole. A decoder (replay windows) belongs to one
+subscription, called one sample at a time.
 """
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import os
 import struct
 import threading
 from collections import OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from time import monotonic
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from .._wire.envelope import MalformedSample
+from ..keyring import FLEET
 from .format import Decoder, GraphFormat, Header, SampleEncoder, WireFormat
 
 if TYPE_CHECKING:
@@ -54,11 +67,13 @@ HEAD = struct.Struct(">B4s8sI")     # flags, key id, epoch, counter
 HEAD_SIZE = HEAD.size               # 17
 TAG_SIZE = 16
 OVERHEAD = HEAD_SIZE + TAG_SIZE     # 33 bytes a sample
-WINDOW = 1024
+WINDOW = 1024                       # a power of two: slot = counter & (WINDOW - 1)
 MAX_EPOCHS_PER_KEY = 64
 MAX_KEYS_CACHED = 256
 CLAIM_FIELD = "client_id"
+SUBKEY_INFO = b"zenoh-robot sealed sample v1\x00"     # HKDF info prefix; the key expression follows
 _COUNTER_WRAP = 1 << 32
+_SLOT = WINDOW - 1
 
 
 @dataclass
@@ -69,7 +84,7 @@ class SealCounters:
     unknown_key: int = 0       # a key id this node does not hold (an unknown node)
     wrong_key: int = 0         # a key of another scope, or this node's own key
     revoked: int = 0
-    bad_tag: int = 0           # forged, altered, or moved to another key expression
+    bad_tag: int = 0           # forged, altered, truncated, or moved to another key expression
     replayed: int = 0          # a counter seen before (captured bytes re-put)
     stale: int = 0             # older than the replay window
     forged_claim: int = 0      # client_id is not the sealing GCS's
@@ -81,35 +96,38 @@ class SealCounters:
 
 
 class ReplayWindow:
-    """Counters seen of one (key, epoch): a ``width``-bit bitmap below the highest one."""
-    __slots__ = ("top", "bits", "width")
+    """Counters seen of one (key, epoch), the newest ``WINDOW`` below the highest: a fixed ring whose
+    slot ``c % WINDOW`` holds the last counter put there. A counter inside the window was seen iff its
+    slot holds it (a newer one there would be ``WINDOW`` ahead, which makes this one stale), so moving
+    forward clears nothing: O(1) per sample, no big-integer shifts."""
+    __slots__ = ("top", "slots")
 
-    def __init__(self, width: int = WINDOW) -> None:
+    def __init__(self) -> None:
         self.top = -1
-        self.bits = 0       # bit i: counter top - i seen
-        self.width = width
+        self.slots = [-1] * WINDOW
 
     def check(self, counter: int) -> str | None:
         """None if ``counter`` is fresh (and marks it), else "replayed" or "stale"."""
         if counter > self.top:
-            shift = counter - self.top
-            self.bits = ((self.bits << shift) | 1) & ((1 << self.width) - 1) if shift < self.width else 1
             self.top = counter
+            self.slots[counter & _SLOT] = counter
             return None
-        age = self.top - counter
-        if age >= self.width:
+        if self.top - counter >= WINDOW:
             return "stale"
-        mask = 1 << age
-        if self.bits & mask:
+        slot = counter & _SLOT
+        if self.slots[slot] == counter:
             return "replayed"
-        self.bits |= mask
+        self.slots[slot] = counter
         return None
 
 
-def _aead(secret: bytes) -> Any:
-    from cryptography.hazmat.primitives.ciphers.aead import ChaCha20Poly1305  # the secure extra
-    return ChaCha20Poly1305(secret)
-
+def subkey_aead(secret: bytes, key_expr: bytes) -> Any:
+    """The AEAD of ``secret`` on ``key_expr``: ChaCha20-Poly1305 under HKDF-SHA256(secret, info)."""
+    from cryptography.hazmat.primitives import hashes  # the secure extra, loaded with the first sealed format
+    from cryptography.hazmat.primitives.ciphers.aead import ChaCha20Poly1305
+    from cryptography.hazmat.primitives.kdf.hkdf import HKDF
+    subkey = HKDF(algorithm=hashes.SHA256(), length=32, salt=None, info=SUBKEY_INFO + key_expr).derive(secret)
+    return ChaCha20Poly1305(subkey)
 
 
 def _invalid_tag() -> type[Exception]:
@@ -125,52 +143,71 @@ def scope_of(key_expr: str) -> str:
     return ""
 
 
+class _SealState(NamedTuple):
+    """What one sealer seals with until the next epoch or key: swapped whole, never changed."""
+    prefix: bytes       # flags + key id
+    epoch: bytes
+    aead: Any
+    counter: Iterator[int]
+    generation: int     # the keyring's reloads when this was made
+    key: LinkKey
+
+
 class _Sealer:
     """Seals payloads on one key expression with the node's current key for it (one publisher)."""
 
-    def __init__(self, keyring: Keyring, key_expr: str, encrypt: bool, counters: SealCounters,
-                 lock: threading.Lock) -> None:
+    def __init__(self, keyring: Keyring, key_expr: str, encrypt: bool, counters: SealCounters) -> None:
         self._keyring = keyring
         self._key_expr = key_expr.encode()
         self._scope = scope_of(key_expr)
         self._flags = ENCRYPTED if encrypt else AUTH_ONLY
         self._counters = counters
-        self._counters_lock = lock
         self._lock = threading.Lock()
-        self._epoch = os.urandom(8)
-        self._counter = 0
-        self._key: LinkKey | None = None
-        self._aead: Any = None
-        self._wire_id = b""
-        self._generation = -1
-        self._current()   # a publisher without a key fails at creation, not at the first sample
+        self._due = 0.0
+        self._state = self._renew(None, new_epoch=True)   # a publisher without a key fails here, not at a sample
 
-    def _current(self) -> tuple[bytes, Any]:
+    def _renew(self, old: _SealState | None, new_epoch: bool) -> _SealState:
+        """The state after a reload (same key: unchanged), a rotation (new key, new epoch) or a wrap."""
         keyring = self._keyring
-        keyring.refresh()
-        if self._key is None or self._generation != keyring.reloads:    # first use, or a reload: rotated?
-            key = keyring.sealing_key(self._scope)
-            if key is None:
-                raise ValueError(f"sealed: node {keyring.node!r} holds no link key to seal {self._scope!r}/...")
-            if key is not self._key:
-                self._key, self._aead, self._wire_id = key, _aead(key.secret), key.wire_id
-            self._generation = keyring.reloads
-        return self._wire_id, self._aead
+        key = keyring.sealing_key(self._scope)
+        if key is None:
+            raise ValueError(f"sealed: node {keyring.node!r} holds no link key to seal {self._scope!r}/...")
+        if old is not None and key is old.key and not new_epoch:
+            return old._replace(generation=keyring.reloads)
+        # A new key or a spent counter: a fresh epoch, so no (subkey, nonce) pair is ever used twice.
+        return _SealState(bytes((self._flags,)) + key.wire_id, os.urandom(8), subkey_aead(key.secret, self._key_expr),
+                          itertools.count(1), keyring.reloads, key)
+
+    def _slow(self, state: _SealState, counter: int) -> tuple[_SealState, int]:
+        """A spent counter, a keyring reload, or its refresh due: under the lock, once per cause."""
+        with self._lock:
+            now = monotonic()
+            if now >= self._due:
+                self._due = now + self._keyring.refresh_s
+                self._keyring.refresh()
+            current = self._state
+            if current is state:   # no other thread renewed it meanwhile
+                spent = counter >= _COUNTER_WRAP
+                if spent or state.generation != self._keyring.reloads:
+                    current = self._state = self._renew(state, new_epoch=spent)
+            if current is not state or counter >= _COUNTER_WRAP:
+                counter = next(current.counter)
+            return current, counter
 
     def __call__(self, inner: bytes) -> bytes:
-        with self._lock:
-            wire_id, aead = self._current()
-            self._counter += 1
-            if self._counter >= _COUNTER_WRAP:
-                self._epoch, self._counter = os.urandom(8), 1
-            head = HEAD.pack(self._flags, wire_id, self._epoch, self._counter)
-            self._counters.sealed += 1     # under this sealer's lock: close enough for a statistic
-        nonce = head[5:]
-        if self._flags == ENCRYPTED:
-            sealed_body: bytes = aead.encrypt(nonce, inner, head + self._key_expr)
-            return head + sealed_body
-        tag: bytes = aead.encrypt(nonce, b"", head + self._key_expr + inner)
-        return head + inner + tag
+        state = self._state
+        counter = next(state.counter)
+        if counter >= _COUNTER_WRAP or state.generation != self._keyring.reloads or monotonic() >= self._due:
+            state, counter = self._slow(state, counter)
+        nonce = state.epoch + counter.to_bytes(4, "big")
+        head = state.prefix + nonce
+        self._counters.sealed += 1     # a statistic: a lost increment between threads is fine
+        if self._flags == AUTH_ONLY:
+            signed = head + inner
+            tag: bytes = state.aead.encrypt(nonce, b"", signed)
+            return signed + tag
+        sealed_body: bytes = state.aead.encrypt(nonce, inner, head)
+        return head + sealed_body
 
 
 class SealingEncoder:
@@ -192,7 +229,11 @@ class SealingEncoder:
 
 
 class _Opener:
-    """A subscription's decoder: opens, checks replay and claim, then the inner decoder."""
+    """A subscription's decoder: opens, checks replay and claim, then the inner decoder.
+
+    The hot path serves the (key id, epoch) of the previous sample (one publisher's stream and its
+    repeats) from one cached entry; any other sender, a keyring reload or the refresh timer takes
+    :meth:`_lookup`, which also keeps the per-key epoch LRU in order (only a switch changes it)."""
 
     def __init__(self, fmt: SealedWireFormat, inner: Decoder, key_expr: str, claim_index: int | None) -> None:
         self._fmt = fmt
@@ -204,6 +245,10 @@ class _Opener:
         self._aeads: dict[bytes, tuple[LinkKey, Any]] = {}     # keys that passed the checks, this generation
         self._invalid_tag = _invalid_tag()
         self._generation = -1
+        self._due = 0.0
+        # The hot entry: key id + epoch (payload[1:13]) -> (key, aead, window).
+        self._hot_ident = b""
+        self._hot: tuple[LinkKey, Any, ReplayWindow] | None = None
 
     def _refuse(self, reason: str, detail: str) -> MalformedSample:
         self._fmt.count(reason)
@@ -212,7 +257,8 @@ class _Opener:
     def __call__(self, payload: bytes, attachment: bytes | None) -> Header:
         inner, key = self.open(payload)
         header = self._inner(inner, attachment)
-        self.check_claim(header, key)
+        if self._claim_index is not None:
+            self.check_claim(header, key)
         self._fmt.counters.opened += 1     # one decoder per subscription: a statistic, no lock on the hot path
         return header
 
@@ -224,16 +270,17 @@ class _Opener:
             if claimed != key.sender:
                 raise self._refuse("forged_claim", f"client_id {str(claimed)[:64]!r} under {key.sender!r}'s key")
 
-    def open(self, payload: bytes) -> tuple[bytes, LinkKey]:
-        """(inner bytes, the key that sealed them) of an authentic fresh sample; MalformedSample otherwise."""
-        if len(payload) < OVERHEAD or payload[0] not in (AUTH_ONLY, ENCRYPTED):
-            raise self._refuse("malformed", "not a sealed sample")
-        flags, wire_id, epoch, counter = HEAD.unpack_from(payload)
+    def _lookup(self, ident: bytes) -> tuple[LinkKey, Any, ReplayWindow]:
+        """The key, AEAD and window of ``ident`` (key id + epoch), checked; refreshes the keyring when due."""
         keyring = self._fmt.keyring
-        keyring.refresh()
+        now = monotonic()
+        if now >= self._due:
+            self._due = now + keyring.refresh_s
+            keyring.refresh()
         if self._generation != keyring.reloads:     # a reload (rotation, revocation): look keys up again
             self._aeads.clear()
             self._generation = keyring.reloads
+        wire_id, epoch = ident[:4], ident[4:]
         cached = self._aeads.get(wire_id)
         if cached is None:
             key, revoked = keyring.opening_key(wire_id)
@@ -241,37 +288,64 @@ class _Opener:
                 raise self._refuse("unknown_key", f"key id {wire_id.hex()} is not in this node's keyring")
             if revoked:
                 raise self._refuse("revoked", f"key {key.key_id} ({key.sender}) is revoked")
-            if key.scope != self._scope or key.sender == keyring.node:
+            if key.scope != self._scope or (key.sender == keyring.node and key.role != FLEET):
                 raise self._refuse("wrong_key", f"key {key.key_id} ({key.sender}) does not seal {self._scope}/...")
             if len(self._aeads) >= MAX_KEYS_CACHED:
                 self._aeads.clear()
-            cached = self._aeads[wire_id] = (key, _aead(key.secret))
+            cached = self._aeads[wire_id] = (key, subkey_aead(key.secret, self._key_expr))
         key, aead = cached
-        head, nonce = payload[:HEAD_SIZE], payload[5:HEAD_SIZE]
-        try:
-            if flags == ENCRYPTED:
-                inner = aead.decrypt(nonce, payload[HEAD_SIZE:], head + self._key_expr)
-            else:
-                inner = payload[HEAD_SIZE:-TAG_SIZE]
-                aead.decrypt(nonce, payload[-TAG_SIZE:], head + self._key_expr + inner)
-        except self._invalid_tag:
-            raise self._refuse("bad_tag", f"tag does not verify under key {key.key_id} on this key") from None
-        # After the tag: only an authentic sample may move the window.
         windows = self._windows.get(wire_id)
         if windows is None:
             windows = self._windows[wire_id] = OrderedDict()
         window = windows.get(epoch)
         if window is None:
-            window = windows[epoch] = ReplayWindow()
+            window = ReplayWindow()
+        else:
+            windows.move_to_end(epoch)
+        return key, aead, window
+
+    def _remember(self, ident: bytes, entry: tuple[LinkKey, Any, ReplayWindow]) -> None:
+        """Keep ``entry``'s window (it held an authentic sample) and make it the hot one."""
+        wire_id, epoch = ident[:4], ident[4:]
+        windows = self._windows[wire_id]
+        if epoch not in windows:
+            windows[epoch] = entry[2]
             if len(windows) > MAX_EPOCHS_PER_KEY:
                 windows.popitem(last=False)
                 self._fmt.count("epochs_forgotten")
-        else:
-            windows.move_to_end(epoch)
+        self._hot_ident, self._hot = ident, entry
+
+    def open(self, payload: bytes) -> tuple[bytes, LinkKey]:
+        """(inner bytes, the key that sealed them) of an authentic fresh sample; MalformedSample otherwise."""
+        flags = payload[0] if len(payload) >= OVERHEAD else 0
+        if flags != AUTH_ONLY and flags != ENCRYPTED:
+            raise self._refuse("malformed", "not a sealed sample")
+        ident = payload[1:13]
+        entry = self._hot
+        hot = ident == self._hot_ident and entry is not None and self._generation == self._fmt.keyring.reloads \
+            and monotonic() < self._due
+        if not hot:
+            entry = self._lookup(ident)
+        assert entry is not None
+        key, aead, window = entry
+        nonce = payload[5:HEAD_SIZE]
+        try:
+            # Copies, not memoryviews: for samples of up to a few kB a slice costs less than a view.
+            if flags == AUTH_ONLY:
+                aead.decrypt(nonce, payload[-TAG_SIZE:], payload[:-TAG_SIZE])
+                inner = payload[HEAD_SIZE:-TAG_SIZE]
+            else:
+                inner = aead.decrypt(nonce, payload[HEAD_SIZE:], payload[:HEAD_SIZE])
+        except self._invalid_tag:
+            raise self._refuse("bad_tag", f"tag does not verify under key {key.key_id} on this key") from None
+        # After the tag: only an authentic sample may move (or make) a window.
+        if not hot:
+            self._remember(ident, entry)
+        counter = int.from_bytes(payload[13:HEAD_SIZE], "big")
         verdict = window.check(counter)
         if verdict is not None:
-            raise self._refuse(verdict, f"counter {counter} of epoch {epoch.hex()} under key {key.key_id}")
-        return bytes(inner), key
+            raise self._refuse(verdict, f"counter {counter} of epoch {ident[4:].hex()} under key {key.key_id}")
+        return inner, key
 
 
 def claim_index(type_support: TypeSupport | None) -> int | None:
@@ -292,7 +366,7 @@ class SealedWireFormat:
     def __init__(self, inner: WireFormat, keyring: Keyring, encrypt: bool = False) -> None:
         if inner.uses_attachment:
             raise ValueError(f"sealed: the {inner.name} wire format uses attachments, which a seal does not cover")
-        _aead(bytes(32))    # the secure extra is there, or fail now
+        subkey_aead(bytes(32), b"")    # the secure extra is there, or fail now
         self.inner = inner
         self.keyring = keyring
         self.encrypt = encrypt
@@ -321,7 +395,7 @@ class SealedWireFormat:
         """Seals each payload handed to it on ``key_expr`` (one per publisher or service end)."""
         if "*" in key_expr:
             raise ValueError(f"sealed: {key_expr!r} is not one key (a seal binds the key it travels on)")
-        return _Sealer(self.keyring, key_expr, self.encrypt, self.counters, self._lock)
+        return _Sealer(self.keyring, key_expr, self.encrypt, self.counters)
 
     def decoder(self, type_support: TypeSupport | None) -> Decoder:
         """A decoder that knows no key expression: it refuses every sample (the seal binds the key;

@@ -8,7 +8,7 @@ original publisher in the graph (same type, hash, QoS and publisher id): typed
 subscriptions match and decode as if the flight were live. ``restamp`` rewrites the
 source stamp to now (for consumers that check age or lifespan); sequence numbers are kept.
 
-The raw channels hold envelope bytes (``schemas.RAW_ENCODING``), so replay speaks the
+The raw channels hold envelope bytes (``encodings.RAW_ENVELOPE_SCHEMA``), so replay speaks the
 envelope format (``zenoh_robot.wire.ENVELOPE``: its keys and graph tokens) whatever the
 node's own format.
 
@@ -31,7 +31,7 @@ from zenoh_robot.qos import SYSTEM_DEFAULT, QoSProfile
 from zenoh_robot.qos_mapping import declare_publisher
 from zenoh_robot.wire import ENVELOPE, MalformedSample
 
-from . import schemas
+from .encodings import RAW_ENVELOPE_SCHEMA, unwrap_envelope
 from .info import Record, iter_records
 
 if TYPE_CHECKING:
@@ -134,16 +134,16 @@ class BagPlayer:
         for rec in iter_records(self.path):
             if self._stop.is_set() or (end is not None and time.monotonic() >= end):
                 return
-            if not isinstance(rec, Record) or rec.channel.message_encoding != schemas.RAW_ENCODING:
+            if not isinstance(rec, Record) or rec.schema is None or rec.schema.name != RAW_ENVELOPE_SCHEMA:
                 continue
             topic = rec.channel.metadata.get("zr.topic", "")
             if self.topics is not None and topic not in self.topics:
                 self.counters.skipped += 1
                 continue
-            data = rec.message.data
             try:
+                data = unwrap_envelope(rec.message.data)
                 env = ENVELOPE.unpack(data)
-            except MalformedSample:
+            except (MalformedSample, ValueError):
                 self.counters.malformed += 1
                 continue
             entry = self._publisher(rec, env.publisher_id)

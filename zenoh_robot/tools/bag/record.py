@@ -4,10 +4,14 @@ Per topic (and message type) the file holds:
 
 - ``<topic>``: every sample as JSON, schema = JSON schema of the message fields
   (``raw_fields`` when the type is not known here), deduplicated like a subscription;
-- ``/_zr/raw<topic>``: the wire bytes exactly as they arrived (encoding
-  ``x-zenoh-robot-envelope``; repeated copies that brought nothing new are left out),
-  one channel per original publisher with its type, hash, id and QoS in the channel
-  metadata, so ``bag play`` republishes them bit-exact, each publisher with its own QoS;
+- ``/_zr/raw<topic>``: the wire bytes exactly as they arrived, each in a one-field protobuf
+  message Foxglove decodes (``zenoh_robot.RawEnvelope``, encodings.py; repeated copies that
+  brought nothing new are left out), one channel per original publisher with its type, hash,
+  id and QoS in the channel metadata, so ``bag play`` republishes them bit-exact, each
+  publisher with its own QoS;
+- on a ROS 2 node (``bag record --ros2``), a ROS 2 topic is one ``cdr`` channel per type with
+  its ``ros2msg`` schema (the full definition), the payloads as they arrived: Foxglove,
+  ``ros2 bag`` and rosbags read it as a rosbag2 MCAP;
 - foxglove.* views (``<topic>/fix``, ``<topic>/pose``, ``/tf``, ``<topic>/image``), see schemas.py.
 
 Image slices and FEC shares (``zenoh_robot/ImageSlice``, ``ImageShare``) get no JSON channel
@@ -34,7 +38,7 @@ from mcap.writer import CompressionType, Writer
 
 from zenoh_robot.graph import EndpointType, encode_qos
 
-from . import schemas
+from . import encodings, schemas
 from .tap import MAX_QUEUE_BYTES, Tap, TapSample
 
 if TYPE_CHECKING:
@@ -55,6 +59,8 @@ class RecorderCounters:
     views_written: int = 0
     channels_refused: int = 0    # beyond MAX_CHANNELS
     bulk_not_json: int = 0       # image slices kept raw and as views only (slice_json False)
+    cdr_written: int = 0         # ROS 2 samples (a recorder on the ROS 2 wire)
+    untyped: int = 0             # ROS 2 samples whose publisher's type the graph did not (yet) tell
     per_topic: dict[str, int] = field(default_factory=dict)
 
 
@@ -127,11 +133,15 @@ class BagRecorder(Tap):
         topic, received_ns = sample.topic, sample.received_ns
         self.first_log_ns = received_ns if self.first_log_ns is None else self.first_log_ns
         self.last_log_ns = received_ns
+        if not sample.type_name and self.node.wire.name == "ros2":   # CDR: the type is in the graph
+            self._handle_cdr(sample)
+            return
         if self.raw and sample.data is not None:
             cid = self._channel(topic, "raw", f"{sample.type_name}#{sample.publisher_id:x}",
                                 lambda: self._raw_channel(topic, sample))
             if cid is not None:
-                self._writer.add_message(cid, received_ns, sample.data, sample.stamp_ns, sample.seq & 0xFFFFFFFF)
+                self._writer.add_message(cid, received_ns, encodings.wrap_envelope(sample.data), sample.stamp_ns,
+                                         sample.seq & 0xFFFFFFFF)
                 self.counters.raw_written += 1
         cls = schemas.local_type(sample.type_name, sample.type_hash)
         json_wanted = self.slice_json or sample.type_name not in BULK_TYPES
@@ -148,6 +158,26 @@ class BagRecorder(Tap):
         if self.views:
             for view in self._view_maker.views(topic, sample.type_name, decoded, sample.stamp_ns):
                 self._write_view(view, received_ns, sample.stamp_ns)
+
+    def _handle_cdr(self, sample: TapSample) -> None:
+        pubs = [p for p in self.node.graph.endpoints(sample.topic[1:], EndpointType.PUBLISHER) if p.topic_type]
+        pubs.sort(key=lambda p: p.endpoint_gid != sample.publisher_id)   # its own token first
+        if not pubs:
+            self.counters.untyped += 1
+            return
+        pub = pubs[0]
+        cid = self._channel(sample.topic, "cdr", pub.topic_type, lambda: self._cdr_channel(sample.topic, pub))
+        if cid is None:
+            return
+        payload = sample.data if sample.data is not None else sample.fields
+        self._writer.add_message(cid, sample.received_ns, bytes(payload), sample.stamp_ns, sample.seq & 0xFFFFFFFF)
+        self.counters.cdr_written += 1
+        self.counters.per_topic[sample.topic] = self.counters.per_topic.get(sample.topic, 0) + 1
+
+    def _cdr_channel(self, topic: str, pub: Any) -> int:
+        sid = self._schema_id(pub.topic_type, encodings.ROS2MSG, encodings.ros2msg_schema(pub.topic_type))
+        return self._writer.register_channel(topic, encodings.CDR, sid, {"zr.type": pub.topic_type,
+                                                                         "zr.hash": pub.topic_type_hash})
 
     def _write_view(self, view: schemas.View, received_ns: int, stamp_ns: int) -> None:
         schema = view.message.get_schema()
@@ -174,4 +204,5 @@ class BagRecorder(Tap):
                 "zr.publisher": f"{env.publisher_id:x}"}
         if pubs:
             meta["zr.qos"] = encode_qos(pubs[0].qos_profile)
-        return self._writer.register_channel(schemas.raw_topic(topic), schemas.RAW_ENCODING, 0, meta)
+        sid = self._schema_id(encodings.RAW_ENVELOPE_SCHEMA, encodings.PROTOBUF, encodings.RAW_ENVELOPE_DESCRIPTOR)
+        return self._writer.register_channel(schemas.raw_topic(topic), encodings.PROTOBUF, sid, meta)

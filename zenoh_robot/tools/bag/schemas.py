@@ -30,7 +30,6 @@ from typing import Any
 from zenoh_robot.message import FieldSpec, lookup, type_support
 
 JSON_SCHEMA = "jsonschema"
-RAW_ENCODING = "x-zenoh-robot-envelope"    # the original msgpack wire bytes, for bit-exact replay
 RAW_PREFIX = "/_zr/raw"                    # raw channels live under this topic prefix
 # A PX4 SITL default home (Zurich): where LocationFix puts local NED position (0, 0, 0).
 HOME_LAT, HOME_LON, HOME_ALT = 47.397742, 8.545594, 488.0

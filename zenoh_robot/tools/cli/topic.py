@@ -200,6 +200,10 @@ def _info(args: argparse.Namespace) -> int:
         print(f"Type: {', '.join(sorted({shown_type(e.topic_type) for e in pubs + subs}))}")
         print(f"Publisher count: {len(pubs)}")
         print(f"Subscription count: {len(subs)}")
+        humble = sum(1 for e in pubs + subs if e.topic_type_hash == "TypeHashNotSupported")
+        if humble:   # zenoh_robot.ros2.compat: their keys carry no hash, so they meet nobody on Jazzy+
+            print(f"ROS 2 Humble: {_plural(humble, 'endpoint')} without a type hash (TypeHashNotSupported): "
+                  "no data is exchanged with them")
         bad = sum(1 for *_, v in pairs if v.startswith("incompatible"))
         if not args.detail:
             if bad:

@@ -1,0 +1,8 @@
+"""A PX4 SITL stand-in that speaks PX4's Zenoh protocol (``px4_sitl_zenoh``), for CI without PX4.
+
+``ZenohSimulator`` (simulator.py) reuses px4_link.sim's vehicle model and rules; ``python -m
+px4_zenoh.sim --connect <endpoint>`` runs one as a process. See docs/px4-zenoh-sim.md.
+"""
+from .simulator import ZenohSimulator
+
+__all__ = ["ZenohSimulator"]
