@@ -132,3 +132,18 @@ def test_a_px4_token_with_a_wrong_hash_is_reported_by_name(caplog: pytest.LogCap
         assert "/fmu/out/vehicle_status" not in summary["keys_learnt"]
         assert [d["topic"] for n, d in events if n == "hash_mismatch"] == ["/fmu/out/vehicle_status"]
     assert any("/fmu/out/vehicle_status" in r.getMessage() and wrong in r.getMessage() for r in caplog.records)
+
+
+def test_every_bundled_definition_hashes_and_sizes_as_px4_announced() -> None:
+    """The bundled px4_msgs (field layouts only) are PX4's: each topic type's RIHS01 hash equals the one
+    PX4 put in its keys and its CDR body is as long as PX4's, for all 46 topics PX4 declared."""
+    from zenoh_robot.ros2.types import rihs01
+
+    declared = json.loads((TRACES / "topics.json").read_text())["topics"]
+    bundled = load_types()
+    assert len(declared) == 46
+    for row in declared:
+        short = row["type"].rsplit("/", 1)[1]
+        assert short in bundled, f"{short} ({row['topic']}) is not bundled"
+        assert rihs01(row["type"]) == row["rihs01"], row["topic"]
+        assert UorbCodec.of(bundled[short]).body_len == row["cdr_body_len"], row["topic"]
