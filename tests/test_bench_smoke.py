@@ -38,3 +38,26 @@ def test_repetitions_alternate_and_report_median_spread_and_load() -> None:
     assert all(run["load1"] >= 0 for run in r.runs) and r.load[0] <= r.load[1]
     row = markdown([r], None).splitlines()[-1]
     assert f"({low:.2f}-{high:.2f})" in row and f"{r.load[0]:.1f}-{r.load[1]:.1f}" in row and "| 3 |" in row
+
+
+def test_ros2_bench_alternates_modes_and_reports_median_spread_and_load(tmp_path) -> None:
+    """The ROS 2 wire beside the envelope and raw zenoh-python (issues #27, #30): every mode in each
+    repetition, ratios to that repetition's raw run, the codec figures with rosbags' beside the fast path."""
+    import json
+
+    from zenoh_robot.tools.bench.ros2 import codec_figures, end_to_end, write_json
+    from zenoh_robot.tools.bench.ros2 import markdown as ros2_markdown
+
+    rows = end_to_end(reps=2, cells=(("geometry_msgs/msg/PoseStamped", "throughput", 0.0, 300),))
+    assert [r["mode"] for r in rows] == ["ros2", "envelope", "raw"]
+    for r in rows:
+        assert not r["error"], r["error"]
+        assert r["reps"] == 2 and len(r["runs"]) == 2 and r["received"] == r["sent"] == 300
+        assert r["ratio_low"] <= r["ratio"] <= r["ratio_high"] and r["load"][0] <= r["load"][1]
+    assert rows[2]["ratio"] == 1.0
+    codec = codec_figures(budget_s=0.01)
+    assert {"rosbags_encode_us", "rosbags_decode_us", "cdr_encode_us"} <= set(codec[0])
+    md = ros2_markdown(codec, rows)
+    assert "PoseStamped throughput | ros2 | 300/300" in md and "| 2 |" in md
+    write_json(tmp_path / "ros2.json", codec, rows)
+    assert json.loads((tmp_path / "ros2.json").read_text())["end_to_end"][0]["runs"][1]["received"] == 300

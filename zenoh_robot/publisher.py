@@ -74,6 +74,8 @@ class Publisher(Generic[M]):
         self._repeats = qos.repeat
         # Fixed for the publisher's life (set_repeats needs a QoS with repeat, and keeps it >= 1).
         self._plain = self._history is None and not self._repeats and self._attachment is None
+        # The ROS 2 wire's common case: an attachment and nothing else (no extras to merge, no copies).
+        self._attached_only = self._history is None and not self._repeats and self._attachment is not None
         # With a deadline, copies are spread over most of it (see _wire/repeater.py); the rest
         # of the deadline is margin for the copy that does arrive to be processed.
         self._repeat_window = qos.deadline * REPEAT_WINDOW_FRACTION if qos.deadline and qos.repeat else None
@@ -123,6 +125,8 @@ class Publisher(Generic[M]):
             if self._plain:
                 # The common case (no history, no repeats, no attachment): pack and put, nothing else.
                 self._put(self._pack(seq, stamp, body, extra))
+            elif self._attached_only:
+                self._zpub.put(self._pack(seq, stamp, body, extra), attachment=self._attachment(seq, stamp))  # type: ignore[misc]
             else:
                 self._put_with_extras(seq, stamp, body, extra)
             self.published += 1

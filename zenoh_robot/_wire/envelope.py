@@ -14,6 +14,7 @@ import msgpack
 import numpy as np
 
 MAGIC = "zr1"
+_NO_EXTRA: dict[str, Any] = {}      # packed as the empty map; shared, never mutated (no dict per publish)
 
 
 class MalformedSample(ValueError):
@@ -67,7 +68,7 @@ class EnvelopePacker:
 
     def pack(self, seq: int, stamp_ns: int, body: Any, extra: dict[str, Any] | None = None) -> bytes:
         return self._pack((MAGIC, self._type_name, self._type_hash, self._publisher_id, seq, stamp_ns,
-                           body, extra or {}))
+                           body, extra or _NO_EXTRA))
 
     def attachment(self, seq: int, stamp_ns: int) -> None:
         return None     # the envelope carries everything in the payload

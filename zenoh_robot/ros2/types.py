@@ -7,7 +7,9 @@ correction: rosidl reads a ``.msg`` ``char`` as ``uint8``, rosbags keeps it a ch
 through :func:`rihs01`, which reads it as ROS 2 does). Its
 ``_zr_ros2`` attribute is a :class:`Ros2Codec`: the body (``TypeSupport.encode``'s field values)
 to the CDR payload rmw_zenoh sends (encapsulation header ``00 01 00 00``, little-endian XCDR1)
-and back. The bytes are rosbags' serializer's; this module only maps our body to its objects.
+and back. The bytes are rosbags' serializer's: a codec generated per type (``fastcdr.py``) makes
+them straight from the body where it covers the type, and rosbags (through its objects, which
+this module maps our body to) does the rest.
 
 Threading: generating a type takes a lock; codecs are stateless and shared.
 """
@@ -19,6 +21,7 @@ from collections.abc import Callable
 from typing import Any
 
 from ..message import Message, message, type_support
+from .fastcdr import FastCodec, build
 
 _LOCK = threading.RLock()
 _TYPES: dict[str, type[Message]] = {}
@@ -54,27 +57,62 @@ def _normalise(name: str) -> str:
 
 
 class Ros2Codec:
-    """One ROS 2 type's CDR codec over TypeSupport bodies (see the module doc)."""
+    """One ROS 2 type's CDR codec over TypeSupport bodies (see the module doc): the generated fast
+    path (``fastcdr.py``) where it covers the type, rosbags for the rest and for every body or payload
+    the fast path raises on (so errors are rosbags')."""
 
     def __init__(self, ros_name: str, type_hash: str, to_rosbags: Callable[[Any], Any],
-                 from_rosbags: Callable[[Any], list[Any]]) -> None:
+                 from_rosbags: Callable[[Any], list[Any]], fast: FastCodec | None = None) -> None:
         self.ros_name = ros_name
         self.hash = type_hash
         pkg, kind, short = ros_name.split("/")
         self.dds_name = f"{pkg}::{kind}::dds_::{short}_"
         store = typestore()
-        self._serialize = store.serialize_cdr
-        self._deserialize = store.deserialize_cdr
+        self._store = store
         self._to_rosbags = to_rosbags
         self._from_rosbags = from_rosbags
+        self.fast = fast
+        self._fast_encode = fast.encode if fast is not None else None
+        self._fast_decode = fast.decode if fast is not None else None
 
     def serialize(self, body: Any) -> bytes:
         """The CDR payload of ``body``, its 4-byte encapsulation header included."""
-        return bytes(self._serialize(self._to_rosbags(body), self.ros_name))
+        fast = self._fast_encode
+        if fast is not None:
+            try:
+                return fast(body)
+            except Exception:   # noqa: S110 - rosbags either packs it its way or raises its error
+                pass
+        return self.serialize_rosbags(body)
 
-    def deserialize(self, payload: bytes | memoryview) -> list[Any]:
-        """The body in ``payload`` (ValueError and friends for bytes that are not this type's CDR)."""
-        return self._from_rosbags(self._deserialize(payload, self.ros_name))
+    def deserialize(self, payload: bytes | memoryview, *, cut_trailing: bool = False) -> list[Any]:
+        """The body in ``payload`` (ValueError and friends for bytes that are not this type's CDR).
+
+        ``cut_trailing``: ignore whatever follows the body (PX4's zenoh module sends its uORB struct's
+        0-31 bytes of tail padding after a fixed-size body; rosbags, and so the default, accepts at most
+        the 3 bytes of CDR alignment)."""
+        fast = self._fast_decode
+        if fast is not None:
+            try:
+                return fast(payload, cut_trailing)
+            except Exception:   # noqa: S110 - rosbags names what is wrong (or decodes what we did not foresee)
+                pass
+        return self.deserialize_rosbags(payload, cut_trailing=cut_trailing)
+
+    def serialize_rosbags(self, body: Any) -> bytes:
+        """:meth:`serialize` through rosbags alone (the reference)."""
+        return bytes(self._store.serialize_cdr(self._to_rosbags(body), self.ros_name))
+
+    def deserialize_rosbags(self, payload: bytes | memoryview, *, cut_trailing: bool = False) -> list[Any]:
+        """:meth:`deserialize` through rosbags alone (the reference)."""
+        if not cut_trailing:
+            return self._from_rosbags(self._store.deserialize_cdr(payload, self.ros_name))
+        if len(payload) < 4 or bytes(payload[:2]) not in (b"\x00\x00", b"\x00\x01"):
+            raise ValueError("Invalid or unsupported CDR encapsulation.")
+        msgdef = self._store.get_msgdef(self.ros_name)
+        func = msgdef.deserialize_cdr_le if payload[1] else msgdef.deserialize_cdr_be
+        obj, _pos = func(memoryview(payload)[4:], 0, msgdef.cls, self._store)   # no size check: cut
+        return self._from_rosbags(obj)
 
 
 def _field_parts(name: str, desc: tuple[Any, Any]) -> tuple[str, Any, int | None]:
@@ -165,7 +203,7 @@ def _generate(name: str) -> type[Message]:
 
     c: Any = cls
     c._type_hash = type_hash
-    c._zr_ros2 = Ros2Codec(name, type_hash, to_rosbags, from_rosbags)
+    c._zr_ros2 = Ros2Codec(name, type_hash, to_rosbags, from_rosbags, build(store, name))
     for cname, _ctype, value in consts:
         setattr(cls, cname, value)
     return cls

@@ -188,9 +188,9 @@ class Ros2Service(_Ros2Endpoint, Generic[Req, Resp]):
             with self._lock:
                 self.bad_requests += 1
                 self.legacy_requests += int(legacy)
-            peer = str(query.key_expr)
-            self._warnings.once(peer, "legacy" if legacy else "attachment",
-                                f"service {self.service_name}: a request with {exc}: not answered with data")
+            if not legacy:   # a legacy peer is named once by zenoh_robot.ros2.compat, for topics and services alike
+                self._warnings.once(str(query.key_expr), "attachment",
+                                    f"service {self.service_name}: a request with {exc}: not answered with data")
             self._reply_err(query, f"service {self.service_name}: {exc}")
             return
         payload = query.payload

@@ -104,6 +104,8 @@ def unpack_attachment(data: bytes | None) -> tuple[int, int, bytes]:
         raise MalformedSample("no attachment (rmw_zenoh sends seq, stamp and GID: 33 bytes)")
     if len(data) != ATTACHMENT_SIZE or data[16] != 16:
         if any(label in data for label in _LEGACY_LABELS):
+            from ..ros2.compat import note_legacy_attachment  # counted and named once per peer
+            note_legacy_attachment(data, "a ROS 2 topic or service")
             raise LegacyAttachment("legacy labelled attachment of rmw_zenoh <= 0.2.3 (Jazzy); "
                                    "current rmw_zenoh uses 33 bytes: seq, stamp, 16, GID")
         raise MalformedSample(f"attachment of {len(data)} bytes is not rmw_zenoh's 33-byte form "
@@ -288,6 +290,8 @@ class Ros2Graph:
         return (int(token.eid) ^ _zid_salt(token.zid)) & _MASK63
 
     def parse_token(self, key: str) -> NodeInfo | TopicEndpointInfo:
+        from ..ros2.compat import note_token  # a Humble peer (no type hash): counted and named once
+        note_token(key)
         token = parse_any_token(key)
         if token.domain_id != self.domain_id:
             raise ValueError(f"token of domain {token.domain_id}, not {self.domain_id}")

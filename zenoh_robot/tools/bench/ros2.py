@@ -1,12 +1,18 @@
 """``zenoh-robot bench --ros2``: the ROS 2 wire beside the envelope and raw zenoh-python.
 
 Two parts. **Codec**: per ROS 2 type, in this process, the time to turn a message into its wire
-bytes and back: CDR (the ROS 2 wire: TypeSupport body -> rosbags' serializer, and back with field
-validation) beside the envelope's msgpack body of the same class. **End to end**: two processes
-over TCP loopback, the same ROS 2 class (geometry_msgs/msg/PoseStamped by default) published by a
-Node on the ROS 2 wire, by a Node on the envelope, and as raw zenoh-python puts of its CDR bytes
-with a stamp (the physical limit): p50/p99 age at a fixed rate, and messages per second as fast
-as reliable KEEP_ALL allows. Run alone: ``python -m zenoh_robot.tools.bench.ros2 [--quick]``.
+bytes and back: CDR (the ROS 2 wire: the type's generated codec, ``zenoh_robot/ros2/fastcdr.py``,
+and back with field validation), rosbags alone (the reference, as before the fast path), and the
+envelope's msgpack body of the same class. **End to end**: two processes over TCP loopback, one
+ROS 2 class per cell (PoseStamped at 200 Hz and flat out, a 64 KB CompressedImage at 30 Hz)
+published by a Node on the ROS 2 wire, by a Node on the envelope, and as raw zenoh-python puts of
+its CDR bytes with rmw_zenoh's 33-byte attachment (the stamp in it), whose subscriber decodes as
+the nodes do: the same bytes on the wire as the ROS 2 mode, the physical limit: p50/p99
+age at a fixed rate, messages per second as fast as reliable KEEP_ALL allows. The modes alternate
+within each repetition (ros2, envelope, raw, ros2, ...) so a shared machine's load falls on all
+alike; ratios are each repetition's own, their median and spread reported with the load average.
+``--codec rosbags`` runs every process without the fast path (the "before"). Run alone:
+``python -m zenoh_robot.tools.bench.ros2 [--quick] [--reps N] [--receive channel] [--json PATH]``.
 """
 from __future__ import annotations
 
@@ -20,13 +26,15 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 KEY = "bench/ros2"
 MODES = ("ros2", "envelope", "raw")
 TYPES = ("std_msgs/msg/String", "geometry_msgs/msg/PoseStamped", "sensor_msgs/msg/Imu",
          "sensor_msgs/msg/NavSatFix", "sensor_msgs/msg/CompressedImage")
-_STAMP = struct.Struct("<q")
+# rmw_zenoh's attachment (seq, source stamp, 16, GID): raw zenoh-python sends what the ROS 2 wire sends.
+_ATTACHMENT = struct.Struct("<qqB16s")
 
 
 def sample(name: str) -> Any:
@@ -47,6 +55,14 @@ def sample(name: str) -> Any:
     if name.endswith("PoseStamped"):
         msg.pose.position.x, msg.pose.orientation.w = 1.5, 1.0
     return msg
+
+
+def _rosbags_only(type_name: str) -> None:
+    """This process's codec of ``type_name`` without its generated fast path (the "before" of a bench)."""
+    from zenoh_robot.ros2 import cdr_codec, ros2_type
+
+    codec: Any = cdr_codec(ros2_type(type_name))
+    codec._fast_encode = codec._fast_decode = None
 
 
 def _per_call_us(fn: Callable[[], Any], budget_s: float) -> float:
@@ -83,6 +99,8 @@ def _timings(msg: Any, ts: Any, codec: Any, cdr: bytes, packed: bytes, budget_s:
 
     return {"cdr_encode_us": _per_call_us(lambda: codec.serialize(ts.encode(msg)), budget_s),
             "cdr_decode_us": _per_call_us(lambda: ts.decode(codec.deserialize(cdr)), budget_s),
+            "rosbags_encode_us": _per_call_us(lambda: codec.serialize_rosbags(ts.encode(msg)), budget_s),
+            "rosbags_decode_us": _per_call_us(lambda: ts.decode(codec.deserialize_rosbags(cdr)), budget_s),
             "msgpack_encode_us": _per_call_us(lambda: msgpack.packb(ts.encode(msg), use_bin_type=True), budget_s),
             "msgpack_decode_us": _per_call_us(lambda: ts.decode(msgpack.unpackb(packed, raw=False)), budget_s)}
 
@@ -138,16 +156,15 @@ def run_sub(args: argparse.Namespace) -> dict[str, Any]:
         ts, deserialize = type_support(cls), cdr_codec(cls).deserialize
         with zenoh.open(cfg.to_zenoh()) as session:
             def on_sample(s: Any) -> None:
-                data = s.payload.to_bytes()
-                ts.decode(deserialize(data[_STAMP.size:]))   # the decoding work the nodes do
-                record(_STAMP.unpack_from(data)[0])
+                ts.decode(deserialize(s.payload.to_bytes()))     # the decoding work the nodes do
+                record(_ATTACHMENT.unpack_from(s.attachment.to_bytes())[1])
             session.declare_subscriber(KEY, on_sample)
             print("READY", flush=True)
             done.wait(args.timeout)
     else:
         with Node("bench_sub", config=cfg, wire=_wire(args.mode)) as node:
             node.create_subscription(cls, "/" + KEY, lambda m, info: record(info.source_stamp_ns),
-                                     _qos(args.throughput))
+                                     _qos(args.throughput), receive=args.receive)
             threading.Thread(target=node.spin, daemon=True).start()
             print("READY", flush=True)
             done.wait(args.timeout)
@@ -171,7 +188,10 @@ def run_pub(args: argparse.Namespace) -> dict[str, Any]:
             cc = zenoh.CongestionControl.BLOCK if args.throughput else zenoh.CongestionControl.DROP
             zpub = session.declare_publisher(KEY, reliability=zenoh.Reliability.RELIABLE, congestion_control=cc)
             time.sleep(1.0)
-            _loop(lambda: zpub.put(_STAMP.pack(time.time_ns()) + body), args.count, period)
+            seq = iter(range(1, args.count + 1))
+            gid = bytes(range(16))
+            _loop(lambda: zpub.put(body, attachment=_ATTACHMENT.pack(next(seq), time.time_ns(), 16, gid)), args.count,
+                  period)
             time.sleep(0.5)
     else:
         with Node("bench_pub", config=cfg, wire=_wire(args.mode)) as node:
@@ -199,12 +219,14 @@ def _free_port() -> int:
         return port
 
 
-def run_pair(mode: str, type_name: str, count: int, rate: float) -> dict[str, Any]:
-    """One end-to-end cell: figures (received, p50_ms, p99_ms, msgs_per_s) or an error."""
+def run_pair(mode: str, type_name: str, count: int, rate: float, receive: str | None = None,
+             codec: str = "fast") -> dict[str, Any]:
+    """One end-to-end run: figures (received, p50_ms, p99_ms, msgs_per_s) or an error."""
     import numpy as np
 
     port = _free_port()
-    common = [mode, type_name, "--count", str(count), "--port", str(port)] + (["--throughput"] if not rate else [])
+    common = [mode, type_name, "--count", str(count), "--port", str(port), "--codec", codec]
+    common += (["--throughput"] if not rate else []) + (["--receive", receive] if receive else [])
     me = [sys.executable, "-m", "zenoh_robot.tools.bench.ros2", "--worker"]
     timeout = count / rate * 2 + 30 if rate else 90.0
     sub = subprocess.Popen([*me, "sub", *common, "--timeout", str(timeout)], stdout=subprocess.PIPE,
@@ -232,47 +254,91 @@ def run_pair(mode: str, type_name: str, count: int, rate: float) -> dict[str, An
     return fig
 
 
-def end_to_end(quick: bool = False, type_name: str = "geometry_msgs/msg/PoseStamped") -> list[dict[str, Any]]:
-    """Latency (200 Hz) and throughput cells, each mode in turn, with ratios to raw."""
-    scale = 0.2 if quick else 1.0
+# (type, kind, rate Hz, count): a small message at a fixed rate and flat out, and a JPEG-sized image.
+CELLS = (("geometry_msgs/msg/PoseStamped", "latency", 200.0, 1000), ("geometry_msgs/msg/PoseStamped", "throughput",
+                                                                    0.0, 10000),
+         ("sensor_msgs/msg/CompressedImage", "latency", 30.0, 150))
+
+
+def end_to_end(quick: bool = False, reps: int = 5, receive: str | None = None, codec: str = "fast",
+               cells: tuple[tuple[str, str, float, int], ...] = CELLS) -> list[dict[str, Any]]:
+    """Per cell and mode: median figures of ``reps`` repetitions that alternate the modes (ros2, envelope,
+    raw, ros2, ...), each repetition's ratio to its own raw run (median and spread), the load average."""
+    import os
+
+    import numpy as np
+
     rows = []
-    for kind, rate, count in (("latency", 200.0, int(2000 * scale)), ("throughput", 0.0, int(20000 * scale))):
-        figs = {mode: run_pair(mode, type_name, count, rate) for mode in MODES}
-        raw = figs["raw"]
+    for type_name, kind, rate, full in cells:
+        count = max(50, int(full * (0.2 if quick else 1.0)))
+        runs: list[dict[str, dict[str, Any]]] = []
+        loads: list[float] = []
+        for _ in range(max(1, reps)):
+            runs.append({mode: run_pair(mode, type_name, count, rate, receive, codec) for mode in MODES})
+            loads.append(os.getloadavg()[0])
+        key = "p50_ms" if kind == "latency" else "msgs_per_s"
         for mode in MODES:
-            f = figs[mode]
-            if kind == "latency":
-                f["ratio_p50"] = f.get("p50_ms", math.nan) / raw["p50_ms"] if raw.get("p50_ms") else math.nan
-            else:
-                f["ratio_throughput"] = (f.get("msgs_per_s", math.nan) / raw["msgs_per_s"]
-                                         if raw.get("msgs_per_s") else math.nan)
-            rows.append({"kind": kind, "rate_hz": rate, "type": type_name, "mode": mode, **f})
+            figs = [r[mode] for r in runs]
+            ratios = [f.get(key, math.nan) / r["raw"].get(key, math.nan) for f, r in zip(figs, runs, strict=True)
+                      if not f.get("error") and not r["raw"].get("error")]
+            ratios = [x for x in ratios if math.isfinite(x)]
+
+            def med(name: str, figs: list[dict[str, Any]] = figs) -> float:
+                vals = [f[name] for f in figs if not f.get("error") and math.isfinite(f.get(name, math.nan))]
+                return float(np.median(vals)) if vals else math.nan
+            rows.append({"kind": kind, "rate_hz": rate, "type": type_name, "mode": mode, "reps": len(figs),
+                         "received": min(f.get("received", 0) for f in figs), "sent": count,
+                         "p50_ms": med("p50_ms"), "p99_ms": med("p99_ms"), "msgs_per_s": med("msgs_per_s"),
+                         "ratio": float(np.median(ratios)) if ratios else math.nan,
+                         "ratio_low": min(ratios, default=math.nan), "ratio_high": max(ratios, default=math.nan),
+                         "load": [min(loads), max(loads)], "receive": receive or "default", "codec": codec,
+                         "error": next((f["error"] for f in figs if f.get("error")), ""), "runs": figs})
     return rows
 
 
 def markdown(codec: list[dict[str, Any]], e2e: list[dict[str, Any]]) -> str:
     lines = ["## ROS 2 wire: codec (µs per message, this process)", "",
-             "| type | CDR bytes | CDR enc | CDR dec | msgpack bytes | msgpack enc | msgpack dec |",
-             "|---|---|---|---|---|---|---|"]
+             "| type | CDR bytes | CDR enc | CDR dec | rosbags enc | rosbags dec | msgpack bytes | msgpack enc | "
+             "msgpack dec |", "|---|---|---|---|---|---|---|---|---|"]
     lines += [f"| {r['type']} | {r['cdr_bytes']} | {r['cdr_encode_us']:.1f} | {r['cdr_decode_us']:.1f} | "
+              f"{r['rosbags_encode_us']:.1f} | {r['rosbags_decode_us']:.1f} | "
               f"{r['msgpack_bytes']} | {r['msgpack_encode_us']:.1f} | {r['msgpack_decode_us']:.1f} |" for r in codec]
-    lines += ["", "## ROS 2 wire: end to end (two processes, TCP loopback)", "",
-              "| cell | mode | received | p50 ms | p99 ms | msg/s | vs raw |", "|---|---|---|---|---|---|---|"]
+    lines += ["", "## ROS 2 wire: end to end (two processes, TCP loopback, modes alternating)", "",
+              "| cell | mode | received | p50 ms | p99 ms | msg/s | vs raw: median (spread) | reps | load |",
+              "|---|---|---|---|---|---|---|---|---|"]
     for r in e2e:
-        cell = f"{r['kind']} {r['rate_hz']:g} Hz" if r["rate_hz"] else r["kind"]
-        ratio = r.get("ratio_p50", r.get("ratio_throughput", math.nan))
+        short = r["type"].rsplit("/", 1)[-1]
+        cell = f"{short} {r['kind']} {r['rate_hz']:g} Hz" if r["rate_hz"] else f"{short} {r['kind']}"
         if r.get("error"):
-            lines.append(f"| {cell} | {r['mode']} | error: {r['error'][:80]} | | | | |")
+            lines.append(f"| {cell} | {r['mode']} | error: {r['error'][:80]} | | | | | | |")
             continue
-        lines.append(f"| {cell} | {r['mode']} | {r['received']}/{r['sent']} | {r['p50_ms']:.2f} | "
-                     f"{r['p99_ms']:.2f} | {r['msgs_per_s']:.0f} | {ratio:.2f}x |")
+        lines.append(f"| {cell} | {r['mode']} | {r['received']}/{r['sent']} | {r['p50_ms']:.3f} | "
+                     f"{r['p99_ms']:.2f} | {r['msgs_per_s']:.0f} | {r['ratio']:.2f} ({r['ratio_low']:.2f}-"
+                     f"{r['ratio_high']:.2f}) | {r['reps']} | {r['load'][0]:.1f}-{r['load'][1]:.1f} |")
     return "\n".join(lines)
+
+
+def write_json(path: Path, codec: list[dict[str, Any]], e2e: list[dict[str, Any]]) -> None:
+    """The raw figures of one run (every repetition's, ages aside), with the machine's load and time."""
+    import datetime
+    import os
+    import platform
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    meta = {"when": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+            "host_cpus": os.cpu_count(), "python": platform.python_version(), "load_end": os.getloadavg()}
+    path.write_text(json.dumps({"meta": meta, "codec": codec, "end_to_end": e2e}, indent=1))
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m zenoh_robot.tools.bench.ros2")
     p.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     p.add_argument("--quick", action="store_true", help="a fifth of the messages")
+    p.add_argument("--reps", type=int, default=5, help="alternating repetitions per cell")
+    p.add_argument("--receive", choices=("callback", "channel"), default=None, help="the nodes' receive path")
+    p.add_argument("--codec", choices=("fast", "rosbags"), default="fast",
+                   help="CDR through the generated codec (the library's) or rosbags alone (as before #27's fast path)")
+    p.add_argument("--json", type=Path, default=None, help="also write the raw figures here")
     p.add_argument("rest", nargs="*", help=argparse.SUPPRESS)
     args, extra = p.parse_known_args(argv)
     if args.worker:
@@ -285,11 +351,18 @@ def main(argv: list[str] | None = None) -> int:
         w.add_argument("--rate", type=float, default=0.0)
         w.add_argument("--throughput", action="store_true")
         w.add_argument("--timeout", type=float, default=60.0)
+        w.add_argument("--receive", choices=("callback", "channel"), default=None)
+        w.add_argument("--codec", choices=("fast", "rosbags"), default="fast")
         wargs = w.parse_args([*args.rest, *extra])
+        if wargs.codec == "rosbags":
+            _rosbags_only(wargs.type)
         out = run_sub(wargs) if wargs.role == "sub" else run_pub(wargs)
         print(json.dumps(out), flush=True)
         return 0
-    print(markdown(codec_figures(), end_to_end(args.quick)))
+    codec, e2e = codec_figures(), end_to_end(args.quick, args.reps, args.receive, args.codec)
+    print(markdown(codec, e2e))
+    if args.json is not None:
+        write_json(args.json, codec, e2e)
     return 0
 
 

@@ -52,11 +52,13 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _ros2(args: argparse.Namespace) -> int:
-    from ..bench.ros2 import codec_figures, end_to_end, markdown
+    from ..bench.ros2 import codec_figures, end_to_end, markdown, write_json
 
     print("bench --ros2: codec per type, then latency and throughput: ros2, envelope, raw zenoh-python", flush=True)
-    md = markdown(codec_figures(), end_to_end(args.quick))
+    codec, e2e = codec_figures(), end_to_end(args.quick, args.reps, args.receive)
+    md = markdown(codec, e2e)
     print(md)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "ros2.md").write_text(md + "\n")
+    write_json(args.out / "ros2.json", codec, e2e)
     return 0
