@@ -95,7 +95,7 @@ class Companion:
         self.camera = (CameraStreamer(node, image.name, q[image.name], live, self.sent["image"],
                                       self.sent["image_strip"]) if config.camera else None)
         # Loss feedback (loss_feedback.py): image parity follows the loss the GCS measures.
-        self.link_monitor = LossMonitor(node) if config.profile.loss_feedback else None
+        self.link_monitor = LossMonitor(node, "drone") if config.profile.loss_feedback else None
         set_image_loss = self.camera.set_loss() if self.camera is not None else None
         if self.link_monitor is not None and set_image_loss is not None:
             self.link_monitor.adapt(set_image_loss)

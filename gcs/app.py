@@ -410,7 +410,7 @@ class Gcs:
         node.create_timer(1.0 / config.rate_hz, self._stream)
         node.create_timer(PRESENCE_PERIOD_S, self._presence)
         # Loss feedback (loss_feedback.py): setpoint copies follow the loss the drones measure.
-        self.link_monitor = LossMonitor(node) if config.profile.loss_feedback else None
+        self.link_monitor = LossMonitor(node, "gcs") if config.profile.loss_feedback else None
         if self.link_monitor is not None:
             self.link_monitor.adapt(self._adapt_copies)
             node.add_on_close(self.link_monitor.close)

@@ -163,7 +163,7 @@ def test_link_monitor_measures_silence_and_adapts_a_publisher(ns: str) -> None:
     listen, connect = linked_configs()
     with Node("a", namespace=ns, config=listen) as a, Node("b", namespace=ns, config=connect) as b:
         pub = a.create_publisher(Header, "sp", RESILIENT.replace(deadline=0.5, repeat=64))
-        ma, mb = LossMonitor(a, topic=f"/{ns}/link"), LossMonitor(b, topic=f"/{ns}/link")
+        ma, mb = LossMonitor(a, "gcs", topic=f"/{ns}/link"), LossMonitor(b, "drone", topic=f"/{ns}/link")
         seen: list[float] = []
         ma.adapt(lambda p: (seen.append(p), apply_repeat_plan(pub, p)))
         try:

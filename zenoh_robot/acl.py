@@ -119,7 +119,7 @@ def acl_config(nodes: dict[str, NodeEntry], domain: int = 0) -> dict[str, Any]:
     # Loss feedback: every node probes the link and reports the loss it hears, so every node
     # sends and hears probes. A node with a valid certificate can report false loss; the worst
     # it gets is its peers' copies raised to the repeat plan's bound (docs/security.md).
-    link_probe = rule("link_probe", ["put", "declare_subscriber"], [f"{p}{_LINK}"])
+    link_probe = rule("link_probe", ["put", "declare_subscriber"], [f"{p}{_LINK}/*"])
     router_all = rule("router_all", _ALL, everything + [f"{p}{_CONTROL}/**"])
     for node in sorted(nodes.values(), key=lambda n: n.name):
         subjects.append({"id": f"cn_{node.name}", "cert_common_names": [node.name]})

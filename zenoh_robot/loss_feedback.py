@@ -1,8 +1,8 @@
 """Loss feedback: each node measures the packet loss it sees and tells its peers.
 
 A publisher cannot see its own losses; its receivers can. A :class:`LossMonitor` per node
-sends a tiny best-effort probe (``LinkProbe``, ~100 bytes) every ``period_s`` on one
-absolute topic; each probe carries a sequence number, and the loss the sender measures on
+sends a tiny best-effort probe (``LinkProbe``, ~100 bytes) every ``period_s`` on its role's
+key (Keys, below); each probe carries a sequence number, and the loss the sender measures on
 the probes of each peer it hears. So every node knows (a) the loss on its incoming
 direction, from the gaps in its peers' probes, and (b) the loss its peers see from it,
 from their reports. :meth:`LossMonitor.outgoing_loss` is the worst of both over the peers
@@ -28,6 +28,14 @@ newest sample go out at a steady rate while samples flow (a newer one replaces t
 so the rate, not the window, decides whether a packet crosses a fade within the deadline, and the
 first packet after a fade carries the newest sample.
 
+Keys: a monitor has a role (:data:`ROLES`: a GCS or a drone) and puts its probes on
+``<topic>/<role>`` and hears ``<topic>/<other role>``, so a GCS and a drone never subscribe to the
+same key. On a lossless UDP multicast group Zenoh 1.10 bounces the declaration of a subscription two
+peers both hold (and put to) back and forth for ever, ~4,700 packets/s each way (eclipse-zenoh/zenoh
+PR #2802, docs/lossy-link.md): with one probe key for every node that was the 8-11x bytes of the 0 %
+resilient cells, sealed or plain. Two monitors of one role share their key (two GCSs on one group,
+or drones of a swarm); they do not put to it.
+
 Cost: O(1) amortised per peer per tick. Each window keeps its own deque of the arrival times
 still inside it, trimmed from the left as the window slides (arrivals are stamped under the
 lock, so each deque is sorted); its length is the count. A rescan of every arrival twice per
@@ -52,6 +60,7 @@ from .qos import QoSProfile, ReliabilityPolicy
 log = logging.getLogger("zenoh_robot.feedback")
 
 LINK_TOPIC = "/zr_link"
+ROLES = ("gcs", "drone")     # a monitor hears the other role's probes only (see the module doc)
 MAX_PEERS = 32
 MAX_LOSS = 0.97
 PROBE_QOS = QoSProfile(ReliabilityPolicy.BEST_EFFORT, depth=8)
@@ -177,9 +186,20 @@ def apply_repeat_plan(publisher: Any, loss: float, burst_loss: float = 0.0) -> N
     publisher.set_repeats(copies, window)
 
 
+def probe_topics(role: str, topic: str = LINK_TOPIC) -> tuple[str, str]:
+    """(where a monitor of ``role`` puts its probes, where it hears its peers'): never the same key for
+    two roles, so no two peers of different roles declare one subscription (see the module doc)."""
+    if role not in ROLES:
+        raise ValueError(f"loss monitor role {role!r}: one of {', '.join(ROLES)}")
+    other = ROLES[1 - ROLES.index(role)]
+    return f"{topic}/{role}", f"{topic}/{other}"
+
+
 class LossMonitor:
-    def __init__(self, node: Any, topic: str = LINK_TOPIC, period_s: float = 0.05, window_s: float = 1.0,
+    def __init__(self, node: Any, role: str, topic: str = LINK_TOPIC, period_s: float = 0.05, window_s: float = 1.0,
                  long_window_s: float = 5.0, forget_s: float = 10.0, max_peers: int = MAX_PEERS) -> None:
+        self.role = role
+        self.probe_topic, self.peer_topic = probe_topics(role, topic)
         self.id = secrets.randbits(63)
         self.period_s = period_s
         self.window_s = window_s
@@ -195,8 +215,8 @@ class LossMonitor:
         self.bad_probes = 0
         self.adapter_errors = 0
         self._last_log = 0.0
-        self._pub = node.create_publisher(LinkProbe, topic, PROBE_QOS)
-        self._sub = node.create_subscription(LinkProbe, topic, self._on_probe, PROBE_QOS)
+        self._pub = node.create_publisher(LinkProbe, self.probe_topic, PROBE_QOS)
+        self._sub = node.create_subscription(LinkProbe, self.peer_topic, self._on_probe, PROBE_QOS)
         self._stop = threading.Event()
         # Own thread, not the node's executor: the probe clock must not stall with the callbacks.
         self._thread = threading.Thread(target=self._run, name="zr-link-monitor", daemon=True)

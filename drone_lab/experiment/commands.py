@@ -90,7 +90,7 @@ def serve(spec: str, monitor: bool = False) -> None:
             return ExpResult(True, runs[cmd.call_id])
     with Node("cmd_server", config=_session(spec)) as node:
         srv = node.create_service("exp/command", ExpCommand, ExpResult, handle)
-        mon = LossMonitor(node) if monitor else None
+        mon = LossMonitor(node, "drone") if monitor else None
         if mon is not None:
             mon.adapt(srv.set_loss)
         spinner = threading.Thread(target=node.spin, daemon=True)
@@ -120,7 +120,7 @@ def call(spec: str, n: int, timeout: float, monitor: bool = False) -> None:
             linked = linked and client.wait_for_service(SESSION_WAIT_S)
         print("LINKED", flush=True)
         sys.stdin.readline()         # START: the loss is on (run_level may set it only now)
-        mon = LossMonitor(node) if monitor else None
+        mon = LossMonitor(node, "gcs") if monitor else None
         if mon is not None:
             mon.adapt(client.set_loss)
             # The probes' callbacks run on the node's executor (the calls do not need it).

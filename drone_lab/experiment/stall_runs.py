@@ -71,7 +71,7 @@ def peer(role: str, iface: str, seconds: float) -> None:
     assert profile.loss_feedback and profile.image_mode == "fec"
     qos = profile.qos["setpoint"]
     with Node(f"stall_{role}", config=SessionConfig.resilient(iface)) as node:
-        monitor = LossMonitor(node)
+        monitor = LossMonitor(node, "gcs" if role == "pub" else "drone")
         node.add_on_close(monitor.close)
         spinner = threading.Thread(target=node.spin, daemon=True)
         spinner.start()
