@@ -43,16 +43,26 @@ def load_types(msg_dir: Path | None = None, names: Iterable[str] | None = None) 
     message classes of ``names`` (short names, ``VehicleStatus``; default: every file's).
 
     Every definition is registered before any class is made, so nested types resolve in any order."""
-    files = msg_files(msg_dir or BUNDLED)
-    defs: dict[str, Any] = {}
-    for short, path in files.items():
-        defs.update(parse_definition(path.read_text(encoding="utf-8"), PKG + short))
-    register_definitions(defs)
+    files = _register(msg_files(msg_dir or BUNDLED))
     wanted = list(files) if names is None else list(names)
     missing = [n for n in wanted if n not in files]
     if missing:
         raise KeyError(f"px4_msgs definitions missing in {msg_dir or BUNDLED}: {', '.join(missing)}")
     return {n: ros2_type(PKG + n) for n in wanted}
+
+
+def register_bundled() -> None:
+    """Register the bundled px4_msgs definitions (no classes made): the ``zenoh_robot.ros2_types``
+    entry point ``px4_msgs``, through which ``zenoh-robot topic echo`` decodes PX4's ``/fmu`` topics."""
+    _register(msg_files(BUNDLED))
+
+
+def _register(files: dict[str, Path]) -> dict[str, Path]:
+    defs: dict[str, Any] = {}
+    for short, path in files.items():
+        defs.update(parse_definition(path.read_text(encoding="utf-8"), PKG + short))
+    register_definitions(defs)
+    return files
 
 
 @dataclass(frozen=True)

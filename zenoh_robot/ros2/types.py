@@ -16,6 +16,7 @@ Threading: generating a type takes a lock; codecs are stateless and shared.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -23,6 +24,7 @@ from typing import Any
 from ..message import Message, message, type_support
 from .fastcdr import FastCodec, build
 
+log = logging.getLogger("zenoh_robot.ros2")
 _LOCK = threading.RLock()
 _TYPES: dict[str, type[Message]] = {}
 _STORE: Any = None
@@ -216,8 +218,30 @@ def ros2_type(name: str) -> type[Message]:
     with _LOCK:
         cls = _TYPES.get(key)
         if cls is None:
+            if key not in typestore().fielddefs:
+                _ask_provider(key.split("/", 1)[0])
             cls = _TYPES[key] = _generate(key)
         return cls
+
+
+_ASKED: set[str] = set()
+
+
+def _ask_provider(package: str) -> None:
+    """Let an installed package provide the ROS package ``package``'s definitions (entry-point group
+    ``zenoh_robot.ros2_types``, named after the ROS package, a callable that registers them): so the
+    tools decode ``px4_msgs`` without importing the drone wing. Asked once per package; a provider
+    that fails costs its types, not the caller."""
+    if package in _ASKED:
+        return
+    _ASKED.add(package)
+    from importlib.metadata import entry_points
+
+    for ep in entry_points(group="zenoh_robot.ros2_types", name=package):
+        try:
+            ep.load()()
+        except Exception as exc:
+            log.warning("ROS 2 types of %s from %s not loaded: %s", package, ep.value, exc)
 
 
 def load_ros2_msg(text: str, name: str) -> type[Message]:

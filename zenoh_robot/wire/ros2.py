@@ -53,7 +53,7 @@ class Ros2Codec(Protocol):
 
     def serialize(self, body: Any) -> bytes: ...
 
-    def deserialize(self, payload: bytes | memoryview) -> list[Any]: ...
+    def deserialize(self, payload: bytes | memoryview, *, cut_trailing: bool = False) -> list[Any]: ...
 
 
 # -- names ------------------------------------------------------------------------------------
@@ -376,7 +376,10 @@ class Ros2WireFormat:
             if payload[:2] != CDR_HEADER[:2]:
                 raise MalformedSample(f"not little-endian CDR (encapsulation {bytes(payload[:4]).hex()})")
             try:
-                body = deserialize(payload)
+                # Bytes after the body are not read, as rmw_zenoh's Fast-CDR does not read them: PX4's zenoh
+                # module sends its uORB buffer's capacity (0-31 leftover bytes), and a strict reader would see
+                # none of PX4's topics. A body that does not fit is still refused.
+                body = deserialize(payload, cut_trailing=True)
             except Exception as exc:    # rosbags raises several kinds for truncated or foreign bytes
                 raise MalformedSample(f"CDR does not decode as {name}: {type(exc).__name__}: {exc}") from None
             return name, type_hash, gids.get(gid), seq, stamp, body, {}
