@@ -6,6 +6,7 @@ UDP; the companion and the GCS are real child processes talking over Zenoh.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import secrets
@@ -17,6 +18,7 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import pytest
 from conftest import python_proc, stop_process, wait_for
@@ -25,6 +27,8 @@ from px4_helpers import assert_no_px4_failsafe, wait_state_armable
 from drone_contract.messages import Command, CommandResult, DroneSetpoint, FailsafeEvent, VehicleState
 from drone_contract.streams import SETPOINT_DEADLINE, stream_profile
 from px4_link.sim import Simulator
+from px4_zenoh.session import Px4Endpoint, free_tcp_endpoint, open_px4_session
+from px4_zenoh.sim import ZenohSimulator
 from zenoh_robot import Node, qos
 from zenoh_robot.msgs import Header
 
@@ -53,16 +57,29 @@ def _stop(proc: subprocess.Popen, timeout: float = 10.0) -> str:
 
 
 @contextmanager
-def drone(drone_id: str, sysid: int = 1, *extra: str) -> Iterator[tuple[Simulator, subprocess.Popen]]:
-    port = _free_port()
-    with Simulator(sysid, port=0, target_port=port, params=FAST) as sim:
-        proc = python_proc("-m", "companion", "--id", drone_id, "--px4", f"udpin:127.0.0.1:{port}",
-                           "--camera-rate", "15", *extra)
+def drone(drone_id: str, sysid: int = 1, *extra: str,
+          backend: str = "mavlink") -> Iterator[tuple[Any, subprocess.Popen]]:
+    """A companion process and its simulator in this process: PX4 over MAVLink (px4_link.sim, UDP) or over
+    PX4's own Zenoh module (px4_zenoh.sim, a client of a router here, as PX4 joins one)."""
+    with contextlib.ExitStack() as stack:
+        if backend == "mavlink":
+            port = _free_port()
+            sim: Any = stack.enter_context(Simulator(sysid, port=0, target_port=port, params=FAST))
+            px4 = f"udpin:127.0.0.1:{port}"
+        else:
+            ep = free_tcp_endpoint()
+            stack.callback(open_px4_session(Px4Endpoint("router", ep)).close)
+            sim = stack.enter_context(ZenohSimulator(connect=ep, sysid=sysid, params=FAST))
+            px4 = f"zenoh:{ep}"
+        proc = python_proc("-m", "companion", "--id", drone_id, "--px4", px4, "--camera-rate", "15", *extra)
         try:
             yield sim, proc
         finally:
             out = _stop(proc)
             assert "Traceback" not in out, out
+
+
+BACKENDS = pytest.mark.parametrize("backend", ["mavlink", "zenoh"])
 
 
 def gcs_proc(*args: str) -> subprocess.Popen:
@@ -83,8 +100,8 @@ class Observer:
     def _on_state(self, msg: VehicleState) -> None:
         self.state = msg
 
-    def command(self, name: str, value: float = 0.0) -> CommandResult:
-        return self.client.call(Command(name, value, "", False, OP), timeout=10.0)
+    def command(self, name: str, value: float = 0.0, text: str = "") -> CommandResult:
+        return self.client.call(Command(name, value, text, False, OP), timeout=10.0)
 
 
 def _spin(node: Node) -> None:
@@ -92,9 +109,10 @@ def _spin(node: Node) -> None:
     threading.Thread(target=node.spin, daemon=True).start()
 
 
-def test_mission_end_to_end(ns: str, tmp_path: Path) -> None:
+@BACKENDS
+def test_mission_end_to_end(ns: str, tmp_path: Path, backend: str) -> None:
     record = tmp_path / "gcs.json"
-    with drone(ns) as (sim, companion):
+    with drone(ns, backend=backend) as (sim, companion):
         gcs = gcs_proc("--drones", ns, "--mission", "--duration", "4", "--pattern", "square", "--size", "4",
                        "--altitude", "2.5", "--record", str(record))
         out, _ = gcs.communicate(timeout=120)
@@ -113,8 +131,9 @@ def test_mission_end_to_end(ns: str, tmp_path: Path) -> None:
     assert d["final_state"]["landed"] and not d["final_state"]["armed"]
 
 
-def test_gcs_killed_companion_holds_then_resumes(ns: str) -> None:
-    with drone(ns) as (sim, companion), Node("observer") as node:
+@BACKENDS
+def test_gcs_killed_companion_holds_then_resumes(ns: str, backend: str) -> None:
+    with drone(ns, backend=backend) as (sim, companion), Node("observer") as node:
         obs = Observer(node, ns)
         _spin(node)
         gcs = gcs_proc("--drones", ns, "--pattern", "hover", "--altitude", "2.5")
