@@ -11,6 +11,7 @@ import math
 import socket
 import time
 import traceback
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -20,6 +21,8 @@ from ..wire import Encoder, Parser, float_bits_to_int, int_to_float_bits, mavlin
 from .commander import ACCEPTED, FAILED, ON_GROUND, Commander, ReceivedSetpoint, int_param
 from .params import INT32, ParamStore
 from .physics import PointMassQuad
+
+SETPOINT_LOG_CAP = 8192   # setpoints kept in ``setpoint_log`` (400 s at 20 Hz)
 
 # PX4's onboard-link (MAV_x_MODE = Onboard) default stream rates, Hz (mavlink_main.cpp).
 DEFAULT_RATES_HZ: dict[str, float] = {
@@ -186,6 +189,8 @@ class SimProtocol:
         self._last_msg_type = ""
         # (MAV_TYPE, source system, time) of every HEARTBEAT heard: the failsafe's GCS link check
         self.on_heartbeat: Callable[[int, int, float], None] | None = None
+        # (monotonic receive time, position or None) of every setpoint used: what a latency run matches
+        self.setpoint_log: deque[tuple[float, tuple[float, float, float] | None]] = deque(maxlen=SETPOINT_LOG_CAP)
 
     # ---------------------------------------------------------------- io
     def _write(self, data: bytes) -> None:
@@ -276,6 +281,7 @@ class SimProtocol:
             return
         self.commander.on_setpoint(ReceivedSetpoint(now, mask, m.coordinate_frame, pos, vel, yaw,
                                                     m.get_srcSystem()))
+        self.setpoint_log.append((time.monotonic(), pos))
 
     def _on_command(self, m: Any, now: float) -> None:
         try:

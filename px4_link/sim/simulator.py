@@ -251,6 +251,12 @@ class Simulator:
         return self.commander.last_setpoint
 
     @property
+    def setpoint_arrivals(self) -> list[tuple[float, tuple[float, float, float] | None]]:
+        """(monotonic time, position or None) of each SET_POSITION_TARGET_LOCAL_NED received, oldest first."""
+        with self._lock:
+            return list(self.protocol.setpoint_log) if self.protocol is not None else []
+
+    @property
     def failsafe_log(self) -> list[FailsafeEvent]:
         """Every failsafe PX4's own logic triggered (cause, action)."""
         with self._lock:

@@ -79,6 +79,7 @@ FAILSAFE_LATENCY_S = 0.1
 STRAY_ACKS = ((0.132, 5, 255), (1.228, ACCEPTED, 0))   # (s after boot, result, result_param1) of cmd 211
 CMD_DO_GRIPPER = 211
 INBOX_CAP = 2048
+SETPOINT_LOG_CAP = 8192   # trajectory_setpoints kept in ``setpoint_arrivals`` (400 s at 20 Hz)
 
 
 class ZenohSimulator:
@@ -122,6 +123,8 @@ class ZenohSimulator:
         self._due_us: dict[str, int] = {}
         self._last_sig: dict[str, tuple[Any, ...]] = {}
         self._trajectory: Any = None
+        # (Zenoh receive time, position or None) of every trajectory_setpoint: what a latency run matches
+        self._setpoint_log: deque[tuple[float, tuple[float, float, float] | None]] = deque(maxlen=SETPOINT_LOG_CAP)
         self._ocm: Any = None
         self._ocm_last: float | None = None
         self._was_armed = False
@@ -294,7 +297,7 @@ class ZenohSimulator:
                 elif name == OFFBOARD_MODE.name:
                     self._on_offboard_mode(self._codecs["OffboardControlMode"].decode(payload), t_rx)
                 else:
-                    self._on_trajectory(self._codecs["TrajectorySetpoint"].decode(payload))
+                    self._on_trajectory(self._codecs["TrajectorySetpoint"].decode(payload), t_rx)
             except ValueError as e:   # PX4 reads the body blindly; a short sample is simply not a message
                 self.dropped["malformed"] += 1
                 log.debug("sim%d: dropped %s: %s", self.sysid, name, e)
@@ -323,8 +326,10 @@ class ZenohSimulator:
         self._ocm, self._ocm_last = ocm, t_rx
         self.commander.on_setpoint(self._setpoint(t_rx))
 
-    def _on_trajectory(self, traj: Any) -> None:
+    def _on_trajectory(self, traj: Any, t_rx: float) -> None:
         self._trajectory = traj
+        pos = tuple(float(a) for a in traj.position)
+        self._setpoint_log.append((t_rx, pos if all(math.isfinite(a) for a in pos) else None))  # type: ignore[arg-type]
         last = self.commander.last_setpoint
         if last is not None:   # a new target within the current offboard signal (its time unchanged)
             self.commander.last_setpoint = dataclasses.replace(self._setpoint(last.time), time=last.time)
@@ -450,6 +455,12 @@ class ZenohSimulator:
     @property
     def last_setpoint(self) -> ReceivedSetpoint | None:
         return self.commander.last_setpoint
+
+    @property
+    def setpoint_arrivals(self) -> list[tuple[float, tuple[float, float, float] | None]]:
+        """(monotonic time Zenoh delivered it, position or None) of each trajectory_setpoint, oldest first."""
+        with self._lock:
+            return list(self._setpoint_log)
 
     @property
     def setpoints_since_landed(self) -> int:

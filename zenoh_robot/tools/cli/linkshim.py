@@ -14,7 +14,7 @@ import threading
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    p = sub.add_parser("linkshim", help="repeat Zenoh's UDP datagrams across a lossy link (handshake from 90 % loss)")
+    p = sub.add_parser("linkshim", help="repeat Zenoh's UDP datagrams across a lossy link (handshake from 90 %% loss)")
     p.add_argument("role", choices=("drone", "ground"))
     p.add_argument("--listen", required=True, help="host:port: local for the drone end, on the link for the ground end")
     p.add_argument("--peer", help="drone end: the ground end's host:port")

@@ -47,7 +47,7 @@ LEGEND = ("lost: samples that never arrived (gaps in the publisher's sequence nu
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    p = sub.add_parser("stats", help="live table of topic statistics (age, period, rate, lost, cpu %)")
+    p = sub.add_parser("stats", help="live table of topic statistics (age, period, rate, lost, cpu %%)")
     p.add_argument("topic", nargs="?", help="only statistics of this measured topic, e.g. /uav1/setpoint")
     add_session_arguments(p)
     add_duration_arg(p)
