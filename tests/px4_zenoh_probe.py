@@ -7,6 +7,8 @@ import math
 import socket
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -170,3 +172,22 @@ class Probe:
             self._stream.join(2.0)
             self._stream = None
         return getattr(self, "last_stream", time.monotonic())
+
+
+@contextmanager
+def probed_sim(ready: bool = True, **sim_kwargs: Any) -> Iterator[tuple[Probe, Any]]:
+    """A router, a Probe client and a ZenohSimulator joined to it; with ``ready``, once PX4's
+    pre-flight checks pass. The simulator must end without an internal error."""
+    from px4_zenoh.sim import ZenohSimulator
+
+    probe = Probe()
+    sim = ZenohSimulator(probe.endpoint, **sim_kwargs).start()
+    try:
+        assert sim.wait_connected(10.0)
+        if ready:
+            assert probe.wait("vehicle_status", lambda m: m.pre_flight_checks_pass, 10.0) is not None
+        yield probe, sim
+    finally:
+        sim.stop()
+        probe.close()
+    assert not sim.internal_errors

@@ -15,7 +15,7 @@ from typing import Any
 import pytest
 
 from px4_zenoh.sim import ZenohSimulator
-from tests.px4_zenoh_probe import Probe
+from tests.px4_zenoh_probe import Probe, probed_sim
 
 # CI lays out <root>/main (this repo) beside <root>/shared; a missing trace set fails, never skips.
 TRACES = Path(__file__).resolve().parents[2] / "shared" / "px4_zenoh_traces"
@@ -35,16 +35,9 @@ def _anon(token: str) -> str:
 
 @pytest.fixture(scope="module")
 def ground() -> Iterator[tuple[Probe, ZenohSimulator]]:
-    probe = Probe()
-    sim = ZenohSimulator(probe.endpoint, seed=5).start()
-    try:
-        assert sim.wait_connected(10.0)
+    with probed_sim(ready=False, seed=5) as (probe, sim):
         time.sleep(5.0)
         yield probe, sim
-    finally:
-        sim.stop()
-        probe.close()
-    assert not sim.internal_errors
 
 
 def test_tokens_are_px4s_modulo_zid_and_left_out_types(ground: tuple[Probe, ZenohSimulator]) -> None:
@@ -106,16 +99,8 @@ def test_stray_gripper_acks_after_boot(ground: tuple[Probe, ZenohSimulator]) -> 
 
 @pytest.fixture
 def px4() -> Iterator[tuple[Probe, ZenohSimulator]]:
-    probe = Probe()
-    sim = ZenohSimulator(probe.endpoint, estimator_warmup_s=1.0, seed=7).start()
-    try:
-        assert sim.wait_connected(10.0)
-        assert probe.wait("vehicle_status", lambda m: m.pre_flight_checks_pass, 10.0) is not None
-        yield probe, sim
-    finally:
-        sim.stop()
-        probe.close()
-    assert not sim.internal_errors
+    with probed_sim(estimator_warmup_s=1.0, seed=7) as pair:
+        yield pair
 
 
 def _offboard_and_arm(probe: Probe, z: float) -> None:

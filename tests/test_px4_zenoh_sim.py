@@ -9,7 +9,7 @@ from collections.abc import Iterator
 import pytest
 
 from px4_zenoh.sim import ZenohSimulator
-from tests.px4_zenoh_probe import Probe
+from tests.px4_zenoh_probe import Probe, probed_sim
 
 ACCEPTED, TEMPORARILY_REJECTED, UNSUPPORTED = 0, 1, 3
 DO_SET_MODE, ARM, NAV_LAND = 176, 400, 21
@@ -18,18 +18,8 @@ OFFBOARD, AUTO_LOITER = 14, 4
 
 @pytest.fixture
 def px4() -> Iterator[tuple[Probe, ZenohSimulator]]:
-    probe = Probe()
-    sim = ZenohSimulator(probe.endpoint, estimator_warmup_s=1.0, seed=3,
-                         params={"MPC_LAND_SPEED": 1.5, "COM_DISARM_LAND": 1.0})
-    sim.start()
-    try:
-        assert sim.wait_connected(10.0)
-        assert probe.wait("vehicle_status", lambda m: m.pre_flight_checks_pass, 10.0) is not None
-        yield probe, sim
-    finally:
-        sim.stop()
-        probe.close()
-    assert not sim.internal_errors
+    with probed_sim(estimator_warmup_s=1.0, seed=3, params={"MPC_LAND_SPEED": 1.5, "COM_DISARM_LAND": 1.0}) as pair:
+        yield pair
 
 
 def test_flight_stream_mode_arm_climb_land_disarm(px4: tuple[Probe, ZenohSimulator]) -> None:

@@ -59,23 +59,33 @@ def _first_time(peer: str) -> bool:
         return True
 
 
+def _count(kind: str, peer: str) -> bool:
+    """Count one ``kind`` (humble, legacy) occurrence from ``peer``; True when it is to be said now: the
+    first from that peer, and within the warnings' rate limit across peers."""
+    with _LOCK:
+        setattr(COUNTERS, _OCCURRENCES[kind], getattr(COUNTERS, _OCCURRENCES[kind]) + 1)
+    if not _first_time(f"{kind}/{peer}"):
+        return False
+    with _LOCK:
+        setattr(COUNTERS, f"{kind}_peers", getattr(COUNTERS, f"{kind}_peers") + 1)
+    return _LIMIT.admit(kind) is not None
+
+
+_OCCURRENCES = {"humble": "humble_tokens", "legacy": "legacy_attachments"}
+
+
 def note_token(key: str) -> bool:
     """Count and name a Humble token (True); any other key: nothing (False)."""
     if not humble_token(key):
         return False
     parts = key.split("/")
     zid, kind, ns, node, name, dds_type = parts[2], parts[5], parts[7], parts[8], parts[9], parts[10]
-    with _LOCK:
-        COUNTERS.humble_tokens += 1
-    if _first_time(f"humble/{zid}"):
-        with _LOCK:
-            COUNTERS.humble_peers += 1
-        if _LIMIT.admit("humble") is not None:
-            who = f"{('/' + ns.replace('%', '/').strip('/')).rstrip('/')}/{node}"
-            log.warning("ROS 2 Humble peer %s (session %s, %s %s of %s): rmw_zenoh on Humble has no type hashes "
-                        "(%s), so no data is exchanged with it from Jazzy or newer, nor from zenoh-robot; run the "
-                        "peer on Jazzy 0.2.4+ (docs/ros2.md)", who, zid, kind, name.replace("%", "/"), dds_type,
-                        HUMBLE_TYPE_HASH)
+    if _count("humble", zid):
+        who = f"{('/' + ns.replace('%', '/').strip('/')).rstrip('/')}/{node}"
+        log.warning("ROS 2 Humble peer %s (session %s, %s %s of %s): rmw_zenoh on Humble has no type hashes "
+                    "(%s), so no data is exchanged with it from Jazzy or newer, nor from zenoh-robot; run the "
+                    "peer on Jazzy 0.2.4+ (docs/ros2.md)", who, zid, kind, name.replace("%", "/"), dds_type,
+                    HUMBLE_TYPE_HASH)
     return True
 
 
@@ -92,15 +102,10 @@ def legacy_gid(data: bytes | memoryview) -> str | None:
 def note_legacy_attachment(data: bytes | memoryview, where: str) -> None:
     """Count and name a sample (or request) on ``where`` with rmw_zenoh <= 0.2.3's labelled attachment."""
     peer = legacy_gid(data) or where
-    with _LOCK:
-        COUNTERS.legacy_attachments += 1
-    if _first_time(f"legacy/{peer}"):
-        with _LOCK:
-            COUNTERS.legacy_peers += 1
-        if _LIMIT.admit("legacy") is not None:
-            log.warning("rmw_zenoh <= 0.2.3 peer (GID %s) on %s: its labelled attachment (sequence_number, "
-                        "source_timestamp, source_gid) is refused, as current rmw_zenoh refuses it; its samples are "
-                        "dropped and counted: update the peer to rmw_zenoh 0.2.4+ (docs/ros2.md)", peer, where)
+    if _count("legacy", peer):
+        log.warning("rmw_zenoh <= 0.2.3 peer (GID %s) on %s: its labelled attachment (sequence_number, "
+                    "source_timestamp, source_gid) is refused, as current rmw_zenoh refuses it; its samples are "
+                    "dropped and counted: update the peer to rmw_zenoh 0.2.4+ (docs/ros2.md)", peer, where)
 
 
 def summary() -> dict[str, int]:
