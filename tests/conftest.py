@@ -59,10 +59,10 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 def no_simulator_internal_error() -> Iterator[None]:
     """A fault inside an in-process px4_link Simulator fails the test that caused it: the simulator
     records it (and answers no ACK) instead of passing it off as PX4 refusing something."""
-    sim_mod = sys.modules.get("px4_link.sim.simulator")
+    sim_mod = sys.modules.get("px4_link.sim.base")
     before = len(sim_mod.INTERNAL_ERRORS) if sim_mod is not None else 0
     yield
-    sim_mod = sys.modules.get("px4_link.sim.simulator")
+    sim_mod = sys.modules.get("px4_link.sim.base")
     if sim_mod is not None:
         new = sim_mod.INTERNAL_ERRORS[before:]
         assert not new, "simulator internal error(s):\n" + "\n".join(new)

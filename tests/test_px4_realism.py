@@ -311,7 +311,7 @@ def test_internal_error_is_no_ack_and_is_recorded() -> None:
     """Row: an internal simulator error. Never a FAILED ACK a test could take for a refusal: no
     ACK at all (the sender times out) and an entry the autouse fixture in conftest.py fails on."""
     from px4_link.commands import CommandTimeout
-    from px4_link.sim import simulator as sim_mod
+    from px4_link.sim import base as sim_mod
     before = len(sim_mod.INTERNAL_ERRORS)
     with sim_and_link(armable=False) as (sim, link, _):
         def broken(*a, **kw):

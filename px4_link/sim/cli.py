@@ -7,9 +7,10 @@ import signal
 import sys
 from collections.abc import Sequence
 
+from .base import DEFAULT_HOME
 from .faults import parse_ekf_reset, parse_estimate_loss, parse_low_battery
 from .protocol import DEFAULT_RATES_HZ
-from .simulator import DEFAULT_HOME, Simulator
+from .simulator import Simulator
 
 
 def _kv(text: str) -> tuple[str, float]:

@@ -6,8 +6,9 @@ It is what PX4 SITL built with its ``zenoh`` module (``px4_sitl_zenoh``) looks l
 (``px4_table.DECLARED``, ``left_out``); every ``/fmu/out`` sample with PX4's payload (CDR + leftover
 bytes) and attachment (seq from 1, µs since boot on a 4 ms grid, PX4's GID) at PX4's rates.
 
-The vehicle is px4_link.sim's: the same Commander (modes, arming, offboard rules, land detection,
-auto-disarm), Failsafes, ParamStore and PointMassQuad, driven here without the MAVLink front end.
+The vehicle is px4_link.sim's ``SimulatorBase``: the same Commander (modes, arming, offboard rules, land
+detection, auto-disarm), Failsafes, ParamStore, PointMassQuad, faults and introspection properties as the
+MAVLink simulator; this module is only the Zenoh front end.
 Inbound, as PX4 does: ``vehicle_command`` for target system 0 or ours (component 0 or 1), others
 dropped silently; one ACK addressed to the command's source ids, ``from_external`` false;
 ``offboard_control_mode`` is the offboard signal and ``trajectory_setpoint`` its target; attachments
@@ -28,28 +29,21 @@ import threading
 import time
 import traceback
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
-import numpy as np
 import zenoh
 
-from px4_link.sim import simulator as mavlink_sim
+from px4_link.sim.base import DEFAULT_HOME, SimulatorBase
 from px4_link.sim.commander import (
     ACCEPTED,
     CMD_COMPONENT_ARM_DISARM,
     ON_GROUND,
     PX4_ESTIMATOR_WARMUP_S,
-    Commander,
-    FailsafeEvent,
-    ModeChange,
     ReceivedSetpoint,
 )
-from px4_link.sim.failsafe import Failsafes
-from px4_link.sim.params import ParamStore
-from px4_link.sim.physics import PointMassQuad
-from px4_link.sim.simulator import DEFAULT_HOME
+from px4_link.sim.faults import Fault
 from px4_zenoh.topics import COMMAND_ACK, OFFBOARD_MODE, OUT, TRAJECTORY, VEHICLE_COMMAND, Px4Topic
 from px4_zenoh.uorb import UorbCodec, load_types
 
@@ -82,42 +76,38 @@ INBOX_CAP = 2048
 SETPOINT_LOG_CAP = 8192   # trajectory_setpoints kept in ``setpoint_arrivals`` (400 s at 20 Hz)
 
 
-class ZenohSimulator:
+class ZenohSimulator(SimulatorBase):
     """A PX4 SITL (zenoh build) stand-in; ``connect`` is the router PX4 joins as a client."""
+
+    THREAD_PREFIX: ClassVar[str] = "px4zsim"
+    ERROR_LABEL: ClassVar[str] = "zenoh sim"
+    JOIN_TIMEOUT_S: ClassVar[float] = 5.0
+    _log: ClassVar[logging.Logger] = log
 
     def __init__(self, connect: str = "tcp/127.0.0.1:7447", sysid: int = 1, domain: int = 0, *,
                  rates: str = "px4", params: dict[str, float | int] | None = None,
                  home: tuple[float, float, float] = DEFAULT_HOME, physics_hz: float = 100.0,
                  seed: int | None = None, estimator_warmup_s: float = PX4_ESTIMATOR_WARMUP_S,
-                 msg_dir: Path | None = None, retry_s: float = RETRY_S) -> None:
-        if not 1 <= sysid <= 255:
-            raise ValueError("sysid must be 1..255")
+                 msg_dir: Path | None = None, retry_s: float = RETRY_S, faults: Sequence[Fault] = ()) -> None:
         if rates not in RATE_SETS:
             raise ValueError(f"rates is one of {', '.join(RATE_SETS)}, got {rates!r}")
-        self.connect, self.sysid, self.domain, self.home = connect, sysid, domain, home
-        self.rates = dict(RATE_SETS[rates])
-        self.retry_s = retry_s
-        self.physics_dt = 1.0 / physics_hz
+        # the types first: loading them takes ~0.1 s, which must not count as time since boot (stray ACKs)
         types = load_types(msg_dir)
         self._codecs = {name: UorbCodec.of(cls) for name, cls in types.items()}
         # PX4's topics whose types we have; the rest of PX4's 46 entities are left out (no definition,
         # so no hash to announce and nothing to encode).
         self.declared: tuple[Px4Topic, ...] = tuple(t for t in DECLARED if t.type_short in types)
         self.left_out: tuple[Px4Topic, ...] = tuple(t for t in DECLARED if t.type_short not in types)
-        self.params = ParamStore({**(params or {}), "MAV_SYS_ID": sysid})
-        self.vehicle = PointMassQuad(np.random.default_rng(seed))
-        self._boot = time.monotonic()
-        self.commander = Commander(self.params, self.vehicle, self._boot, home_alt=home[2],
-                                   estimator_warmup_s=estimator_warmup_s,
-                                   offboard_loss_latency_s=FAILSAFE_LATENCY_S)
-        self.failsafes = Failsafes(self.params, self.commander)
+        super().__init__(sysid, params=params, home=home, physics_hz=physics_hz, seed=seed,
+                         estimator_warmup_s=estimator_warmup_s, faults=faults,
+                         offboard_loss_latency_s=FAILSAFE_LATENCY_S)
+        self.connect, self.domain = connect, domain
+        self.rates = dict(RATE_SETS[rates])
+        self.retry_s = retry_s
         self.view = VehicleView(types, self.commander, self.vehicle, self.failsafes, home, sysid,
                                 UserIntention(self.commander.mode))
         self._rng = random.Random(seed)
-        self._lock = threading.RLock()
-        self._stop = threading.Event()
         self._connected = threading.Event()
-        self._thread: threading.Thread | None = None
         self._inbox: deque[tuple[str, bytes, float]] = deque(maxlen=INBOX_CAP)
         self._outlets: dict[str, Outlet] = {}
         self._due_us: dict[str, int] = {}
@@ -136,40 +126,9 @@ class ZenohSimulator:
         self.published: dict[str, int] = {}
         self.dropped: dict[str, int] = {"oversize": 0, "target": 0, "malformed": 0, "inbox_full": 0}
         self.commands: list[tuple[float, int, int]] = []
-        self.internal_errors: list[str] = []
         self.connect_attempts = 0
 
     # ---------------------------------------------------------------- lifecycle
-    def start(self) -> ZenohSimulator:
-        if self._thread is None:
-            self._stop.clear()
-            self._thread = threading.Thread(target=self._run, name=f"px4zsim-{self.sysid}", daemon=True)
-            self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
-            self._thread = None
-
-    def __enter__(self) -> ZenohSimulator:
-        return self.start()
-
-    def __exit__(self, *exc: Any) -> None:
-        self.stop()
-
-    def run_forever(self, duration: float | None = None) -> None:
-        """Blocking run for the CLI; returns after ``duration`` s or on stop()."""
-        self.start()
-        deadline = math.inf if duration is None else time.monotonic() + duration
-        try:
-            while not self._stop.wait(min(0.5, max(0.0, deadline - time.monotonic()))):
-                if time.monotonic() >= deadline:
-                    break
-        finally:
-            self.stop()
-
     def wait_connected(self, timeout: float) -> bool:
         return self._connected.wait(timeout)
 
@@ -251,15 +210,7 @@ class ZenohSimulator:
             with self._lock:
                 try:
                     self._drain(now, t_us)
-                    steps = 0
-                    while next_phys <= now and steps < 20:
-                        target = self.commander.update(next_phys)
-                        self.failsafes.update(next_phys, self.vehicle.pos, self.vehicle.battery.remaining)
-                        self.vehicle.step(self.physics_dt, target, self.commander.limits())
-                        next_phys += self.physics_dt
-                        steps += 1
-                    if next_phys <= now:
-                        next_phys = now + self.physics_dt
+                    next_phys = self._advance(now, next_phys)
                     self._after_physics(now)
                     self._publish(now, t_us)
                 except Exception:
@@ -395,117 +346,23 @@ class ZenohSimulator:
                 self._last_sig[name] = sig
             self.published[name] = self.published.get(name, 0) + sent
 
-    def _internal_error(self, text: str) -> None:
-        log.error("px4 zenoh sim%d internal error: %s", self.sysid, text)
-        self.internal_errors.append(text)
-        mavlink_sim.INTERNAL_ERRORS.append(f"zenoh sim{self.sysid}: {text}")
+    # ---------------------------------------------------------------- the front end's records
+    def _setpoint_record(self) -> list[tuple[float, tuple[float, float, float] | None]]:
+        """Each trajectory_setpoint, at the time Zenoh delivered it."""
+        return list(self._setpoint_log)
 
-    # ---------------------------------------------------------------- introspection (any thread)
+    def _command_record(self) -> list[tuple[float, int, int]]:
+        return list(self.commands)
+
+    # ---------------------------------------------------------------- introspection (Zenoh's own)
     @property
     def connected(self) -> bool:
         return self._connected.is_set()
-
-    @property
-    def boot_time(self) -> float:
-        """time.monotonic() at PX4's boot (the origin of every timestamp it sends)."""
-        return self._boot
-
-    @property
-    def mode(self) -> str:
-        return self.commander.mode
 
     @property
     def nav_state(self) -> int:
         return NAV_STATE.get(self.commander.mode, 4)
 
     @property
-    def armed(self) -> bool:
-        return self.commander.armed
-
-    @property
-    def armable(self) -> bool:
-        return self.commander.armable()
-
-    @property
-    def landed(self) -> bool:
-        return self.commander.landed_state == ON_GROUND
-
-    @property
-    def landed_state(self) -> int:
-        return self.commander.landed_state
-
-    @property
-    def position(self) -> tuple[float, float, float]:
-        with self._lock:
-            return tuple(float(v) for v in self.vehicle.pos)  # type: ignore[return-value]
-
-    @property
-    def velocity(self) -> tuple[float, float, float]:
-        with self._lock:
-            return tuple(float(v) for v in self.vehicle.vel)  # type: ignore[return-value]
-
-    @property
-    def altitude(self) -> float:
-        return -self.position[2]
-
-    @property
-    def setpoints_received(self) -> int:
-        return self.commander.setpoints_received
-
-    @property
-    def last_setpoint(self) -> ReceivedSetpoint | None:
-        return self.commander.last_setpoint
-
-    @property
-    def setpoint_arrivals(self) -> list[tuple[float, tuple[float, float, float] | None]]:
-        """(monotonic time Zenoh delivered it, position or None) of each trajectory_setpoint, oldest first."""
-        with self._lock:
-            return list(self._setpoint_log)
-
-    @property
-    def setpoints_since_landed(self) -> int:
-        return self.commander.setpoints_since_landed
-
-    @property
-    def landed_at(self) -> float | None:
-        return self.commander.landed_at
-
-    @property
     def offboard_signal_lost(self) -> bool:
         return self.view.offboard_signal_lost
-
-    @property
-    def mode_log(self) -> list[ModeChange]:
-        with self._lock:
-            return list(self.commander.mode_log)
-
-    @property
-    def failsafe_log(self) -> list[FailsafeEvent]:
-        with self._lock:
-            return list(self.commander.failsafe_log)
-
-    @property
-    def command_log(self) -> list[tuple[float, int, int]]:
-        """(monotonic time, command, result) of every command answered."""
-        with self._lock:
-            return list(self.commands)
-
-    @property
-    def battery_remaining(self) -> float:
-        return self.vehicle.battery.remaining
-
-    def get_param(self, name: str) -> float | int:
-        return self.params[name]
-
-    def set_param(self, name: str, value: float | int) -> None:
-        """In-process only: PX4's zenoh module carries no parameter protocol."""
-        self.params.set(name, value)
-
-    def wait_for(self, predicate: Callable[[ZenohSimulator], bool], timeout: float,
-                 interval: float = 0.02) -> bool:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if predicate(self):
-                return True
-            time.sleep(interval)
-        return predicate(self)
