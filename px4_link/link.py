@@ -4,24 +4,23 @@
 ``link.action``, ``link.offboard``, ``link.param`` and ``link.telemetry`` sit on it through
 the narrow ``plugin.Core`` interface and register their own hooks (the offboard stream is
 a periodic hook of the core's send thread). ``Px4Link`` builds both and forwards the few
-link-wide calls; see core.py for the threading contract.
+link-wide calls (those both backends share are ``vehicle.VehicleLinkBase``'s); see core.py and
+vehicle_core.py for the threading contract.
 """
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Any
 
 from .action import Action
-from .commands import CommandAck
 from .core import LinkCore
 from .offboard import VELOCITY_TIMEOUT_S, Offboard
 from .param import Param
 from .plugin import EventCallback
 from .stats import LinkStats
 from .targets import Geofence
-from .telemetry import Px4State
 from .telemetry_service import Telemetry
 from .transport import Address
+from .vehicle import VehicleLinkBase
 from .wire import load_signing_key
 
 DEFAULT_CONNECTION = "udpin:127.0.0.1:14540"
@@ -29,7 +28,7 @@ DEFAULT_CONNECTION = "udpin:127.0.0.1:14540"
 _DEFAULT_GEOFENCE = Geofence()
 
 
-class Px4Link:
+class Px4Link(VehicleLinkBase[LinkCore]):
     """MAVLink adapter to PX4. Use as a context manager::
 
         with Px4Link("udpin:127.0.0.1:14540") as link:
@@ -78,23 +77,6 @@ class Px4Link:
         self.param = Param(self._core)
         self.telemetry = Telemetry(self._core)
 
-    # ----------------------------------------------------------------- lifecycle
-    def start(self) -> Px4Link:
-        self._core.start()
-        return self
-
-    def stop(self) -> None:
-        """Stop both threads and close the transport; safe to call twice."""
-        self._core.stop()
-
-    close = stop
-
-    def __enter__(self) -> Px4Link:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
     @property
     def connection(self) -> str:
         return self._core.connection
@@ -111,50 +93,9 @@ class Px4Link:
 
     # ----------------------------------------------------------------- state
     @property
-    def connected(self) -> bool:
-        return self._core.connected
-
-    @property
-    def state(self) -> Px4State:
-        return self._core.state
-
-    @property
-    def mode(self) -> str:
-        return self._core.state.mode
-
-    @property
-    def armed(self) -> bool:
-        return self._core.state.armed
-
-    @property
-    def system_id(self) -> int | None:
-        return self._core.state.system_id
-
-    @property
     def stats(self) -> LinkStats:
         return self._core.stats
 
     def backend_summary(self) -> dict[str, Any]:
         """For the companion's summary (``vehicle.VehicleLink``)."""
         return {"backend": "mavlink", "connection": self.connection}
-
-    def wait_connected(self, timeout: float = 10.0) -> bool:
-        """Block until a vehicle heartbeat is seen; False on timeout."""
-        return self._core.wait_until(lambda: self._core.connected, timeout)
-
-    def wait_until(self, predicate: Callable[[], bool], timeout: float) -> bool:
-        """Poll ``predicate`` (woken by every telemetry/heartbeat) until true or timeout."""
-        return self._core.wait_until(predicate, timeout)
-
-    def add_event_listener(self, callback: EventCallback) -> None:
-        self._core.add_event_listener(callback)
-
-    def cancel_command(self, owner: int, why: str) -> bool:
-        """Withdraw the command thread ``owner`` (a ``threading.get_ident()``) is waiting on: it
-        raises CommandCancelled at once and sends no more retries. True if there was one."""
-        return self._core.cancel_command(owner, why)
-
-    def send_command(self, command: int, *params: float, timeout: float | None = None,
-                     retries: int | None = None) -> CommandAck:
-        """COMMAND_LONG to the vehicle; returns the ACK or raises a CommandError subclass."""
-        return self._core.send_command(command, *params, timeout=timeout, retries=retries)

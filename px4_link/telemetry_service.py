@@ -2,12 +2,13 @@
 
 The samples and listeners live in the core's telemetry cache (other plugins read it too);
 this plugin measures delivered rates and keeps the requested message intervals, asking for
-them again after PX4 reconnects or reboots."""
+them again after PX4 reconnects or reboots. ``TelemetryView`` is the part PX4 over Zenoh's
+telemetry plugin shares (the cache, the listeners, the measured rates)."""
 from __future__ import annotations
 
 import threading
 from collections.abc import Callable
-from typing import Any, TypeVar
+from typing import Any, Generic, TypeVar
 
 from .commands import CommandAck
 from .plugin import Core, Listener
@@ -16,15 +17,17 @@ from .telemetry import Px4State
 from .wire import mavlink2, message_id
 
 T = TypeVar("T")
+CoreT = TypeVar("CoreT", bound=Core)
 
 
-class Telemetry:
-    def __init__(self, core: Core) -> None:
+class TelemetryView(Generic[CoreT]):
+    """The telemetry plugin's reads of the core's cache and its rate meter; the subclass records
+    into ``rates`` and keeps ``intervals``."""
+
+    def __init__(self, core: CoreT) -> None:
         self._core = core
         self.rates = RateMeter()
         self.intervals = RequestedIntervals()
-        core.add_message_handler(None, lambda m: self.rates.record(m.get_type()))
-        core.add_event_listener(self._on_event)
 
     @property
     def state(self) -> Px4State:
@@ -47,8 +50,16 @@ class Telemetry:
         self._core.remove_sample_listener(callback)
 
     def rate_hz(self, message: str, window: float = 2.0) -> float:
-        """Delivered rate of a MAVLink message from the vehicle, measured over ``window`` s."""
+        """Delivered rate of a message from the vehicle (over Zenoh: a MAVLink stream name, i.e. its uORB
+        topic, or a ``/fmu/out`` topic), measured over ``window`` s."""
         return self.rates.rate_hz(message, window)
+
+
+class Telemetry(TelemetryView[Core]):
+    def __init__(self, core: Core) -> None:
+        super().__init__(core)
+        core.add_message_handler(None, lambda m: self.rates.record(m.get_type()))
+        core.add_event_listener(self._on_event)
 
     def request_message_interval(self, message: str | int, hz: float) -> CommandAck:
         """MAV_CMD_SET_MESSAGE_INTERVAL (hz <= 0 disables); remembered and asked again

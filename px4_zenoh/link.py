@@ -6,18 +6,16 @@ router), loads the px4_msgs types (bundled, or a PX4 tree's with ``msg_dir``), a
 """
 from __future__ import annotations
 
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import zenoh
 
 from px4_link.action import Action
-from px4_link.commands import CommandAck
 from px4_link.offboard import VELOCITY_TIMEOUT_S
 from px4_link.plugin import EventCallback
 from px4_link.targets import Geofence
-from px4_link.telemetry import Px4State
+from px4_link.vehicle import VehicleLinkBase
 
 from . import topics as tp
 from .core import ZenohCore
@@ -29,7 +27,7 @@ from .uorb import load_types
 _DEFAULT_GEOFENCE = Geofence()
 
 
-class Px4ZenohLink:
+class Px4ZenohLink(VehicleLinkBase[ZenohCore]):
     """Use as a context manager, as Px4Link::
 
         with Px4ZenohLink(Px4Endpoint("router", "tcp/127.0.0.1:7447")) as link:
@@ -62,23 +60,12 @@ class Px4ZenohLink:
         self.telemetry = ZenohTelemetry(self._core)
 
     # ----------------------------------------------------------------- lifecycle
-    def start(self) -> Px4ZenohLink:
-        self._core.start()
-        return self
-
     def stop(self) -> None:
-        self._core.stop()
+        """Stop the core's threads, undeclare its entities and close the session if it opened it."""
+        super().stop()
         if self._own_session:
             self._own_session = False
             self._core.session.close()
-
-    close = stop
-
-    def __enter__(self) -> Px4ZenohLink:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
     @property
     def core(self) -> ZenohCore:
@@ -89,26 +76,6 @@ class Px4ZenohLink:
         return str(self.where) if self.where is not None else "zenoh (shared session)"
 
     # ----------------------------------------------------------------- state
-    @property
-    def connected(self) -> bool:
-        return self._core.connected
-
-    @property
-    def state(self) -> Px4State:
-        return self._core.state
-
-    @property
-    def mode(self) -> str:
-        return self._core.state.mode
-
-    @property
-    def armed(self) -> bool:
-        return self._core.state.armed
-
-    @property
-    def system_id(self) -> int | None:
-        return self._core.state.system_id
-
     @property
     def stats(self) -> dict[str, int]:
         return self._core.stats()
@@ -121,19 +88,3 @@ class Px4ZenohLink:
         return {"backend": "zenoh", "connection": self.connection,
                 "keys_learnt": sorted(self._core.keys.known()),
                 "hash_mismatches": [str(m) for m in self.hash_mismatches()], "stats": self.stats}
-
-    def wait_connected(self, timeout: float = 10.0) -> bool:
-        return self._core.wait_until(lambda: self._core.connected, timeout)
-
-    def wait_until(self, predicate: Callable[[], bool], timeout: float) -> bool:
-        return self._core.wait_until(predicate, timeout)
-
-    def add_event_listener(self, callback: EventCallback) -> None:
-        self._core.add_event_listener(callback)
-
-    def cancel_command(self, owner: int, why: str) -> bool:
-        return self._core.cancel_command(owner, why)
-
-    def send_command(self, command: int, *params: float, timeout: float | None = None,
-                     retries: int | None = None) -> CommandAck:
-        return self._core.send_command(command, *params, timeout=timeout, retries=retries)

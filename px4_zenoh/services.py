@@ -13,18 +13,14 @@ topics that carry the same data; the vehicle's state topics are never decimated.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TypeVar
 
 from px4_link.commands import CommandAck, CommandUnsupported
-from px4_link.plugin import Listener
-from px4_link.rates import RateMeter, RequestedIntervals
-from px4_link.telemetry import Px4State
+from px4_link.telemetry_service import TelemetryView
 from px4_link.wire import mavlink2, message_id
 
 from . import topics as tp
 from .core import ZenohCore
 
-T = TypeVar("T")
 NO_PARAMS = "parameters are not available over PX4's zenoh module"
 SET_MESSAGE_INTERVAL = 511
 
@@ -54,11 +50,9 @@ class ZenohParam:
         raise CommandUnsupported(0, None, f"param set {name}={value}: {NO_PARAMS}")
 
 
-class ZenohTelemetry:
+class ZenohTelemetry(TelemetryView[ZenohCore]):
     def __init__(self, core: ZenohCore) -> None:
-        self._core = core
-        self.rates = RateMeter()
-        self.intervals = RequestedIntervals()
+        super().__init__(core)
         for topic in _BY_TOPIC:
             core.add_message_handler(topic, self._recorder(topic))
 
@@ -69,26 +63,6 @@ class ZenohTelemetry:
             for n in names:
                 self.rates.record(n.upper())
         return record
-
-    @property
-    def state(self) -> Px4State:
-        return self._core.state
-
-    def latest(self, kind: type[T]) -> T | None:
-        return self._core.latest(kind)
-
-    def wait(self, kind: type[T], timeout: float = 5.0, predicate: Callable[[T], bool] | None = None) -> T | None:
-        return self._core.wait_sample(kind, timeout, predicate)
-
-    def add_listener(self, callback: Listener, kind: type | None = None) -> Listener:
-        return self._core.add_sample_listener(callback, kind)
-
-    def remove_listener(self, callback: Listener) -> None:
-        self._core.remove_sample_listener(callback)
-
-    def rate_hz(self, message: str, window: float = 2.0) -> float:
-        """Delivered rate of a MAVLink stream name (its uORB topic) or of a ``/fmu/out`` topic."""
-        return self.rates.rate_hz(message, window)
 
     def request_message_interval(self, message: str | int, hz: float) -> CommandAck:
         """Take ``message``'s topic at ``hz`` (<= 0: not at all). Accepted at once; a stream with no
