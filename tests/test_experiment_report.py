@@ -161,6 +161,8 @@ def test_report_only_regenerates_from_the_kept_raw_results(tmp_path: Path) -> No
     from zenoh_robot.tools.cli.main import main as cli
 
     lines = [_flown("resilient", 70, i, 150.0 + i) for i in range(3)]
+    for i, line in enumerate(lines):     # runs differ in their stream figures too, as real runs do
+        line["topics"]["setpoint"]["longest_gap_ms"] = 200.0 + i
     lines.append(_flown("reliable", 70, 0, 4000.0, invalid="setpoint not sent through the whole window"))
     (tmp_path / "results.jsonl").write_text("".join(json.dumps(r) + "\n" for r in lines))
     assert cli(["experiment", "--report-only", str(tmp_path)]) == 0
@@ -169,3 +171,5 @@ def test_report_only_regenerates_from_the_kept_raw_results(tmp_path: Path) -> No
     assert "- 70% reliable run 0: invalid: setpoint not sent" in md
     csv_lines = (tmp_path / "results.csv").read_text().splitlines()
     assert "vehicle_target_age_max_ms" in csv_lines[0] and len(csv_lines) == 1 + 4 * 6
+    # the figures draw one point per loss level, the runs' median (three runs of a cell used to crash them)
+    assert (tmp_path / "summary_after.png").stat().st_size > 0 and (tmp_path / "setpoint_after.png").exists()

@@ -336,12 +336,9 @@ def draw_figures(results: list[dict[str, Any]], out_dir: Path) -> list[Path]:
         # The two figures the issue asks for: what the pilot sees and what keeps PX4 in OFFBOARD.
         fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
         for profile in sorted({str(r["profile"]) for r in rows}, key=_profile_key):
-            pts = sorted((float(r["loss"]), r["topics"]) for r in rows if r["profile"] == profile)
-            loss = [p[0] for p in pts]
-            axes[0].plot(loss, [p[1].get("image_whole", {}).get("rate_hz", math.nan) for p in pts], marker="o",
-                         label=profile)
-            axes[1].plot(loss, [p[1].get("setpoint", {}).get("longest_gap_ms", math.nan) for p in pts], marker="o",
-                         label=profile)
+            loss, frames = _run_medians(rows, profile, "image_whole", "rate_hz")
+            axes[0].plot(loss, frames, marker="o", label=profile)
+            axes[1].plot(*_run_medians(rows, profile, "setpoint", "longest_gap_ms"), marker="o", label=profile)
         axes[0].set_ylabel("whole fresh frames/s")
         axes[1].set_ylabel("longest setpoint gap (ms)")
         axes[1].set_yscale("log")
@@ -359,10 +356,8 @@ def draw_figures(results: list[dict[str, Any]], out_dir: Path) -> list[Path]:
         for topic in TOPICS:
             fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
             for profile in sorted({str(r["profile"]) for r in rows}, key=_profile_key):
-                pts = sorted((float(r["loss"]), r["topics"].get(topic, {})) for r in rows if r["profile"] == profile)
-                loss = [p[0] for p in pts]
                 for ax, key in zip(axes, ("delivered_pct", "age_avg_ms", "period_avg_ms"), strict=True):
-                    ax.plot(loss, [p[1].get(key, math.nan) for p in pts], marker="o", label=profile)
+                    ax.plot(*_run_medians(rows, profile, topic, key), marker="o", label=profile)
             axes[0].set_ylabel("delivered %")
             axes[0].set_ylim(0, 105)
             axes[1].set_ylabel("mean message age (ms)")
@@ -380,6 +375,17 @@ def draw_figures(results: list[dict[str, Any]], out_dir: Path) -> list[Path]:
             plt.close(fig)
             paths.append(path)
     return paths
+
+
+def _run_medians(rows: list[dict[str, Any]], profile: str, stream: str, figure: str) -> tuple[list[float], list[float]]:
+    """(uniform loss levels, the median over each cell's runs of ``stream``'s ``figure``): a figure's line. A
+    bursty cell is no point on a uniform-loss axis; its figures are in the tables."""
+    runs: dict[float, list[float]] = {}
+    for r in rows:
+        if r["profile"] == profile and r.get("loss_model", "uniform") == "uniform":
+            runs.setdefault(float(r["loss"]), []).append(r["topics"].get(stream, {}).get(figure, math.nan))
+    loss = sorted(runs)
+    return loss, [statistics.median(runs[x]) for x in loss]
 
 
 def markdown_report(results: list[dict[str, Any]], commands: dict[float, dict[str, Any]] | None = None) -> str:
