@@ -28,7 +28,7 @@ demo: install
 
 # ruff over the whole tree; mypy strict on the library layer (configured in pyproject.toml).
 lint: install
-	$(BIN)/python -m ruff check zenoh_robot px4_link companion gcs drone_contract drone_lab tests examples
+	$(BIN)/python -m ruff check zenoh_robot px4_link px4_zenoh companion gcs drone_contract drone_lab tests examples
 	$(BIN)/python -m mypy
 
 # Two passes (docs/testing.md): two pytest-xdist workers, one module each at a time (its shared processes
