@@ -1,5 +1,8 @@
 """Commands over the resilient multicast session under loss each way: answered, and executed once.
 
+Against a stub server that answers at once (below), and through the real companion, whose command
+service waits for PX4's ACK and mode (test_commands_through_the_real_companion_under_loss).
+
 Two network namespaces joined by a veth (netns.LossyLink, root), a server process and a client
 process (drone_lab/experiment/commands.py), 60 calls with a 2 s deadline per cell.
 At 50 %: >= 97 % answered within 2 s (the plan, _wire/call_plan.py, predicts > 99.9 %). At 70 %
@@ -30,6 +33,32 @@ def test_commands_answered_and_executed_once_under_loss(loss: float, bound: floa
     assert row["attempts_per_call"] > 1.0, row      # the loss was real and the retries did the work
     # Bounded cost: at most ~180 request copies and 16 reply copies per arriving request (call_plan).
     assert row["bytes_per_call"] < 20_000, row
+
+
+@pytest.mark.netns
+def test_commands_through_the_real_companion_under_loss() -> None:
+    """The companion (built-in simulator) in the drone namespace, a GCS caller in the other, 50 % loss
+    each way once control is taken: hold and land in turn through /uav1/command, each waiting for
+    PX4's ACK and its heartbeat showing the mode. Answered within 2 s, the mode PX4 reports changed
+    for each, and no call ran twice on the companion (its log names each call's id)."""
+    from drone_lab.experiment.commands_companion import run_level
+    from drone_lab.experiment.netns import unavailable_reason
+
+    reason = unavailable_reason()
+    if reason:
+        skip_unless_required(f"companion command test: network namespaces are unavailable: {reason}")
+    row = run_level(50.0, calls=20, timeout=2.0)
+    assert row["control"].startswith("ok"), row            # take_control crossed and was granted
+    assert row["applied_loss_pct"] == 50.0, row
+    assert row["answered_pct"] >= 90.0 and row["success_pct"] >= 90.0, row
+    successes = round(row["success_pct"] * row["calls"] / 100)
+    # Every success replied with the mode asked (PX4's heartbeat), and PX4's reported mode changed for
+    # each (the first hold finds PX4 already in AUTO.LOITER, its boot mode).
+    assert row["mode_confirmed"] == successes, row
+    assert row["px4_mode_changes"] >= successes - 1, row
+    assert row["executed"] >= successes, row
+    assert row["double_executions"] == 0, row
+    assert row["attempts_per_call"] > 1.0, row             # the retries did the work across the loss
 
 
 PEER_SCRIPT = """

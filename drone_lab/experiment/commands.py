@@ -15,6 +15,12 @@ not form from scratch at 90 % loss). ``--monitor`` runs a LossMonitor on both si
 JSON object per level. Bytes per call are payload bytes (requests + reply copies) before Zenoh,
 UDP and IP headers (~60 bytes a datagram more).
 
+``--server companion`` measures the same through the real companion (commands_companion.py): the
+drone namespace runs ``python -m companion --px4 sim``, the GCS namespace takes control and calls
+its ``/uav1/command`` (hold and land in turn: PX4 ACKs and mode changes); per call raw JSONL and a
+table under ``docs/results/commands/<--name>/`` (``--report-only NAME`` regenerates the table).
+``--loss-model bursty`` (both servers) is netns.py's two-state channel at the same mean.
+
 The same file is both sides of a run: ``... commands serve SESSION [monitor]`` /
 ``... commands call SESSION N TIMEOUT [monitor]`` (starts calling after a line on stdin), SESSION
 being ``multicast:IFACE`` or ``unicast:CONFIG_FILE``.
@@ -158,7 +164,7 @@ def _spec(link: LossyLink, side: str, transport: str, workdir: str) -> str:
 
 
 def run_level(loss_pct: float, calls: int, timeout: float, transport: str = "multicast",
-              monitor: bool = False, start: str = "startup") -> dict[str, Any]:
+              monitor: bool = False, start: str = "startup", loss_model: str = "uniform") -> dict[str, Any]:
     """One loss level on a fresh lossy link: the summary (success rate, latency, double executions).
 
     ``start``: "startup", the loss is on from the start (the sessions form under it); "after", it is
@@ -174,7 +180,8 @@ def run_level(loss_pct: float, calls: int, timeout: float, transport: str = "mul
     if start not in ("startup", "after"):
         raise ValueError(f"start {start!r}: startup or after")
     initial = loss_pct if start == "startup" else 0.0
-    with LossyLink(loss_pct=initial) as link, tempfile.TemporaryDirectory(prefix="zr-cmd-") as workdir:
+    with LossyLink(loss_pct=initial, loss_model=loss_model) as link, \
+            tempfile.TemporaryDirectory(prefix="zr-cmd-") as workdir:
         server = subprocess.Popen(link.exec_in("drone") + me + ["serve", _spec(link, "drone", transport, workdir),
                                                                 *flag],
                                   stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
@@ -216,7 +223,7 @@ def run_level(loss_pct: float, calls: int, timeout: float, transport: str = "mul
         raise RuntimeError(f"command client failed: {client_err[-2000:]}")
     out = json.loads(lines[-1])
     row = summarise(loss_pct, timeout, out, served)
-    row["transport"], row["monitor"], row["start"] = transport, monitor, start
+    row["transport"], row["monitor"], row["start"], row["loss_model"] = transport, monitor, start, loss_model
     return row
 
 
@@ -254,7 +261,8 @@ def table(rows: list[dict[str, Any]]) -> str:
     for r in rows:
         pc = " / ".join(f"{r['per_command'][n] * 100:.0f}" for n in NAMES)
         tr = (r.get("transport", "multicast") + (" + monitor" if r.get("monitor") else "")
-              + (", loss after link" if r.get("start") == "after" else ""))
+              + (", loss after link" if r.get("start") == "after" else "")
+              + (f", {r['loss_model']}" if r.get("loss_model", "uniform") != "uniform" else ""))
         body.append(f"| {r['loss_pct']:g} % | {tr} | {r['calls']} | {r['success_rate'] * 100:.1f} % "
                     f"(<= {r['timeout_s']:g} s) | {pc} % | {r['latency_ms_p50']} | {r['latency_ms_p90']} "
                     f"| {r['latency_ms_max']} | {r['attempts_per_call']} | {r.get('reply_copies_per_call', '')} "
@@ -278,11 +286,31 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--transport", default="multicast",
                    help="comma-separated, of: " + ", ".join(TRANSPORTS) + " (default multicast)")
     p.add_argument("--monitor", action="store_true", help="size copies from a LossMonitor's measured loss")
-    p.add_argument("--start", choices=("startup", "after"), default="startup",
-                   help="loss from the start (sessions form under it) or only once the caller is linked")
+    p.add_argument("--start", choices=("startup", "after"),
+                   help="loss from the start (sessions form under it) or only once the caller is linked "
+                        "(default: startup for the stub, after for the companion)")
+    p.add_argument("--loss-model", default="uniform",
+                   help="comma-separated, of: uniform, bursty (netns.py's two-state channel at the same mean)")
+    p.add_argument("--burst-mean", type=float, default=0.3, help="bursty: the mean fade, s (companion server)")
+    p.add_argument("--server", choices=("stub", "companion"), default="stub",
+                   help="stub: a server answering at once; companion: the real companion and its simulator")
+    p.add_argument("--gap", type=float, default=1.0,
+                   help="companion server: pause before each call, uniform in 0..GAP s (default 1: any phase of "
+                        "PX4's 1 Hz heartbeat, which a mode command waits for; 0: back to back)")
+    p.add_argument("--name", default=time.strftime("companion-%Y-%m-%d", time.gmtime()),
+                   help="companion server: keep the raw data and table in docs/results/commands/NAME/")
+    p.add_argument("--report-only", metavar="NAME",
+                   help="regenerate docs/results/commands/NAME/table.md from its raw data, run nothing")
     p.add_argument("--jsonl", help="append one JSON object per level here")
     args = p.parse_args(argv)
-    from drone_lab.experiment.netns import unavailable_reason
+    if args.report_only:
+        from drone_lab.experiment import commands_companion
+        directory = commands_companion.RESULTS / args.report_only
+        if not any(directory.glob("*.level.json")):
+            p.error(f"--report-only: no raw data in {directory}")
+        print(commands_companion.write_table(directory, commands_companion.report(directory)))
+        return 0
+    from drone_lab.experiment.netns import LOSS_MODELS, unavailable_reason
     reason = unavailable_reason()
     if reason:
         print(f"error: {reason}", file=sys.stderr)
@@ -291,15 +319,38 @@ def main(argv: list[str] | None = None) -> int:
     bad = [t for t in transports if t not in TRANSPORTS]
     if bad or not transports:
         p.error(f"--transport: unknown {', '.join(bad) or '(none)'}; choose from {', '.join(TRANSPORTS)}")
+    models = [m.strip() for m in args.loss_model.split(",") if m.strip()]
+    if not models or any(m not in LOSS_MODELS for m in models):
+        p.error(f"--loss-model: choose from {', '.join(LOSS_MODELS)}")
+    cells = [(t, m, loss) for t in transports for m in models for loss in args.loss]
+    if args.server == "companion":
+        return _run_companion(args, cells)
     rows = []
-    for transport, loss in [(t, loss) for t in transports for loss in args.loss]:
-        row = run_level(loss, args.calls, args.timeout, transport, args.monitor, args.start)
+    for transport, model, loss in cells:
+        row = run_level(loss, args.calls, args.timeout, transport, args.monitor, args.start or "startup", model)
         rows.append(row)
         print(json.dumps(row), flush=True)
         if args.jsonl:
             with open(args.jsonl, "a") as f:
                 f.write(json.dumps(row) + "\n")
     print(table(rows))
+    return 0
+
+
+def _run_companion(args: argparse.Namespace, cells: list[tuple[str, str, float]]) -> int:
+    from drone_lab.experiment import commands_companion
+    directory = commands_companion.RESULTS / args.name
+    for transport, model, loss in cells:
+        t = time.monotonic()
+        row = commands_companion.run_level(loss, args.calls, args.timeout, transport, model, args.burst_mean,
+                                           args.monitor, args.start or "after", gap_s=args.gap, keep=directory)
+        row["wall_s"] = round(time.monotonic() - t, 1)
+        print(json.dumps(row), flush=True)
+        if args.jsonl:
+            with open(args.jsonl, "a") as f:
+                f.write(json.dumps(row) + "\n")
+    # Every level kept in the directory (earlier runs of NAME too), regenerated from the raw data.
+    print(commands_companion.write_table(directory, commands_companion.report(directory)))
     return 0
 
 
