@@ -154,7 +154,8 @@ def _drone_rules(rule: Any, p: str, name: str) -> list[str]:
         rule(f"drone_{name}_control_watch", _GRAPH_READ, [f"{p}{_CONTROL}/**"]),
         # Its own setpoints (and their liveliness) come from a GCS only: a compromised drone must not
         # steer itself or keep a dead GCS's stream looking alive. Zenoh: deny beats allow.
-        rule(f"drone_{name}_no_setpoint", ["put", "delete"], [f"{ns}/setpoint", f"{p}{_ALIVE}/{name}/setpoint"],
+        rule(f"drone_{name}_no_setpoint", ["put", "delete"], [f"{ns}/setpoint", f"{p}{_ALIVE}/{name}/setpoint",
+                                                             f"{ns}/presence", f"{p}{_ALIVE}/{name}/presence"],
              permission="deny"),
     ]
 
@@ -186,6 +187,8 @@ def _gcs_rules(rule: Any, p: str, node: NodeEntry) -> list[str]:
         for d in node.drones:
             keys += [f"{p}{d}/setpoint",            # the setpoint stream
                      f"{p}{_ALIVE}/{d}/setpoint",   # its heartbeats (leased / manual liveliness)
+                     f"{p}{d}/presence",            # the GCS in control is still running (renews its lease)
+                     f"{p}{_ALIVE}/{d}/presence",
                      f"{p}{d}/statistics/**",       # its subscriptions' statistics, filed under the drone
                      f"{p}{d}/mavlink/up",          # QGC's MAVLink through the tunnel (companion decides)
                      f"{p}@srv/{d}/**",             # commands and the companion's parameter services

@@ -17,6 +17,7 @@ import json
 import signal
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -231,12 +232,17 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
             tx0 = {side: link.tx_bytes(side) for side in link.sides}
             t0 = time.time_ns()
             probe_at = time.monotonic() + spec.duration / 2
-            command = None
+            probe: dict[str, Any] = {}
+            prober = None
             if airborne is not None:
                 time.sleep(max(0.0, probe_at - time.monotonic()))
                 # A hold from a second GCS, across the loss, mid-window: answered (refused: that GCS holds no
-                # control) by the real companion, without disturbing the mission.
-                command = _command_probe(link, workdir) if _probe_reaches(spec) else None
+                # control) by the real companion, without disturbing the mission. On a thread of its own: the
+                # second GCS's start-up (seconds) must not stretch the window past the pattern.
+                if _probe_reaches(spec):
+                    prober = threading.Thread(target=lambda: probe.update(result=_command_probe(link, workdir)),
+                                              name="cell-probe", daemon=True)
+                    prober.start()
                 time.sleep(max(0.0, t0 / 1e9 + spec.duration - time.time()))
             t1 = time.time_ns()
             tx1 = {side: link.tx_bytes(side) for side in link.sides}
@@ -249,6 +255,9 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
                 except subprocess.TimeoutExpired:
                     pass     # stopped below; its mission record says how far the landing got
             landed_s = round((time.time_ns() - t1) / 1e9, 2)
+            if prober is not None:
+                prober.join(timeout=30.0)
+            command = probe.get("result")
             link.set_loss(0)
             time.sleep(1.0)       # the last samples land
             # A companion still in its session's open (Rust) cannot take Ctrl-C: kill it after a moment.
