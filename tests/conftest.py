@@ -99,13 +99,21 @@ def python_proc(*args: str, env: dict[str, str] | None = None, **kw) -> subproce
 
 
 def free_port() -> int:
-    """A port free for both TCP and UDP on 127.0.0.1."""
+    """A port free for both TCP and UDP on 127.0.0.1, drawn below Linux's ephemeral range (32768+): a port
+    the kernel hands out is handed out again to the next outgoing connection of any process, so between
+    this check and the test's own bind another process could take it (seen under a swarm sweep)."""
+    import random
     import socket
-    with socket.socket() as t, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as u:
-        t.bind(("127.0.0.1", 0))
-        port = t.getsockname()[1]
-        u.bind(("127.0.0.1", port))
-        return port
+    for _ in range(200):
+        port = random.randrange(20000, 32000)
+        with socket.socket() as t, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as u:
+            try:
+                t.bind(("127.0.0.1", port))
+                u.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return port
+    raise RuntimeError("no free TCP+UDP port in 20000-32000")
 
 
 def linked_configs():
