@@ -48,7 +48,7 @@ experiment: install sysdeps
 
 # One GCS and N = 1, 2, 5, 10 drones with simulators and cameras, peer and via a router (docs/swarm.md).
 swarm: install
-	$(BIN)/zenoh-robot swarm --out docs/results/swarm $(ARGS)
+	$(BIN)/zenoh-robot swarm --drones 1,2,5,10 --modes peer,router --runs 3 --duration 30 --out docs/results/swarm/flying $(ARGS)
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache
