@@ -35,6 +35,7 @@ import numpy as np
 from px4_link.telemetry import Attitude, Battery, GlobalPosition, Imu, LocalPosition
 from px4_link.vehicle import VehicleLink
 from zenoh_robot import Node, SessionConfig
+from zenoh_robot.frames import enu_quaternion, frd_to_flu, ned_to_enu
 from zenoh_robot.publisher import PublisherClosed
 from zenoh_robot.qos import QoSProfile
 
@@ -49,25 +50,6 @@ JPEG_QUALITY = 80
 ROS_QOS = QoSProfile(depth=10)
 TOPICS = ("imu", "pose", "fix", "battery", "image/compressed")
 _HOST_PORT = re.compile(r"^(?P<proto>tcp|tls|quic)/(?P<host>.+):(?P<port>\d+)$")
-
-
-# -- frames (REP 103): NED/FRD -> ENU/FLU --------------------------------------------------------
-def ned_to_enu(x: float, y: float, z: float) -> tuple[float, float, float]:
-    return y, x, -z
-
-
-def frd_to_flu(x: float, y: float, z: float) -> tuple[float, float, float]:
-    return x, -y, -z
-
-
-def enu_quaternion(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
-    """(x, y, z, w) of the FLU body in ENU, from PX4's FRD-in-NED Euler angles (ZYX)."""
-    r, p, y = roll, -pitch, math.pi / 2 - yaw
-    cr, sr = math.cos(r / 2), math.sin(r / 2)
-    cp, sp = math.cos(p / 2), math.sin(p / 2)
-    cy, sy = math.cos(y / 2), math.sin(y / 2)
-    return (sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy,
-            cr * cp * sy - sr * sp * cy, cr * cp * cy + sr * sp * sy)
 
 
 def ros2_session(base: SessionConfig) -> SessionConfig:

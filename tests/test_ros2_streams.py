@@ -16,7 +16,7 @@ from pathlib import Path
 from conftest import ROOT, kill_process, stop_process, wait_for
 from ros2_peer import router, start_peer, write_msgs
 
-from companion.ros2_streams import enu_quaternion, frd_to_flu, ned_to_enu
+from zenoh_robot.frames import enu_quaternion, frd_to_flu, ned_to_enu
 
 DRONE = "uavros"
 

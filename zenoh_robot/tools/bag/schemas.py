@@ -27,6 +27,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+from zenoh_robot.frames import enu_quaternion, ned_to_enu
 from zenoh_robot.message import FieldSpec, lookup, type_support
 
 JSON_SCHEMA = "jsonschema"
@@ -126,17 +127,10 @@ def _stamp(ns: int) -> Any:
     return Timestamp(ns // 1_000_000_000, ns % 1_000_000_000)
 
 
-def _quat(roll: float, pitch: float, yaw: float) -> Any:
+def _quat(xyzw: tuple[float, float, float, float]) -> Any:
     from foxglove.messages import Quaternion
-    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
-    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
-    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
-    return Quaternion(x=sr * cp * cy - cr * sp * sy, y=cr * sp * cy + sr * cp * sy,
-                      z=cr * cp * sy - sr * sp * cy, w=cr * cp * cy + sr * sp * sy)
-
-
-def ned_to_enu(n: float, e: float, d: float) -> tuple[float, float, float]:
-    return e, n, -d
+    x, y, z, w = xyzw
+    return Quaternion(x=x, y=y, z=z, w=w)
 
 
 def _finite(values: Any, n: int) -> list[float] | None:
@@ -160,8 +154,7 @@ def vehicle_views(topic: str, data: dict[str, Any], stamp_ns: int) -> list[View]
         return []
     roll, pitch, yaw = att or (0.0, 0.0, 0.0)
     x, y, z = ned_to_enu(*pos)
-    # NED yaw (clockwise from north) -> ENU yaw (counter-clockwise from east)
-    q = _quat(roll, -pitch, math.pi / 2 - yaw)
+    q = _quat(enu_quaternion(roll, pitch, yaw))
     ts = _stamp(stamp_ns)
     lat = HOME_LAT + math.degrees(pos[0] / EARTH_RADIUS)
     lon = HOME_LON + math.degrees(pos[1] / (EARTH_RADIUS * math.cos(math.radians(HOME_LAT))))
@@ -187,7 +180,7 @@ def setpoint_views(topic: str, data: dict[str, Any], stamp_ns: int) -> list[View
     raw_yaw = data.get("yaw")
     yaw = float(raw_yaw) if isinstance(raw_yaw, (int, float)) else 0.0
     return [View(f"{topic}/pose", PoseInFrame(timestamp=_stamp(stamp_ns), frame_id="map", pose=Pose(
-        position=Vector3(x=x, y=y, z=z), orientation=_quat(0.0, 0.0, math.pi / 2 - float(yaw)))))]
+        position=Vector3(x=x, y=y, z=z), orientation=_quat(enu_quaternion(0.0, 0.0, float(yaw))))))]
 
 
 def image_views(topic: str, msg: Any, stamp_ns: int) -> list[View]:
