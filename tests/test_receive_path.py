@@ -160,3 +160,60 @@ def test_channel_path_destroy_stops_delivery_and_the_waiter_ends_with_the_sessio
 def test_receive_must_name_a_path(ns: str) -> None:
     with linked_nodes(ns) as (_, b), pytest.raises(ValueError, match="receive"):
         b.create_subscription(Setpoint, "sp", print, QoSProfile(depth=5), receive="poll")
+
+
+def test_an_idle_free_spinning_executor_lets_the_waiter_run_the_drain_never_concurrently(ns: str) -> None:
+    """Issue #30's latency step: a node spinning freely (``spin()``) and idle has a channel sample handled on
+    the subscription's own waiter thread (no second wake-up), under the executor's run lock: a timer
+    callback of the same node never overlaps it, and the node's own spin still runs the timers."""
+    with linked_nodes(ns) as (a, b):
+        inside = threading.Event()
+        overlaps: list[str] = []
+        where: list[str] = []
+        ticks: list[str] = []
+
+        def on_msg(m: Setpoint) -> None:
+            if inside.is_set():
+                overlaps.append("callback")
+            inside.set()
+            where.append(threading.current_thread().name)
+            time.sleep(0.002)
+            inside.clear()
+
+        def on_tick() -> None:
+            if inside.is_set():
+                overlaps.append("timer")
+            ticks.append(threading.current_thread().name)
+        sub = b.create_subscription(Setpoint, "sp", on_msg, QoSProfile(depth=5), receive="channel")
+        b.create_timer(0.001, on_tick)
+        pub = a.create_publisher(Setpoint, "sp", QoSProfile(depth=5))
+        spinner = threading.Thread(target=b.spin, name="node-spin", daemon=True)
+        spinner.start()
+        try:
+            time.sleep(0.3)
+            for _ in range(200):
+                pub.publish(Setpoint())
+                time.sleep(0.003)
+            deadline = time.monotonic() + 5.0
+            while sub.counters.delivered + sub.counters.dropped < 200 and time.monotonic() < deadline:
+                time.sleep(0.01)
+        finally:
+            b.executor.shutdown()
+            spinner.join(5.0)
+        assert sub.counters.delivered > 0 and not overlaps, overlaps[:5]
+        assert any(name.startswith("zr-recv-") for name in where), set(where)   # handled in place
+        assert b.executor.ran_in_place > 0
+        assert ticks and set(ticks) == {"node-spin"}
+
+
+def test_run_here_refuses_while_nobody_spins_freely(ns: str) -> None:
+    """spin_once / spin_until callers must see the work they wait for run in their own loop."""
+    with linked_nodes(ns) as (_, b):
+        ran: list[int] = []
+        assert not b.executor.run_here(lambda: ran.append(1))
+        t = threading.Thread(target=b.spin_until, args=(lambda: False, 0.3), daemon=True)
+        t.start()
+        time.sleep(0.1)
+        assert not b.executor.run_here(lambda: ran.append(2))
+        t.join(5.0)
+        assert ran == []

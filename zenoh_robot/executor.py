@@ -3,6 +3,14 @@
 Zenoh callbacks only enqueue (a subscription schedules itself at most once until it
 has been drained), so the ready queue is bounded by the number of entities plus a
 bounded number of events; the work itself is queued in each entity's bounded queue.
+
+Hand-off without a thread hop (issue #30): a framework thread of our own (a channel
+subscription's waiter, never one of Zenoh's) that has work while the single-threaded executor
+sits idle in a free-running ``spin()`` may run that work itself (``run_here``): the executor's
+run lock keeps callbacks one at a time, exactly as if the executor had run it, and the sample
+skips the wake-up of a second thread (p50 latency, docs/benchmarks.md). Never while the
+executor is busy, never while a caller spins with ``until``/``timeout`` or ``spin_once`` (they
+must see the work they wait for run in their own loop), never on a multi-threaded executor.
 """
 from __future__ import annotations
 
@@ -63,8 +71,14 @@ class Executor:
         self._shutdown = threading.Event()
         self._pending_calls = 0
         self._pending_lock = threading.Lock()
+        # Held while any callback runs (here or on a thread that runs work in place: run_here);
+        # re-entrant, as a callback that spins the executor itself (a nested spin) must not deadlock.
+        self._run_lock = threading.RLock()
+        # Free-running spins blocked waiting for work: a hint read without a lock; the run lock decides.
+        self._idle_free = 0
         self.dropped_calls = 0
         self.errors = 0
+        self.ran_in_place = 0
 
     # -- scheduling (any thread) -------------------------------------------------
     def submit(self, work: Work) -> None:
@@ -91,6 +105,24 @@ class Executor:
             heapq.heappush(self._timers, (timer.next_call, next(self._counter), timer))
             self._next_due = self._timers[0][0]
         self._ready.put(None)  # wake a waiting spin so it recomputes its timeout
+
+    def run_here(self, work: Work) -> bool:
+        """Run ``work`` on the calling thread if the executor is idle in a free-running spin (see the
+        module doc); False: the caller must ``submit`` it instead."""
+        if self._idle_free <= 0 or not self._run_lock.acquire(blocking=False):
+            return False
+        try:
+            if self._idle_free <= 0 or self._shutdown.is_set():
+                return False
+            self.ran_in_place += 1
+            try:
+                work()
+            except Exception:
+                self.errors += 1
+                log.exception("callback raised; the node keeps running")
+            return True
+        finally:
+            self._run_lock.release()
 
     def shutdown(self) -> None:
         self._shutdown.set()
@@ -124,14 +156,18 @@ class Executor:
                 self._next_due = timers[0][0] if timers else float("inf")
 
     def _run(self, fn: Callable[[], None], what: str) -> None:
-        try:
-            fn()
-        except Exception:
-            self.errors += 1
-            log.exception("%s raised; the node keeps running", what)
+        with self._run_lock:
+            try:
+                fn()
+            except Exception:
+                self.errors += 1
+                log.exception("%s raised; the node keeps running", what)
 
     def spin_once(self, timeout: float | None = None) -> bool:
         """Run one piece of ready work (a timer or an entity's queue); False if none came."""
+        return self._spin_once(timeout, False)
+
+    def _spin_once(self, timeout: float | None, free: bool) -> bool:
         wait = self._next_due - time.monotonic()
         if wait <= 0:
             timer, wait = self._due_timer()
@@ -140,10 +176,15 @@ class Executor:
                 return True
         if timeout is not None:
             wait = min(wait, timeout)
+        if free:
+            self._idle_free += 1
         try:
             work = self._ready.get(timeout=None if wait == float("inf") else max(wait, 0.0))
         except queue.Empty:
             return self._fire_due_timer()
+        finally:
+            if free:
+                self._idle_free -= 1
         if work is None:
             return self._fire_due_timer()
         self._run(work, "callback")
@@ -158,6 +199,7 @@ class Executor:
 
     def spin(self, until: Callable[[], bool] | None = None, timeout: float | None = None) -> None:
         deadline = None if timeout is None else time.monotonic() + timeout
+        free = until is None and deadline is None and self._in_place_allowed
         while not self._shutdown.is_set():
             if until is not None and until():
                 return
@@ -167,7 +209,10 @@ class Executor:
                 if remaining <= 0:
                     return
             # Wake at least every 100 ms so shutdown and `until` are seen promptly.
-            self.spin_once(min(remaining, 0.1) if remaining is not None else 0.1)
+            self._spin_once(min(remaining, 0.1) if remaining is not None else 0.1, free)
+
+    # A multi-threaded executor's callbacks run concurrently: there the run lock would serialise them.
+    _in_place_allowed = True
 
 
 class MultiThreadedExecutor(Executor):
@@ -178,6 +223,15 @@ class MultiThreadedExecutor(Executor):
         if num_threads < 1:
             raise ValueError("num_threads must be >= 1")
         self.num_threads = num_threads
+
+    _in_place_allowed = False
+
+    def _run(self, fn: Callable[[], None], what: str) -> None:
+        try:
+            fn()
+        except Exception:
+            self.errors += 1
+            log.exception("%s raised; the node keeps running", what)
 
     def spin(self, until: Callable[[], bool] | None = None, timeout: float | None = None) -> None:
         base_spin = super().spin   # super() needs the method's frame: resolve it here, not in a comprehension

@@ -196,6 +196,7 @@ class Subscription(Generic[M]):
         # The sample being handled in raw mode: (type_name, type_hash, extra, data).
         self._raw_env: tuple[str, str, dict[str, Any], bytes] | None = None
         self._executor = context.executor
+        self._run_here: Callable[[Callable[[], None]], bool] = getattr(self._executor, "run_here", _never_here)
         self._drain_work = self._drain     # one bound method, not a new one per scheduling
         self._lifespan_ns = int(qos.lifespan * 1e9) if qos.lifespan else None
         self.sample_hooks: list[Callable[[M, MessageInfo], None]] = []
@@ -288,7 +289,9 @@ class Subscription(Generic[M]):
             if self._closed:
                 return
             self._first = sample
-            self._executor.submit(self._drain_work)
+            # An idle executor: handle it on this thread (no second wake-up, executor.py says why).
+            if not self._run_here(self._drain_work):
+                self._executor.submit(self._drain_work)
 
     def _make_room(self, size: int) -> None:
         # Under self._lock (the rare path of _on_sample: the queue is full).
@@ -650,6 +653,10 @@ class Subscription(Generic[M]):
             except Exception:
                 pass
         self._idle.set()    # a parked waiter sees _closed and ends
+
+
+def _never_here(work: Callable[[], None]) -> bool:
+    return False
 
 
 def _takes_two_args(fn: Callable[..., Any]) -> bool:

@@ -8,6 +8,12 @@ raw messages), plus the foxglove.* views of tools/bag/schemas.py (map fix, 3D po
 The same mapping writes the MCAP flight logs, so a recording looks like the live view
 (image slices, too, are sent as the reassembled frames only unless ``slice_json``).
 
+On a node on the ROS 2 wire (``zenoh-robot foxglove --ros2``), each ROS 2 topic (a companion's
+``--ros2-topics`` streams, PX4's ``/fmu/*``) is a ``cdr`` channel whose schema is its type's full
+``ros2msg`` definition, as rosbag2 writes one (bag/encodings.py): Foxglove decodes the payloads as
+they arrived, natively. The type comes from the publisher's token; a sample whose publisher is not in
+the graph yet, or whose type this process has no definition of, is counted and not sent.
+
 The server binds 127.0.0.1 unless told otherwise: a bridge exposes every topic, so
 reaching it from another machine is a decision (``--host``), not a default.
 """
@@ -18,7 +24,7 @@ import logging
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from .bag import schemas
+from .bag import encodings, schemas
 from .bag.tap import MAX_QUEUE_BYTES, Tap, TapSample
 
 if TYPE_CHECKING:
@@ -32,6 +38,9 @@ MAX_CHANNELS = 4096
 class BridgeCounters:
     forwarded: int = 0           # JSON messages logged
     views: int = 0               # foxglove.* messages logged
+    cdr: int = 0                 # ROS 2 messages logged (a bridge on the ROS 2 wire)
+    untyped: int = 0             # ROS 2 samples whose publisher's type the graph did not (yet) tell
+    no_definition: int = 0       # ROS 2 samples of a type this process has no definition of
     channels_refused: int = 0
 
 
@@ -52,6 +61,7 @@ class FoxgloveBridge(Tap):
         self.counters = BridgeCounters()
         self._channels: dict[tuple[str, str], Any] = {}
         self._view_maker = schemas.ViewMaker()
+        self._no_definition: set[str] = set()     # at most MAX_CHANNELS
 
     @property
     def url(self) -> str:
@@ -80,6 +90,9 @@ class FoxgloveBridge(Tap):
         return ch
 
     def handle(self, sample: TapSample) -> None:
+        if not sample.type_name and self.node.wire.name == "ros2":    # CDR: the type is in the graph
+            self._handle_cdr(sample)
+            return
         topic, received_ns = sample.topic, sample.received_ns
         cls = schemas.local_type(sample.type_name, sample.type_hash)
         fx = self._foxglove
@@ -100,6 +113,34 @@ class FoxgloveBridge(Tap):
             self.counters.forwarded += 1
         for view in self._view_maker.views(topic, sample.type_name, decoded, sample.stamp_ns):
             self._log_view(view, received_ns)
+
+    def _handle_cdr(self, sample: TapSample) -> None:
+        pub = self.ros2_publisher(sample)
+        if pub is None:
+            self.counters.untyped += 1
+            return
+        type_name = pub.topic_type
+        if type_name in self._no_definition:
+            self.counters.no_definition += 1
+            return
+        fx = self._foxglove
+        try:
+            ch = self._channel(sample.topic, type_name, lambda: fx.Channel(
+                sample.topic, schema=fx.Schema(name=type_name, encoding=encodings.ROS2MSG,
+                                               data=encodings.ros2msg_schema(type_name)),
+                message_encoding=encodings.CDR, context=self.context,
+                metadata={"zr.type": type_name, "zr.hash": pub.topic_type_hash}))
+        except KeyError:
+            if len(self._no_definition) < MAX_CHANNELS:
+                self._no_definition.add(type_name)
+            self.counters.no_definition += 1
+            log.warning("no ROS 2 definition of %s here: %s not shown (load its .msg with "
+                        "zenoh_robot.ros2.load_ros2_msg)", type_name, sample.topic)
+            return
+        if ch is not None:
+            payload = sample.data if sample.data is not None else sample.fields
+            ch.log(bytes(payload), log_time=sample.received_ns)
+            self.counters.cdr += 1
 
     def _log_view(self, view: schemas.View, received_ns: int) -> None:
         schema = view.message.get_schema()

@@ -85,9 +85,11 @@ def unwrap_envelope(message: bytes | memoryview) -> bytes:
 
 # -- ros2msg ---------------------------------------------------------------------------------------
 def ros2msg_schema(type_name: str) -> bytes:
-    """The full ``ros2msg`` definition of ``pkg/msg/Type`` with every type it uses (needs the ros2 extra)."""
-    from zenoh_robot.ros2 import dependencies, msg_definition
+    """The full ``ros2msg`` definition of ``pkg/msg/Type`` with every type it uses (needs the ros2 extra);
+    KeyError for a type this process has no definition of."""
+    from zenoh_robot.ros2 import dependencies, msg_definition, ros2_type
 
+    ros2_type(type_name)      # an installed provider registers its package (px4_msgs) on first use
     parts = [msg_definition(type_name).rstrip("\n")]
     for dep in dependencies(type_name):
         pkg, _, short = dep.split("/")

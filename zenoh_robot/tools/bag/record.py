@@ -10,8 +10,9 @@ Per topic (and message type) the file holds:
   id and QoS in the channel metadata, so ``bag play`` republishes them bit-exact, each
   publisher with its own QoS;
 - on a ROS 2 node (``bag record --ros2``), a ROS 2 topic is one ``cdr`` channel per type with
-  its ``ros2msg`` schema (the full definition), the payloads as they arrived: Foxglove,
-  ``ros2 bag`` and rosbags read it as a rosbag2 MCAP;
+  its ``ros2msg`` schema (the full definition), the payloads as they arrived, the publisher's type
+  hash and QoS in the channel metadata: Foxglove, ``ros2 bag`` and rosbags read it as a rosbag2 MCAP,
+  and ``bag play`` puts it back on the ROS 2 wire (play_ros2.py);
 - foxglove.* views (``<topic>/fix``, ``<topic>/pose``, ``/tf``, ``<topic>/image``), see schemas.py.
 
 Image slices and FEC shares (``zenoh_robot/ImageSlice``, ``ImageShare``) get no JSON channel
@@ -61,6 +62,7 @@ class RecorderCounters:
     bulk_not_json: int = 0       # image slices kept raw and as views only (slice_json False)
     cdr_written: int = 0         # ROS 2 samples (a recorder on the ROS 2 wire)
     untyped: int = 0             # ROS 2 samples whose publisher's type the graph did not (yet) tell
+    no_definition: int = 0       # ROS 2 samples of a type this process has no definition of (no schema)
     per_topic: dict[str, int] = field(default_factory=dict)
 
 
@@ -81,6 +83,7 @@ class BagRecorder(Tap):
         self._schemas: dict[str, int] = {}
         self._channels: dict[tuple[str, str, str], int] = {}
         self._view_maker = schemas.ViewMaker()
+        self._no_definition: set[str] = set()     # ROS 2 types without a definition here (at most MAX_CHANNELS)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = open(self.path, "wb")
         self._writer = Writer(self._file, chunk_size=chunk_size,
@@ -160,13 +163,22 @@ class BagRecorder(Tap):
                 self._write_view(view, received_ns, sample.stamp_ns)
 
     def _handle_cdr(self, sample: TapSample) -> None:
-        pubs = [p for p in self.node.graph.endpoints(sample.topic[1:], EndpointType.PUBLISHER) if p.topic_type]
-        pubs.sort(key=lambda p: p.endpoint_gid != sample.publisher_id)   # its own token first
-        if not pubs:
+        pub = self.ros2_publisher(sample)
+        if pub is None:
             self.counters.untyped += 1
             return
-        pub = pubs[0]
-        cid = self._channel(sample.topic, "cdr", pub.topic_type, lambda: self._cdr_channel(sample.topic, pub))
+        if pub.topic_type in self._no_definition:
+            self.counters.no_definition += 1
+            return
+        try:
+            cid = self._channel(sample.topic, "cdr", pub.topic_type, lambda: self._cdr_channel(sample.topic, pub))
+        except KeyError:
+            if len(self._no_definition) < MAX_CHANNELS:
+                self._no_definition.add(pub.topic_type)
+            self.counters.no_definition += 1
+            log.warning("no ROS 2 definition of %s here: %s not recorded (its schema could not be written)",
+                        pub.topic_type, sample.topic)
+            return
         if cid is None:
             return
         payload = sample.data if sample.data is not None else sample.fields
@@ -176,8 +188,10 @@ class BagRecorder(Tap):
 
     def _cdr_channel(self, topic: str, pub: Any) -> int:
         sid = self._schema_id(pub.topic_type, encodings.ROS2MSG, encodings.ros2msg_schema(pub.topic_type))
+        # The publisher's QoS too: bag play offers the same (ros2 bag keeps it as offered_qos_profiles)
         return self._writer.register_channel(topic, encodings.CDR, sid, {"zr.type": pub.topic_type,
-                                                                         "zr.hash": pub.topic_type_hash})
+                                                                         "zr.hash": pub.topic_type_hash,
+                                                                         "zr.qos": encode_qos(pub.qos_profile)})
 
     def _write_view(self, view: schemas.View, received_ns: int, stamp_ns: int) -> None:
         schema = view.message.get_schema()

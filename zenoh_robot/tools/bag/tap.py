@@ -155,6 +155,13 @@ class Tap:
     def finish(self) -> None:
         pass
 
+    def ros2_publisher(self, sample: TapSample) -> TopicEndpointInfo | None:
+        """The typed ROS 2 publisher of a CDR sample (a raw ROS 2 subscription gets no type name): its own
+        token, else one of the topic's publishers; None while the graph has told of none."""
+        pubs = [p for p in self.node.graph.endpoints(sample.topic[1:], EndpointType.PUBLISHER) if p.topic_type]
+        pubs.sort(key=lambda p: p.endpoint_gid != sample.publisher_id)   # its own token first
+        return pubs[0] if pubs else None
+
     # -- discovery (Zenoh's thread: hand on only) ------------------------------------------
     def _on_graph(self, appeared: bool, info: TopicEndpointInfo) -> None:
         if not appeared or info.endpoint_type is not EndpointType.PUBLISHER:

@@ -183,15 +183,16 @@ def run_pub(args: argparse.Namespace) -> dict[str, Any]:
     period = 1.0 / args.rate if args.rate > 0 else 0.0
     cfg = _config(args.port, "pub")
     if args.mode == "raw":
-        body = cdr_codec(type(msg)).serialize(type_support(type(msg)).encode(msg))
+        # Serialised per publish, as a node does (and as the raw subscriber decodes per sample).
+        serialize, encode = cdr_codec(type(msg)).serialize, type_support(type(msg)).encode
         with zenoh.open(cfg.to_zenoh()) as session:
             cc = zenoh.CongestionControl.BLOCK if args.throughput else zenoh.CongestionControl.DROP
             zpub = session.declare_publisher(KEY, reliability=zenoh.Reliability.RELIABLE, congestion_control=cc)
             time.sleep(1.0)
             seq = iter(range(1, args.count + 1))
             gid = bytes(range(16))
-            _loop(lambda: zpub.put(body, attachment=_ATTACHMENT.pack(next(seq), time.time_ns(), 16, gid)), args.count,
-                  period)
+            _loop(lambda: zpub.put(serialize(encode(msg)), attachment=_ATTACHMENT.pack(next(seq), time.time_ns(), 16,
+                                                                                       gid)), args.count, period)
             time.sleep(0.5)
     else:
         with Node("bench_pub", config=cfg, wire=_wire(args.mode)) as node:

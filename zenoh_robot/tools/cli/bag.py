@@ -45,7 +45,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     i.add_argument("--json", action="store_true", help="print JSON")
     i.set_defaults(func=_info)
 
-    pl = ops.add_parser("play", help="republish a recording with its timing, types and QoS")
+    pl = ops.add_parser("play", help="republish a recording with its timing, types and QoS (ROS 2 cdr channels "
+                                     "on the ROS 2 wire: --ros-domain-id, else ROS_DOMAIN_ID or 0)")
     add_session_arguments(pl)
     pl.add_argument("file")
     pl.add_argument("topics", nargs="*", metavar="TOPIC", help="only these topics")
@@ -111,8 +112,9 @@ def _record(args: argparse.Namespace) -> int:
     c, t = rec.counters, rec.tap_counters
     cpu = resource.getrusage(resource.RUSAGE_SELF)
     size = Path(args.output).stat().st_size
+    ros2 = f", {c.cdr_written} ROS 2 (cdr)" if c.cdr_written or c.untyped or c.no_definition else ""
     print(f"wrote {args.output}: {size / 1e6:.2f} MB, {c.written} messages on {len(c.per_topic)} topics "
-          f"({c.raw_written} raw, {c.views_written} views, {t.dropped + t.sub_dropped} dropped, "
+          f"({c.raw_written} raw{ros2}, {c.views_written} views, {t.dropped + t.sub_dropped} dropped, "
           f"{t.sub_malformed} malformed); "
           f"cpu {cpu.ru_utime + cpu.ru_stime:.1f} s, max rss {cpu.ru_maxrss / 1024:.0f} MB",
           file=sys.stderr, flush=True)
@@ -141,7 +143,8 @@ def _play(args: argparse.Namespace) -> int:
     with cli_node("bag_play", args) as node:
         try:
             player = BagPlayer(node, args.file, args.topics or None, rate=args.rate, loop=args.loop,
-                               restamp=args.restamp, passes=args.passes)
+                               restamp=args.restamp, passes=args.passes,
+                               on_unplayable=lambda line: print(line, file=sys.stderr, flush=True))
         except ValueError as exc:
             raise CliError(str(exc)) from None
         stop = threading.Event()
@@ -157,5 +160,8 @@ def _play(args: argparse.Namespace) -> int:
             raise CliError(str(exc)) from None
         finally:
             player.close()
-    print(f"published {c.published} samples on {len(c.per_topic)} topics ({c.loops} loops)", file=sys.stderr)
+    ros2 = f", {c.ros2_published} of them ROS 2" if c.ros2_published else ""
+    print(f"published {c.published} samples on {len(c.per_topic)} topics ({c.loops} loops{ros2})", file=sys.stderr)
+    if c.unplayable and not c.published:
+        raise CliError(f"nothing played: {len(c.unplayable)} channels cannot be played (above)")
     return 0

@@ -14,7 +14,8 @@ from .main import CliError
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    p = sub.add_parser("foxglove", help="serve every topic live to Foxglove (WebSocket protocol)")
+    p = sub.add_parser("foxglove", help="serve every topic live to Foxglove (WebSocket protocol; --ros2: "
+                                        "ROS 2 topics as cdr channels Foxglove decodes)")
     add_session_arguments(p)
     p.add_argument("topics", nargs="*", metavar="TOPIC", help="only these topics (default: all, as they appear)")
     p.add_argument("--port", type=int, default=8765, help="WebSocket port (0: any free one)")
@@ -54,6 +55,7 @@ def run(args: argparse.Namespace) -> int:
         finally:
             bridge.close()
     c = bridge.counters
-    print(f"foxglove bridge: {c.forwarded} messages, {c.views} views, {bridge.tap_counters.dropped} dropped",
+    ros2 = f", {c.cdr} ROS 2 (cdr)" if bridge.node.wire.name == "ros2" else ""
+    print(f"foxglove bridge: {c.forwarded} messages{ros2}, {c.views} views, {bridge.tap_counters.dropped} dropped",
           file=sys.stderr, flush=True)
     return 0
