@@ -69,3 +69,29 @@ def test_resilient_transport_and_its_file_agree(tmp_path: Path) -> None:
     assert back.listen == cfg.listen and back.mode == "peer" and not back.multicast_scouting
     shipped = SessionConfig.from_file(ROOT / "configs" / "zenoh" / "resilient.json5")
     assert shipped.listen[0].startswith("udp/239.255.74.71:7460")
+
+
+def test_lossy_unicast_dials_udp_first_and_redials_a_lost_tcp_link_slowly() -> None:
+    """Across 50-70 % loss a TCP link dies (lease) and fast re-dials of it froze or ended the session
+    (docs/lossy-link.md, unicast): the lossy settings dial it at start-up, then every 5 s -> 60 s."""
+    import dataclasses
+    import json
+
+    from drone_contract.streams import stream_profile
+    from zenoh_robot.session_config import LOSSY_LINK
+
+    slow = "retry_period_increase_factor=2;retry_period_init_ms=5000;retry_period_max_ms=60000"
+    profile = stream_profile("resilient").session_config()
+    assert profile.lossy
+    for cfg in (SessionConfig(**LOSSY_LINK, listen=[], connect=["tcp/10.0.0.1:7447", "udp/10.0.0.1:7447"]),
+                dataclasses.replace(profile, listen=[], connect=["tcp/10.0.0.1:7447", "udp/10.0.0.1:7447"])):
+        assert cfg.to_json5()["connect"]["endpoints"] == ["udp/10.0.0.1:7447", f"tcp/10.0.0.1:7447#{slow}"]
+        assert f"tcp/10.0.0.1:7447#{slow}" in json.loads(cfg.to_zenoh().get_json("connect/endpoints"))
+    # A key the user wrote wins; the rest of the endpoint's config part stays.
+    own = SessionConfig(**LOSSY_LINK, connect=["tls/10.0.0.1:7447#iface=eth0;retry_period_init_ms=100"])
+    assert own.to_json5()["connect"]["endpoints"] == [
+        "tls/10.0.0.1:7447#iface=eth0;retry_period_increase_factor=2;retry_period_init_ms=100;"
+        "retry_period_max_ms=60000"]
+    # Without ``lossy`` (a plain session) the endpoints are Zenoh's as given.
+    plain = SessionConfig(connect=["tcp/10.0.0.1:7447", "udp/10.0.0.1:7447"])
+    assert plain.to_json5()["connect"]["endpoints"] == ["tcp/10.0.0.1:7447", "udp/10.0.0.1:7447"]

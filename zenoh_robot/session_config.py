@@ -38,9 +38,14 @@ MAX_DOMAIN = 232            # ROS_DOMAIN_ID's range: one number means the same t
 RESILIENT_GROUP = "239.255.74.71:7460"
 # What a unicast or routed session across a lossy radio link needs (the lossy-link experiment found it,
 # docs/lossy-link.md): batches under the MTU (one lost fragment loses no batch), a 10 s lease held by
-# keep-alives every 100 ms through fades, and ``lossy`` (fast open, UDP dialled first). One place for
-# the apps' resilient profile and ``zenoh-robot router --lossy``: ``SessionConfig(**LOSSY_LINK, ...)``.
+# keep-alives every 100 ms through fades, and ``lossy`` (fast open, UDP dialled first, a reliable link
+# never re-dialled in a hurry: see :func:`slow_redial`). One place for the apps' resilient profile and
+# ``zenoh-robot router --lossy``: ``SessionConfig(**LOSSY_LINK, ...)``.
 LOSSY_LINK: dict[str, Any] = {"batch_size": 1300, "lease_s": 10.0, "keep_alive": 100, "lossy": True}
+# Per-endpoint connect retry of a reliable (TCP, TLS, QUIC, WS) link in a lossy session: tried at start-up,
+# then after 5 s, doubling to once a minute (Zenoh's per-endpoint ``retry_period_*`` keys).
+SLOW_REDIAL: dict[str, float] = {"retry_period_init_ms": 5000, "retry_period_max_ms": 60000,
+                                 "retry_period_increase_factor": 2}
 
 
 def fast_open(open_timeout_ms: int = 250, retry_init_ms: int = 50, retry_max_ms: int = 200,
@@ -70,6 +75,30 @@ def fast_open(open_timeout_ms: int = 250, retry_init_ms: int = 50, retry_max_ms:
 def udp_first(endpoints: list[str]) -> list[str]:
     """``endpoints`` with the UDP ones first, each group in its given order."""
     return sorted(endpoints, key=lambda e: not e.startswith("udp/"))
+
+
+def slow_redial(endpoint: str) -> str:
+    """``endpoint`` with :data:`SLOW_REDIAL` in its config part if it dials a reliable (stream) link.
+
+    Across 50-70 % loss a TCP link stalls on its own backed-off retransmissions until the 10 s lease
+    expires (10-25 s into the loss); the session lives on over its UDP link. A peer then re-dials the
+    TCP endpoint at once and every 50-200 ms (``fast_open``'s retry), 41-91 tries in 40-60 s, some half
+    done across the loss; around the half-accepted ones both processes' Zenoh runtimes froze for 6.4 s
+    (UDP link included) or the session ended, in 5 of 6 runs (docs/lossy-link.md, unicast). A client never re-dials a
+    lost link (Zenoh keeps its session on the links left), which is why the router cells flew. Dialled
+    at start-up, then slowly: the UDP link carries everything once TCP is gone, as a client's does.
+    Zenoh 1.10 re-dials a lost link only when its endpoint equals the configured one, config part
+    included, so an endpoint written with these keys is not re-dialled on link loss at all (a whole
+    session lost is re-dialled as before); a Zenoh that compared locators would re-dial on this period.
+    Keys the endpoint already sets win; UDP and local endpoints are returned unchanged. The keys come
+    out sorted, as Zenoh writes an endpoint back.
+    """
+    if endpoint.split("/", 1)[0] not in ("tcp", "tls", "quic", "ws"):
+        return endpoint
+    head, _, cfg = endpoint.partition("#")
+    keys = {k: f"{v:g}" for k, v in SLOW_REDIAL.items()}
+    keys.update(kv.partition("=")[::2] for kv in cfg.split(";") if kv)
+    return head + "#" + ";".join(f"{k}={v}" if v else k for k, v in sorted(keys.items()))
 
 
 _ENDPOINT = re.compile(r"^(?P<proto>[a-z-]+)/(?P<addr>[^?#]+)(?:\?(?P<meta>[^#]*))?(?:#(?P<cfg>.*))?$")
@@ -155,9 +184,10 @@ class SessionConfig:
     name: str | None = None                # this node's certificate name in ``secure``
     verify_name: bool = True               # check the dialled host against the peer's certificate SAN
     # A unicast session across a lossy link (docs/results/transports.md): fast_open's short handshake
-    # tries retried at once (a client's open also waits and retries instead of failing), and UDP
+    # tries retried at once (a client's open also waits and retries instead of failing), UDP
     # endpoints dialled before TCP ones (a client holds the first link that opens; a TCP connect
-    # under loss waits on the kernel's SYN back-off). Keys in ``extra`` still win.
+    # under loss waits on the kernel's SYN back-off), and a lost TCP link never re-dialled in a
+    # hurry (slow_redial). Keys in ``extra`` still win.
     lossy: bool = False
 
     def __post_init__(self) -> None:
@@ -270,7 +300,7 @@ class SessionConfig:
         values: dict[str, Any] = {
             "mode": self.mode,
             "listen/endpoints": self.listen,
-            "connect/endpoints": udp_first(self.connect) if self.lossy else self.connect,
+            "connect/endpoints": [slow_redial(e) for e in udp_first(self.connect)] if self.lossy else self.connect,
             "scouting/multicast/enabled": self.multicast_scouting,
             "transport/unicast/max_links": self.max_links,
             "transport/shared_memory/enabled": self.shared_memory_enabled,
