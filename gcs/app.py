@@ -427,11 +427,11 @@ class Gcs:
 
     def _adapt_copies(self, loss: float) -> None:
         # Fades: copies sized for the loss that follows a loss too (loss_feedback.BurstEstimate).
-        burst = self.link_monitor.burst().loss_after_loss if self.link_monitor is not None else 0.0
+        burst = self.link_monitor.burst() if self.link_monitor is not None else None
         for d in list(self.drones.values()):
             d.commands.set_loss(loss)    # command retries and reply copies sized from it (services.py)
             if d.setpoint_pub.qos.repeat and d.setpoint_pub.qos.deadline:
-                apply_repeat_plan(d.setpoint_pub, loss, burst)
+                apply_repeat_plan(d.setpoint_pub, loss, burst, 1.0 / self.config.rate_hz)
 
     def _declare_parameters(self) -> None:
         """What this GCS runs with, for `zenoh-robot param list /gcs` (read-only: set at start)."""

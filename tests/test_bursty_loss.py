@@ -17,7 +17,7 @@ from conftest import skip_unless_required
 
 from drone_lab.experiment.netns import BurstModel, LossyLink, unavailable_reason
 from zenoh_robot import loss_feedback as feedback
-from zenoh_robot.loss_feedback import LinkProbe, LossMonitor, repeat_plan
+from zenoh_robot.loss_feedback import BurstEstimate, LinkProbe, LossMonitor, repeat_plan
 
 PERIOD = 0.05
 
@@ -107,9 +107,11 @@ def test_burst_estimate_forgets_old_runs_and_ignores_late_probes_and_restarts(mo
 def test_copies_sized_for_fades_cross_a_95_percent_fade_within_the_deadline() -> None:
     deadline = 0.5
     for mean, cond in ((0.5, 0.5), (0.3, 0.3)):                    # independent loss: unchanged
-        assert repeat_plan(mean, deadline, burst_loss=cond) == repeat_plan(mean, deadline)
+        independent = BurstEstimate(loss_after_loss=cond, lost=50, received=50)
+        assert repeat_plan(mean, deadline, burst=independent) == repeat_plan(mean, deadline)
     flat = repeat_plan(0.5, deadline)
-    bursty = repeat_plan(0.5, deadline, burst_loss=0.78)            # what 95 % fades at a 50 % mean read as
+    # What 95 % fades at a 50 % mean read as on 100 probes (5 s): a loss follows a loss far more often.
+    bursty = repeat_plan(0.5, deadline, burst=BurstEstimate(loss_after_loss=0.78, lost=50, received=50))
     rate_flat, rate_bursty = flat[0] / flat[1], bursty[0] / bursty[1]
     # Inside a 95 % fade, the chance that no copy crosses in a 500 ms deadline:
     assert 0.95 ** (deadline * rate_flat) > 0.1                     # the mean-sized plan: often

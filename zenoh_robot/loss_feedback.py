@@ -21,12 +21,13 @@ Bursts: Wi-Fi loss comes in fades (100 ms to seconds), and copies sized from the
 drops were independent leave a fade with no packet for longer than a deadline. Each peer's probe
 sequence numbers give the runs of consecutive losses; :meth:`LossMonitor.burst` reports, over the
 long window, their mean and longest length and the loss that follows a loss (1 - runs / lost: for
-independent loss it equals the mean, in fades it is near the fade's own loss). The probes measure
+independent loss it equals the mean, in fades it is near the fade's own loss), and whether that is
+more than chance allows for independent drops (:attr:`BurstEstimate.fading`). The probes measure
 the incoming direction only; the outgoing one is taken to fade alike (a radio fade is both ways).
-:func:`repeat_plan` sizes copies for the larger of the mean and that conditional loss: copies of the
-newest sample go out at a steady rate while samples flow (a newer one replaces the older copies),
-so the rate, not the window, decides whether a packet crosses a fade within the deadline, and the
-first packet after a fade carries the newest sample.
+:func:`repeat_plan` sizes copies for the larger of the mean and that conditional loss, and in fades
+for the fade's own loss: copies of the newest sample go out at a steady rate while samples flow (a
+newer one replaces the older copies), so the rate, not the window, decides whether a packet crosses
+a fade in time, and the first packet after a fade carries the newest sample.
 
 Keys: a monitor has a role (:data:`ROLES`: a GCS or a drone) and puts its probes on
 ``<topic>/<role>`` and hears ``<topic>/<other role>``, so a GCS and a drone never subscribe to the
@@ -50,7 +51,7 @@ import threading
 import time
 from collections import OrderedDict, deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from ._wire.repeater import REPEAT_INTERVAL_S
@@ -81,6 +82,22 @@ class LinkProbe(Message):
 MAX_ARRIVALS = 2048   # per window: a peer probing faster than it claims saturates the count, not memory
 MAX_RUNS = 1024       # loss runs remembered per peer (the long window's, at most)
 MAX_RUN = 100_000     # a longer jump of a probe's seq is a restart of the peer, not a loss run
+# Fades are called when the loss after a loss exceeds the mean by this many standard deviations of
+# its estimate under independent drops (given ``lost`` losses, runs ~ Binomial(lost, 1 - mean): the
+# estimate's deviation is sqrt(mean (1 - mean) / lost)), by FADE_MIN_EXCESS at least, over at least
+# FADE_MIN_LOST lost probes: a uniform link's noise must not put its copies at the ceiling.
+FADE_SIGMAS = 2.0
+FADE_MIN_EXCESS = 0.1
+FADE_MIN_LOST = 15
+# A fade under way is called sooner, from the silence it makes: a peer unheard for longer than
+# independent loss at the window's mean explains (its probes all lost, with chance under FADE_SILENCE_P;
+# two probes at least). The first fade after a clean stretch is otherwise met with the clean plan
+# (40 packets/s) until a 1 s window has counted it: flown, gaps of 330-540 ms in the first 5 s of loss.
+FADE_SILENCE_P = 0.01
+# What copies a few ms apart meet inside a fade. Probes 50 ms apart cannot resolve it (the probe after
+# a lost one may be past the fade's end: 95 % fades of 300 ms read as ~0.8), so it is assumed: the
+# deep fade of a Wi-Fi link, and the bursty harness's bad state (docs/lossy-link.md, "Bursty loss").
+FADE_LOSS = 0.95
 
 
 @dataclass(frozen=True)
@@ -91,11 +108,36 @@ class BurstEstimate:
     mean_run_s: float = 0.0       # the same in seconds (the peer's probe period)
     longest_run_s: float = 0.0
     loss_after_loss: float = 0.0  # P(a probe is lost | the previous one was): 1 - runs / lost
+    lost: int = 0                 # probes lost over the long window
+    received: int = 0             # ... and received
+    silent_probes: float = 0.0    # probe periods since a peer was last heard (the longest, now)
+
+    @property
+    def mean_loss(self) -> float:
+        """The probes' loss over the same window (0 when none was expected)."""
+        sent = self.lost + self.received
+        return self.lost / sent if sent else 0.0
+
+    @property
+    def fading(self) -> bool:
+        """Losses follow losses more than independent drops at this mean allow (see FADE_SIGMAS), or a
+        peer has been silent for longer than they explain (see FADE_SILENCE_P)."""
+        mean = self.mean_loss
+        if mean < 1.0:
+            missed = math.ceil(math.log(FADE_SILENCE_P) / math.log(mean)) if mean > 0.0 else 1
+            if self.silent_probes > max(2, missed) + 0.5:   # half a period: the next probe's jitter
+                return True
+        if self.lost < FADE_MIN_LOST or not 0.0 < mean < 1.0:
+            return False
+        noise = math.sqrt(mean * (1.0 - mean) / self.lost)
+        return self.loss_after_loss - mean > max(FADE_MIN_EXCESS, FADE_SIGMAS * noise)
 
     def as_dict(self) -> dict[str, float]:
         return {"mean_run": round(self.mean_run, 2), "longest_run": self.longest_run,
                 "mean_run_s": round(self.mean_run_s, 3), "longest_run_s": round(self.longest_run_s, 3),
-                "loss_after_loss": round(self.loss_after_loss, 3)}
+                "loss_after_loss": round(self.loss_after_loss, 3), "lost": self.lost, "received": self.received,
+                "mean_loss": round(self.mean_loss, 3), "silent_probes": round(self.silent_probes, 1),
+                "fading": float(self.fading)}
 
 
 @dataclass
@@ -110,31 +152,39 @@ class _Peer:
     reported_at: float = 0.0
     last_seq: int | None = None               # highest probe seq heard (loss runs)
     runs: deque[tuple[float, int]] = field(default_factory=lambda: deque(maxlen=MAX_RUNS))  # (ended at, length)
+    # Arrival times of in-order probes (no duplicate, no late one) in the long window: the runs' complement.
+    fresh: deque[float] = field(default_factory=lambda: deque(maxlen=MAX_ARRIVALS))
 
     def sequence(self, seq: int, t: float) -> None:
         """A probe's seq: the gap since the last one is a run of lost probes (late ones are ignored)."""
         if self.last_seq is None:
             self.last_seq = seq
+            self.fresh.append(t)
             return
         ahead = (seq - self.last_seq) & 0xFFFFFFFF
         if ahead == 0 or ahead >= 1 << 31:
             return                                # a duplicate or a late probe
         if ahead > MAX_RUN:
             self.runs.clear()                     # the peer restarted its count
+            self.fresh.clear()
         elif ahead > 1:
             self.runs.append((t, ahead - 1))
+        self.fresh.append(t)
         self.last_seq = seq
 
     def burst(self, window: float, now: float) -> BurstEstimate:
         edge = now - window
         while self.runs and self.runs[0][0] <= edge:
             self.runs.popleft()
+        while self.fresh and self.fresh[0] <= edge:
+            self.fresh.popleft()
         if not self.runs:
-            return BurstEstimate()
+            return BurstEstimate(received=len(self.fresh))
         lost = sum(n for _, n in self.runs)
         longest = max(n for _, n in self.runs)
         mean = lost / len(self.runs)
-        return BurstEstimate(mean, longest, mean * self.period, longest * self.period, 1.0 - len(self.runs) / lost)
+        return BurstEstimate(mean, longest, mean * self.period, longest * self.period, 1.0 - len(self.runs) / lost,
+                             lost, len(self.fresh))
 
     def arrive(self, t: float) -> None:
         self.last = t
@@ -157,32 +207,45 @@ def _count_after(arrivals: deque[float], window: float, cutoff: float, now: floa
 
 
 def repeat_plan(loss: float, deadline_s: float, miss: float = 1e-6, margin: float = 0.05,
-                min_copies: int = 16, max_copies: int = 64, burst_loss: float = 0.0) -> tuple[int, float]:
+                min_copies: int = 16, max_copies: int = 64, burst: BurstEstimate | None = None,
+                stale_s: float | None = None, period_s: float | None = None) -> tuple[int, float]:
     """(copies, window) for a deadline stream at packet loss ``loss``.
 
-    ``burst_loss`` (:attr:`BurstEstimate.loss_after_loss`) sizes for fades: the loss a packet sent
-    after a lost one meets. Consecutive copies share a fade, so the larger of the two is what
-    ``p`` must be (uniform 50 % gives 0.5 both ways; fades of 95 % at a 50 % mean give ~0.8).
+    What the receiver must never see is a sample older than ``stale_s`` (default: the deadline; for
+    setpoints PX4's 500 ms). The last packet before a fade may carry a sample already one publish
+    period old (``period_s``; default 20 % of the deadline, 10 Hz at 500 ms), so the copies must put a
+    packet across every ``gap = stale_s - period_s``: with the newest sample re-sent every ``step`` (a
+    newer sample replaces the older one's copies and carries it in its history, so copies form one
+    steady stream), all are lost with probability ``p ** (gap / step)``. Pick the step so this is
+    below ``miss`` for p = loss + ``margin`` (the estimate is noisy), never slower than ``min_copies``
+    over the window (0.8 x the deadline: a sudden burst must be survived while the feedback catches
+    up) and never faster than one copy per REPEAT_INTERVAL_S.
 
-    A gap longer than the deadline needs every packet sent in the window lost; with the
-    newest sample re-sent every ``step`` (a newer sample replaces the older one's copies and
-    carries it in its history, so copies form one steady stream), that is ``p ** (W / step)``.
-    Pick the step so this is below ``miss`` for p = loss + ``margin`` (the estimate is noisy),
-    never slower than ``min_copies`` over the window (a sudden burst must be survived while the
-    feedback catches up) and never faster than one copy per REPEAT_INTERVAL_S.
+    ``burst`` (:meth:`LossMonitor.burst`) sizes for fades. Consecutive copies share a fade, so ``p`` is
+    at least the loss that follows a loss (uniform 50 % gives 0.5 both ways; 95 % fades at a 50 %
+    mean read ~0.8 on probes 50 ms apart). When the probes show fades (:attr:`BurstEstimate.fading`),
+    copies a few ms apart meet the fade's own loss, FADE_LOSS, which those probes cannot resolve:
+    flown at 50 % bursty, the ~0.8 reading sent 213 packets/s, and a 95 % fade let none through for
+    up to 580 ms (docs/lossy-link.md, "Bursty loss").
     """
     window = 0.8 * deadline_s
-    loss = max(loss, burst_loss) if math.isfinite(burst_loss) else loss
+    stale = deadline_s if stale_s is None else stale_s
+    gap = max(REPEAT_INTERVAL_S, stale - (0.2 * deadline_s if period_s is None else period_s))
+    if burst is not None:
+        loss = max(loss, burst.loss_after_loss) if math.isfinite(loss) else loss
+        if burst.fading:
+            loss = max(loss, FADE_LOSS) if math.isfinite(loss) else loss
     p = min(MAX_LOSS, max(0.0, loss if math.isfinite(loss) else MAX_LOSS) + margin)
     needed = math.ceil(math.log(miss) / math.log(p)) if p > 0 else 1
-    step = max(REPEAT_INTERVAL_S, window / max(needed, min_copies))
+    step = max(REPEAT_INTERVAL_S, min(gap / needed, window / min_copies))
     copies = min(max_copies, max(1, math.ceil(window / step)))
     return copies, min(window, copies * step)
 
 
-def apply_repeat_plan(publisher: Any, loss: float, burst_loss: float = 0.0) -> None:
-    """Set a deadline publisher's copies from the measured loss and its burstiness (see :func:`repeat_plan`)."""
-    copies, window = repeat_plan(loss, publisher.qos.deadline, burst_loss=burst_loss)
+def apply_repeat_plan(publisher: Any, loss: float, burst: BurstEstimate | None = None,
+                      period_s: float | None = None) -> None:
+    """Set a deadline publisher's copies from the measured loss and its fades (see :func:`repeat_plan`)."""
+    copies, window = repeat_plan(loss, publisher.qos.deadline, burst=burst, period_s=period_s)
     publisher.set_repeats(copies, window)
 
 
@@ -267,15 +330,18 @@ class LossMonitor:
             return {pid: self._incoming(p, now) for pid, p in self._peers.items()}
 
     def burst(self) -> BurstEstimate:
-        """The burstiest peer heard (by the loss that follows a loss), over the long window."""
-        worst = BurstEstimate()
+        """The burstiest peer heard (by the loss that follows a loss), over the long window, and the
+        longest silence of a peer now."""
+        worst: BurstEstimate | None = None
+        silent = 0.0
         with self._lock:
             now = time.monotonic()
             for p in self._peers.values():
                 b = p.burst(self.long_window_s, now)
-                if b.loss_after_loss > worst.loss_after_loss:
+                if worst is None or b.loss_after_loss > worst.loss_after_loss:
                     worst = b
-        return worst
+                silent = max(silent, (now - p.last) / p.period)
+        return replace(worst or BurstEstimate(), silent_probes=silent)
 
     def outgoing_loss(self) -> float:
         """The worst loss towards any peer heard recently (NaN if none): what to size copies for."""
