@@ -1,5 +1,6 @@
 """Sealed samples (issue #26): every sample carries a ChaCha20-Poly1305 tag under a per-role link key,
-with a replay window per (key, publisher epoch). Over real Zenoh sessions, on UDP multicast (the
+with a replay window per (key, publisher epoch); a sample is sealed once and its repeats carry the same
+bytes, which the receiver refuses as duplicates before any AEAD work. Over real Zenoh sessions, on UDP multicast (the
 resilient profile's transport, no Zenoh authentication at all) and through a router: each rogue try
 is refused and counted by name while the legitimate setpoint and telemetry streams keep flowing.
 The attacker holds what a rogue would: a plain Zenoh session, captured bytes, another drone's or
@@ -37,12 +38,20 @@ from zenoh_robot.keyring import Keyring, KeyringError
 from zenoh_robot.message import type_support
 from zenoh_robot.tools import keys
 from zenoh_robot.wire import ENVELOPE, sealed
-from zenoh_robot.wire.sealed import HEAD_SIZE, OVERHEAD, WINDOW, ReplayWindow
+from zenoh_robot.wire.sealed import HEAD_SIZE, OVERHEAD, REPEATED, WINDOW, DuplicateSample, ReplayWindow
 
 REFRESH_S = 0.5     # the revocation bound these tests hold the nodes to
 
 
 # -- the replay window, alone ---------------------------------------------------------------------
+def _offer(w: ReplayWindow, counter: int, repeated: bool = False) -> str | None:
+    """What the opener does around a tag that verifies: the verdict first, then accept if fresh."""
+    verdict = w.verdict(counter)
+    if verdict is None:
+        w.accept(counter, repeated)
+    return verdict
+
+
 def test_window_takes_loss_and_reordering_and_refuses_repeats_and_stale() -> None:
     w = ReplayWindow()
     rng = random.Random(26)
@@ -52,20 +61,32 @@ def test_window_takes_loss_and_reordering_and_refuses_repeats_and_stale() -> Non
         chunk = shuffled[i:i + 8]
         rng.shuffle(chunk)
         shuffled[i:i + 8] = chunk
-    assert [w.check(c) for c in shuffled] == [None] * len(shuffled)    # every survivor accepted once
-    assert all(w.check(c) == "replayed" for c in counters[-50:])
-    assert w.check(w.top - WINDOW) == "stale"
-    assert w.check(w.top - WINDOW + 1) in (None, "replayed")           # the window's oldest slot still counts
+    assert [_offer(w, c) for c in shuffled] == [None] * len(shuffled)    # every survivor accepted once
+    assert all(_offer(w, c) == "replayed" for c in counters[-50:])
+    assert _offer(w, w.top - WINDOW) == "stale"
+    assert _offer(w, w.top - WINDOW + 1) in (None, "replayed")           # the window's oldest slot still counts
     w2 = ReplayWindow()
-    assert w2.check(10) is None and w2.check(10 + 5 * WINDOW) is None    # a jump past the window resets it
-    assert w2.check(10) == "stale" and w2.check(9 + 5 * WINDOW) is None
+    assert _offer(w2, 10) is None and _offer(w2, 10 + 5 * WINDOW) is None    # a jump past the window resets it
+    assert _offer(w2, 10) == "stale" and _offer(w2, 9 + 5 * WINDOW) is None
 
 
 def test_window_late_sample_within_width_is_accepted_once() -> None:
     w = ReplayWindow()
     for c in range(2, 1000):
-        assert w.check(c) is None
-    assert w.check(1) is None and w.check(1) == "replayed"
+        assert _offer(w, c) is None
+    assert _offer(w, 1) is None and _offer(w, 1) == "replayed"
+
+
+def test_window_names_copies_of_repeated_samples_duplicates_and_only_accept_marks() -> None:
+    """A counter accepted from a repeating sealer comes back as a duplicate (its copies), one from a
+    sealer that sends once as a replay; a verdict alone (a tag that then fails) marks nothing."""
+    w = ReplayWindow()
+    for c in range(1, 100):
+        assert w.verdict(c) is None      # looked at, never accepted: a forged packet's counters
+    assert w.top == -1 and all(_offer(w, c, repeated=c % 2 == 0) is None for c in range(1, 100))
+    assert [_offer(w, c, repeated=True) for c in (4, 5)] == ["duplicate", "replayed"]   # the accepted flag decides
+    assert w.verdict(1 + WINDOW * 3) is None and w.top == 99     # a forged jump ahead does not move the window
+    assert _offer(w, 99 + WINDOW) is None and _offer(w, 99) == "stale"
 
 
 # -- keys -------------------------------------------------------------------------------------------
@@ -134,14 +155,19 @@ class System:
         self.setpoints: list[DroneSetpoint] = []
         self.states: list[VehicleState] = []
         profiles = PROFILES["resilient"].qos
-        drone.create_subscription(DroneSetpoint, "setpoint", self.setpoints.append, profiles["setpoint"])
+        self.setpoint_sub = drone.create_subscription(DroneSetpoint, "setpoint", self.setpoints.append,
+                                                      profiles["setpoint"])
         # Another key the drone opens GCS samples on: where a captured setpoint is moved to.
         drone.create_subscription(DroneSetpoint, "goal", self.setpoints.append, profiles["setpoint"])
         gcs.create_subscription(VehicleState, "state", self.states.append, qos.SENSOR_DATA)
         self.setpoint_pub = gcs.create_publisher(DroneSetpoint, "setpoint", profiles["setpoint"])
         self.state_pub = drone.create_publisher(VehicleState, "state", qos.SENSOR_DATA)
         self.captured: list[bytes] = []
-        self._tap = rogue.declare_subscriber("uav1/setpoint", lambda s: self.captured.append(s.payload.to_bytes()))
+        self.captured_states: list[bytes] = []
+        self._taps = [rogue.declare_subscriber("uav1/setpoint", lambda s: self.captured.append(s.payload.to_bytes())),
+                      rogue.declare_subscriber("uav1/state",
+                                               lambda s: self.captured_states.append(s.payload.to_bytes()))]
+        self.setpoints_paused = threading.Event()     # the test publishes setpoints itself meanwhile
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._stream, daemon=True)
         self._thread.start()
@@ -150,7 +176,8 @@ class System:
         i = 0
         while not self._stop.is_set():
             i += 1
-            self.setpoint_pub.publish(DroneSetpoint(client_id="gcs1", x=float(i)))
+            if not self.setpoints_paused.is_set():
+                self.setpoint_pub.publish(DroneSetpoint(client_id="gcs1", x=float(i)))
             self.state_pub.publish(VehicleState(mode="OFFBOARD"))
             time.sleep(0.05)
 
@@ -173,7 +200,8 @@ class System:
     def close(self) -> None:
         self._stop.set()
         self._thread.join(2.0)
-        self._tap.undeclare()
+        for tap in self._taps:
+            tap.undeclare()
 
 
 @contextmanager
@@ -241,21 +269,19 @@ def test_rogue_tries_are_refused_and_counted_while_the_link_flows(transport: str
                                                                   other_fleet: Path) -> None:
     with system(transport, fleet) as s:
         drone, gcs = s.drone.wire.snapshot(), s.gcs.wire.snapshot()  # type: ignore[attr-defined]
-        assert drone["replayed"] == 0 and drone["bad_tag"] == 0     # repeats are sealed one by one: no "replays"
+        assert drone["replayed"] == 0 and drone["bad_tag"] == 0     # repeats are duplicates, never "replays"
         assert s.setpoint_pub.repeats > 1
-        # Every copy on the wire is sealed: 33 bytes more than the envelope, distinct nonces.
-        assert wait_for(lambda: len(s.captured) > 20, 5.0)
-        nonces = [c[5:17] for c in s.captured[:20]]
-        assert len(set(nonces)) == 20
 
         # 1. A plain session copying the GCS's client id: no seal at all.
         s.put("uav1/setpoint", _setpoint("gcs1"))
         assert s.refused(s.drone, "malformed", drone["malformed"])
-        # 2. Captured sealed bytes re-put: refused as replays, counted.
-        before = s.drone.wire.snapshot()["replayed"]  # type: ignore[attr-defined]
-        for copy in s.captured[-10:]:
-            s.put("uav1/setpoint", copy, times=1)
-        assert wait_for(lambda: s.drone.wire.snapshot()["replayed"] >= before + 5, 5.0)  # type: ignore[attr-defined]
+        # 2. Captured sealed telemetry (sent once a sample: no repeats) re-put: refused as replays, counted.
+        #    (Captured setpoints are copies of repeated samples: test_repeats_are_sealed_once_... below.)
+        assert wait_for(lambda: len(s.captured_states) > 10, 5.0)
+        before = s.gcs.wire.snapshot()["replayed"]  # type: ignore[attr-defined]
+        for copy in s.captured_states[-10:]:
+            s.put("uav1/state", copy, times=1)
+        assert wait_for(lambda: s.gcs.wire.snapshot()["replayed"] >= before + 5, 5.0)  # type: ignore[attr-defined]
         # ... and moved to another key, they fail the tag (the key expression is bound).
         s.put("uav1/goal", s.captured[-1])
         assert s.refused(s.drone, "bad_tag", drone["bad_tag"])
@@ -287,6 +313,106 @@ def test_rogue_tries_are_refused_and_counted_while_the_link_flows(transport: str
         s.put("uav1/setpoint", _seal(secret, kid, "uav1/setpoint", _setpoint("gcs2")))
         assert wait_for(lambda: any(sp.client_id == "gcs2" for sp in s.setpoints), 5.0)
         assert s.drone.wire.snapshot()["opened"] > opened  # type: ignore[attr-defined]
+
+
+def _settled(read: Any, quiet_s: float = 0.3, timeout: float = 5.0) -> bool:
+    """``read()`` stopped changing for ``quiet_s`` (a publisher's pending copies have all left)."""
+    end = time.monotonic() + timeout
+    last, since = read(), time.monotonic()
+    while time.monotonic() < end:
+        time.sleep(0.05)
+        now = read()
+        if now != last:
+            last, since = now, time.monotonic()
+        elif time.monotonic() - since >= quiet_s:
+            return True
+    return False
+
+
+@pytest.mark.parametrize("transport", TRANSPORTS)
+def test_repeats_are_sealed_once_arrive_once_and_replayed_copies_are_duplicates(transport: str, fleet: Path) -> None:
+    """The resilient setpoint stream (redundancy, up to 64 copies a sample): one seal per sample, not
+    per copy; every copy carries the first one's bytes; the drone opens each sample once and refuses
+    the other copies as duplicates before the tag check, not as malformed; an attacker's re-put of
+    captured copies is a duplicate too, never a second delivery, while the link keeps flowing."""
+    with system(transport, fleet) as s:
+        assert s.setpoint_pub.repeats > 1
+        s.setpoints_paused.set()
+        drone_wire, gcs_wire = s.drone.wire, s.gcs.wire
+        assert _settled(lambda: drone_wire.snapshot()["duplicate"]), "setpoint copies never stopped"  # type: ignore[attr-defined]
+        gcs0, drone0 = gcs_wire.snapshot(), drone_wire.snapshot()  # type: ignore[attr-defined]
+        malformed0, taken = s.setpoint_sub.counters.malformed, len(s.captured)
+        n, base = 12, 1e6
+        for i in range(n):
+            s.setpoint_pub.publish(DroneSetpoint(client_id="gcs1", x=base + i))
+            time.sleep(0.08)
+        assert _settled(lambda: drone_wire.snapshot()["duplicate"]), "setpoint copies never stopped"  # type: ignore[attr-defined]
+        gcs1, drone1 = gcs_wire.snapshot(), drone_wire.snapshot()  # type: ignore[attr-defined]
+        mine = [sp.x for sp in s.setpoints if sp.x >= base]
+        assert mine and mine[-1] == base + n - 1 and len(mine) == len(set(mine)), mine   # each sample once
+        assert len(mine) >= n // 2, mine
+        assert gcs1["sealed"] - gcs0["sealed"] == n                      # one AEAD call a sample, not a copy
+        opened = drone1["opened"] - drone0["opened"]
+        assert 0 < opened <= n and opened >= len(mine) - 8              # (a dropped sample's history may bring it)
+        assert drone1["duplicate"] - drone0["duplicate"] >= n            # its copies: refused, counted
+        assert drone1["replayed"] == drone0["replayed"] and drone1["bad_tag"] == drone0["bad_tag"]
+        assert s.setpoint_sub.counters.malformed == malformed0           # a duplicate is not malformed
+        # On the wire: the copies of a sample are the same sealed bytes (one nonce a sample).
+        copies = s.captured[taken:]
+        nonces = {c[5:HEAD_SIZE] for c in copies}
+        assert len(copies) > 2 * n and len(nonces) == n, (len(copies), len(nonces))
+        assert all(c[0] & REPEATED for c in copies)
+        # The attacker re-puts captured copies: duplicates, and no sample is delivered twice.
+        before = drone_wire.snapshot()["duplicate"]  # type: ignore[attr-defined]
+        for copy in copies[-6:] + copies[:6]:
+            s.put("uav1/setpoint", copy, times=1)
+        assert wait_for(lambda: drone_wire.snapshot()["duplicate"] >= before + 6, 5.0)  # type: ignore[attr-defined]
+        time.sleep(0.2)
+        again = [sp.x for sp in s.setpoints if sp.x >= base]
+        assert again == mine, (mine, again)
+        assert drone_wire.snapshot()["opened"] == drone1["opened"]  # type: ignore[attr-defined]
+        s.setpoints_paused.clear()
+        s.still_flowing()
+
+
+def test_copies_open_once_whichever_arrives_first_and_forged_counters_do_not_poison(fleet: Path) -> None:
+    """At the decoder: a repeating sealer's copies are one sample. The first copy to arrive opens (loss
+    may take the others), later ones are duplicates refused without the tag check (an altered copy of
+    an accepted counter is a duplicate, not bad_tag); a forged packet naming a fresh counter fails the
+    tag and does not mark it, so the real sample with that counter still opens afterwards."""
+    gcs_ring, drone_ring = Keyring(fleet, "gcs1"), Keyring(fleet, "uav1")
+    for encrypt in (False, True):
+        seal = sealed(ENVELOPE, gcs_ring, encrypt=encrypt).sealer("uav1/setpoint", repeated=True)
+        fmt = sealed(ENVELOPE, drone_ring)
+        opened = fmt.keyed_decoder(type_support(DroneSetpoint), "uav1/setpoint")
+        samples = [seal(_setpoint("gcs1")) for _ in range(6)]
+        assert all(p[0] & REPEATED for p in samples)
+        # Sample 0 arrives twice, 1 only as its last copy (same bytes), 2 after 3 (reordered).
+        for payload in (samples[0], samples[1], samples[3], samples[2]):
+            assert opened(payload, None)[5][1] == "gcs1"
+        for payload in (samples[0], samples[3], samples[2], samples[0]):
+            with pytest.raises(DuplicateSample):
+                opened(payload, None)
+        altered = bytearray(samples[1])
+        altered[-1] ^= 1                                          # the tag: never checked for a duplicate
+        with pytest.raises(DuplicateSample):
+            opened(bytes(altered), None)
+        # A forged packet with sample 4's (fresh) counter: bad tag, and sample 4 still opens, once.
+        forged = bytearray(samples[4])
+        forged[HEAD_SIZE + 2] ^= 0x10
+        with pytest.raises(envelope.MalformedSample, match="bad_tag"):
+            opened(bytes(forged), None)
+        with pytest.raises(envelope.MalformedSample, match="bad_tag"):
+            opened(bytes(forged), None)                           # still fresh: checked again, not a duplicate
+        assert opened(samples[4], None)[5][1] == "gcs1"
+        with pytest.raises(DuplicateSample):
+            opened(samples[4], None)
+        # The repeated flag is authenticated: a copy flagged "sent once" with a fresh counter fails its tag.
+        with pytest.raises(envelope.MalformedSample, match="bad_tag"):
+            opened(bytes([samples[5][0] & ~REPEATED]) + samples[5][1:], None)
+        counts = fmt.snapshot()
+        assert counts["opened"] == 4 + 1 and counts["duplicate"] == 4 + 1 + 1
+        assert counts["bad_tag"] == 3 and counts["replayed"] == 0
 
 
 @pytest.mark.parametrize("transport", TRANSPORTS)

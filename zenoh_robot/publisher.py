@@ -85,9 +85,10 @@ class Publisher(Generic[M]):
         # cost is a batch flush of at most ~1 ms. The graph still shows the QoS asked for.
         wire_qos = qos.replace(express=False) if qos.express and is_multicast_session(context.session) else qos
         self.express_on_wire = wire_qos.express
-        # A sealing format (wire/sealed.py) seals every transmitted copy, repeats too, with its own nonce.
+        # A sealing format (wire/sealed.py) seals each sample once: its repeats re-send the sealed bytes.
         sealer = getattr(encoder, "sealer", None)
-        seal: Callable[[bytes], bytes] | None = sealer(self.data_key) if sealer is not None else None
+        seal: Callable[[bytes], bytes] | None = sealer(self.data_key, bool(qos.repeat)) if sealer is not None else None
+        self._seal = seal
         self._zpub = declare_publisher(context.session, self.data_key, wire_qos)
         zput = self._zpub.put
         self._put: Callable[[bytes], Any] = zput if seal is None else (lambda payload: zput(seal(payload)))
@@ -144,15 +145,18 @@ class Publisher(Generic[M]):
             # Tells every subscriber, whatever its own QoS, that copies follow: deduplicate.
             extra = {**(extra or {}), REPEAT_KEY: self._repeats}
         payload = self._pack(seq, stamp, body, extra)
+        if self._seal is not None:
+            payload = self._seal(payload)   # once: the copies below carry these very bytes
+        zput = self._zpub.put
         if self._attachment is None:
-            self._put(payload)
+            zput(payload)
         else:   # never with repeats: only formats that carry extra fields repeat (see __init__)
             self._zpub.put(payload, attachment=self._attachment(seq, stamp))
         if self._repeats and self._repeat_window is not None:
-            self.context.repeater.schedule_latest(self.publisher_id, self._put, payload, self._repeats,
+            self.context.repeater.schedule_latest(self.publisher_id, zput, payload, self._repeats,
                                                   self._repeat_window)
         elif self._repeats:   # loss is per packet: each later copy is another chance
-            self.context.repeater.schedule(self._put, payload, self._repeats)
+            self.context.repeater.schedule(zput, payload, self._repeats)
 
     @property
     def repeats(self) -> int:

@@ -78,7 +78,7 @@ from .qos import DurabilityPolicy, HistoryPolicy, QoSProfile
 from .qos_events import SubscriptionEvents
 from .qos_mapping import declare_subscriber
 from .ratelimit import RateLimitedLog
-from .wire import MalformedSample
+from .wire import DuplicateSample, MalformedSample
 
 M = TypeVar("M")
 _time_ns = time.time_ns
@@ -431,6 +431,8 @@ class Subscription(Generic[M]):
         decode = self._decode
         try:
             type_name, type_hash, pub_id, seq, stamp_ns, body, extra = decode(data, attachment)
+        except DuplicateSample:
+            return      # a sealed copy of a sample already delivered: counted by the format, not malformed
         except MalformedSample as exc:
             self._malformed(f"{exc} ({len(data)} bytes)")
             return

@@ -15,6 +15,20 @@ Scenarios (``--scenario``):
   one seal and one open per sample, the cost of the seal itself inside the stack.
 
     python -m drone_lab.experiment.seal_cost --scenario streams --reps 5 --out docs/results/seal_cost
+
+Before/after a change: run the same command in a clone of the old tree and in this one, alternating,
+into two folders, then ``compare``: per side, the sealed/plain ratio of CPU per sample (medians, and
+the median of each rep's own pair), and the AEAD calls per sample the seal counters show::
+
+    python -m drone_lab.experiment.seal_cost compare --before DIR --after DIR [--scenario streams]
+
+Whole-process CPU moves by +-20 % run to run on a shared machine, far more than a seal costs. ``stack``
+measures what the seal adds to the stack itself, in one process without Zenoh, as the wire sees a
+sample sent with ``copies`` copies: plain (pack, then unpack each copy), sealed per copy (a seal and an
+open per copy: the scheme before seal-once) and sealed once (one seal, one open, the other copies
+refused as duplicates); process CPU per sample, the best of ``--rounds``::
+
+    python -m drone_lab.experiment.seal_cost stack --copies 1,2,4,16 --samples 20000
 """
 from __future__ import annotations
 
@@ -174,6 +188,96 @@ def summary(runs: list[dict[str, Any]]) -> str:
         f"{runs[0]['duration_s']:g} s windows, scenario {runs[0]['scenario']}, load avg {os.getloadavg()[0]:.2f}\n"
 
 
+def _pairs(runs: list[dict[str, Any]]) -> list[tuple[dict[str, Any], dict[str, Any]]]:
+    """(plain, sealed) of each rep: the jsonl holds a rep's two runs next to each other."""
+    out = []
+    for a, b in zip(runs[::2], runs[1::2], strict=False):   # an odd last run (cut short) has no pair
+        if a["rep"] == b["rep"] and {a["wire"], b["wire"]} == set(WIRES):
+            out.append((a, b) if a["wire"] == "plain" else (b, a))
+    return out
+
+
+def aead_per_sample(run: dict[str, Any], side: str) -> float | None:
+    """AEAD calls (seals + opens) per sample sent or received, from a sealed run's counters."""
+    s = run["sides"][side]
+    counters = s.get("seal_counters") or {}
+    samples = s["sent"] + s["received"]
+    return (counters.get("sealed", 0) + counters.get("opened", 0)) / samples if counters and samples else None
+
+
+def compare(before: Path, after: Path, scenario: str) -> str:
+    """Markdown: per tree and side, CPU per sample plain vs sealed, the ratios, AEAD calls per sample."""
+    rows = ["| tree | side | runs | plain µs/sample, median (min-max) | sealed µs/sample, median (min-max) "
+            "| sealed / plain (medians) | sealed / plain (per rep, median) | AEAD calls per sample | duplicates "
+            "refused per received sample |", "|---|---|---|---|---|---|---|---|---|"]
+    for label, folder in (("before", before), ("after", after)):
+        runs = [json.loads(line) for line in (folder / f"{scenario}.jsonl").read_text().splitlines() if line]
+        pairs = _pairs(runs)
+        for side in ("gcs", "drone"):
+            plain = [p["sides"][side]["cpu_us_per_sample"] for p, _ in pairs]
+            sealed = [s["sides"][side]["cpu_us_per_sample"] for _, s in pairs]
+            ratios = [b / a for a, b in zip(plain, sealed, strict=True)]
+            calls = [c for _, s in pairs if (c := aead_per_sample(s, side)) is not None]
+            dups = [s["sides"][side]["seal_counters"].get("duplicate", 0) / max(1, s["sides"][side]["received"])
+                    for _, s in pairs]
+            mp, ms = statistics.median(plain), statistics.median(sealed)
+            rows.append(f"| {label} | {side} | {len(pairs)} | {mp:.1f} ({min(plain):.1f}-{max(plain):.1f}) "
+                        f"| {ms:.1f} ({min(sealed):.1f}-{max(sealed):.1f}) | {ms / mp:.3f} "
+                        f"| {statistics.median(ratios):.3f} ({min(ratios):.3f}-{max(ratios):.3f}) "
+                        f"| {statistics.median(calls):.2f} | {statistics.median(dups):.2f} |")
+    return "\n".join(rows) + "\n"
+
+
+def stack(copies: int, samples: int, rounds: int, keys_dir: Path) -> dict[str, float]:
+    """µs of process CPU per sample (publisher + subscriber side) of each scheme for ``copies`` copies."""
+    from drone_contract.messages import DroneSetpoint
+    from zenoh_robot.keyring import Keyring
+    from zenoh_robot.message import type_support
+    from zenoh_robot.wire import ENVELOPE, DuplicateSample, sealed
+
+    ts = type_support(DroneSetpoint)
+    body = ts.encode(DroneSetpoint(client_id=GCS_ID, x=1.0, y=2.0, z=-3.0))
+    key = f"{DRONE_ID}/setpoint"
+    pack = ENVELOPE.encoder(ts, 7).pack
+    unpack = ENVELOPE.decoder(ts)
+    gcs_wire, drone_wire = sealed(ENVELOPE, Keyring(keys_dir, GCS_ID)), sealed(ENVELOPE, Keyring(keys_dir, DRONE_ID))
+
+    def plain(n: int) -> None:
+        for seq in range(1, n + 1):
+            payload = pack(seq, seq, body)
+            for _ in range(copies):
+                unpack(payload, None)
+
+    def per_copy(n: int) -> None:
+        seal, opened = gcs_wire.sealer(key), drone_wire.keyed_decoder(ts, key)
+        for seq in range(1, n + 1):
+            payload = pack(seq, seq, body)
+            for _ in range(copies):
+                opened(seal(payload), None)
+
+    def once(n: int) -> None:
+        seal, opened = gcs_wire.sealer(key, repeated=True), drone_wire.keyed_decoder(ts, key)
+        for seq in range(1, n + 1):
+            sealed_payload = seal(pack(seq, seq, body))
+            opened(sealed_payload, None)
+            for _ in range(copies - 1):
+                try:
+                    opened(sealed_payload, None)
+                except DuplicateSample:
+                    pass
+
+    out: dict[str, float] = {}
+    for name, fn in (("plain", plain), ("sealed_per_copy", per_copy), ("sealed_once", once)):
+        fn(1000)    # warm: imports, subkeys, caches
+        best = float("inf")
+        for _ in range(rounds):
+            t0 = time.process_time_ns()
+            fn(samples)
+            best = min(best, (time.process_time_ns() - t0) / samples / 1e3)
+        out[name] = best
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog=f"python -m {MODULE}", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -188,6 +292,15 @@ def main(argv: list[str] | None = None) -> int:
     e.add_argument("--start-at", type=float, required=True)
     e.add_argument("--duration", type=float, required=True)
     e.add_argument("--out", type=Path, required=True)
+    k = sub.add_parser("stack", help="what the seal adds per sample in the stack (one process, no Zenoh)")
+    k.add_argument("--copies", default="1,2,4,16", help="copies per sample, comma separated")
+    k.add_argument("--samples", type=int, default=20000)
+    k.add_argument("--rounds", type=int, default=5)
+    k.add_argument("--out", type=Path, default=None, help="also write the rows here as JSON")
+    c = sub.add_parser("compare", help="before/after tables from two output folders")
+    c.add_argument("--before", type=Path, required=True)
+    c.add_argument("--after", type=Path, required=True)
+    c.add_argument("--scenario", choices=SCENARIOS, default="streams")
     p.add_argument("--scenario", choices=SCENARIOS, default="streams")
     p.add_argument("--reps", type=int, default=5)
     p.add_argument("--rate", type=float, default=50.0, help="Hz per stream")
@@ -197,6 +310,24 @@ def main(argv: list[str] | None = None) -> int:
     if args.cmd == "endpoint":
         endpoint(args.side, args.wire, args.keys, args.group, args.scenario, args.rate, args.start_at, args.duration,
                  args.out)
+        return 0
+    if args.cmd == "stack":
+        from zenoh_robot.tools import keys
+        rows = []
+        with tempfile.TemporaryDirectory(prefix="zr-seal-stack-") as tmp:
+            keys.make_link_keys(tmp, gcs={GCS_ID: [DRONE_ID]})
+            for n in (int(c) for c in args.copies.split(",")):
+                r = stack(n, args.samples, args.rounds, Path(tmp) / keys.LINK_DIR)
+                rows.append({"copies": n, **r})
+                print(f"copies {n:3d}: plain {r['plain']:6.2f} µs, sealed per copy {r['sealed_per_copy']:6.2f} µs "
+                      f"(+{r['sealed_per_copy'] - r['plain']:.2f}), sealed once {r['sealed_once']:6.2f} µs "
+                      f"(+{r['sealed_once'] - r['plain']:.2f}) a sample", flush=True)
+        if args.out is not None:
+            args.out.write_text(json.dumps({"samples": args.samples, "rounds": args.rounds, "rows": rows,
+                                            "load_avg": os.getloadavg()[0]}, indent=1) + "\n")
+        return 0
+    if args.cmd == "compare":
+        print(compare(args.before, args.after, args.scenario), end="")
         return 0
     runs = run(args.reps, args.scenario, args.rate, args.duration, args.out)
     table = summary(runs)

@@ -10,8 +10,8 @@ from .._wire.envelope import MalformedSample
 from .envelope_format import ENVELOPE, EnvelopeWireFormat
 from .format import Decoder, GraphFormat, Header, SampleEncoder, WireFormat, WireSample
 from .ros2 import Ros2WireFormat, ros2_wire
-from .sealed import SealCounters, SealedWireFormat, sealed
+from .sealed import DuplicateSample, SealCounters, SealedWireFormat, sealed
 
-__all__ = ["ENVELOPE", "Decoder", "EnvelopeWireFormat", "GraphFormat", "Header", "MalformedSample",
+__all__ = ["ENVELOPE", "Decoder", "DuplicateSample", "EnvelopeWireFormat", "GraphFormat", "Header", "MalformedSample",
            "Ros2WireFormat", "SampleEncoder", "SealCounters", "SealedWireFormat", "WireFormat", "WireSample",
            "ros2_wire", "sealed"]

@@ -6,40 +6,66 @@ unchanged.
 
 Payload (33 bytes more than the inner one)::
 
-    flags (1: 0x5A authenticate-only, 0x5B encrypted) | key id (4) | epoch (8) | counter (4)
-    | inner bytes (plain) or ciphertext | tag (16)
+    flags (1) | key id (4) | epoch (8) | counter (4) | inner bytes (plain) or ciphertext | tag (16)
 
-The nonce is epoch + counter (12 bytes): the epoch is random per sealer (one per publisher, new
-on every start), the counter counts every transmitted copy; at 2**32 a new epoch is drawn. The
-Zenoh key expression is bound by the key, not by the associated data: each (link key, key
-expression) pair seals under its own subkey, HKDF-SHA256(secret, info = :data:`SUBKEY_INFO` + key
-expression), derived once per publisher or per (subscription, key). A sample re-put on another key
-then fails its tag, and the associated data is the payload's own contiguous prefix: authenticate-only
-seals ``head + inner`` as associated data of an empty plaintext, encryption ``head``; no bytes are
-joined or copied to build it. Encryption is off unless asked (it hides nothing a radio observer
-needs less than the timing; docs/security.md has the cost).
+Flags: 0x5A authenticate-only, 0x5B encrypted, either with :data:`REPEATED` (0x04) set when the
+publisher re-sends the very same sealed bytes (a QoS with ``repeat``). The nonce is epoch + counter
+(12 bytes): the epoch is random per sealer (one per publisher, new on every start), the counter
+counts every *sealed sample*; at 2**32 a new epoch is drawn. The Zenoh key expression is bound by
+the key, not by the associated data: each (link key, key expression) pair seals under its own subkey,
+HKDF-SHA256(secret, info = :data:`SUBKEY_INFO` + key expression), derived once per publisher or per
+(subscription, key). A sample re-put on another key then fails its tag, and the associated data is
+the payload's own contiguous prefix: authenticate-only seals ``head + inner`` as associated data of
+an empty plaintext, encryption ``head``; no bytes are joined or copied to build it. Encryption is off
+unless asked (it hides nothing a radio observer needs less than the timing; docs/security.md has the
+cost).
 
-Replay: the receiver keeps, per (key id, epoch), a 1024-slot ring of the counters seen (slot
-``counter % 1024`` holds the last counter put there; newest 64 epochs per key, LRU, evictions
-counted); a counter seen twice or older than the window is refused and counted. Repeats and
-redundancy copies are the same sample sent again, so each transmitted copy is sealed on its own
-(the publisher hands every copy to :meth:`SealingEncoder.sealer`'s function): two copies never
-share a counter, a repeat is never a "replay", and the inner deduplicator still delivers the sample
-once. Loss and reordering within the window cost nothing.
+Seal once, send many: a repeat (the same sample sent again by the repeater, ``_wire/repeater.py``)
+carries the first copy's sealed bytes, so a sample costs one AEAD call to seal however many copies
+leave. Redundancy history is not a copy: each sample carries its own history, so it is a new sample
+with its own bytes, sealed once. Service calls (:class:`ServiceSeal`) still seal every retry and
+reply copy on its own: a retry must reach the server's idempotency cache even when the first copy
+did arrive.
+
+Replay: the receiver keeps, per (key id, epoch), a 1024-slot ring of the counters accepted (slot
+``counter % 1024`` holds the last counter accepted there and whether it came ``REPEATED``; newest 64
+epochs per key, LRU, evictions counted). Before any AEAD work a counter is looked up: older than the
+window is ``stale``; accepted before is ``duplicate`` if that accepted sample was flagged
+``REPEATED`` (its copies are expected) and ``replayed`` otherwise; either way refused. Only a sample
+whose tag verified marks its counter accepted. Why this is safe:
+
+- Whichever copy arrives first is opened and delivered (loss may take the first one): the window
+  holds only counters whose tag verified, so a copy is refused only if an authentic copy with the
+  very same (key id, epoch, counter) was already delivered.
+- An attacker replaying a captured copy sends bytes whose counter was accepted (or, if no copy had
+  arrived yet, the legitimate sample itself: delivered once, as the publisher meant): a
+  ``duplicate`` or ``replayed``, dropped and counted, never a second delivery. Flipping a copy's
+  flags changes nothing: the verdict reads the flag stored with the accepted (authenticated) sample,
+  and on a fresh counter the flags are associated data, so the tag fails.
+- A forged packet naming a fresh counter goes to the tag check and fails it (``bad_tag``): it marks
+  nothing, so it cannot poison the window against the real sample with that counter, nor move the
+  window's top to make real counters ``stale``. A forged packet naming an accepted counter is refused
+  as a duplicate without the tag check: the same outcome as checking it, for less work, and it can
+  only raise the ``duplicate`` count (which is therefore a statistic, not an alarm).
+- Reordering and loss within the window cost nothing: a counter is refused only if it was accepted.
+- The inner deduplicator still delivers each sample once across redundancy histories.
 
 Keys (``zenoh_robot.keyring``): chosen by the key expression's first segment (the drone's
 namespace). A sample opens only under a key of that scope whose sender is not this node, and
 unrevoked. A GCS's key is a claim: a sealed sample whose type has a ``client_id`` field must
 name the key's sender there, or it is refused (so "the GCS in control" is a key, not a string).
 
-Cost: the per-sample path is one AEAD call, two byte joins and a few integer operations; keys,
-subkeys and the current replay window are looked up only when the sender or the keyring changes
-(a keyring is re-checked every ``refresh_s``, the revocation bound). docs/security.md has the figures.
+Cost: one AEAD call per sample to seal, one per sample to open (not per copy): a duplicate copy costs
+a slice, a lookup and a refusal (:class:`DuplicateSample`, which subscriptions drop without the
+malformed count or log). Keys, subkeys and the current replay window are looked up only when the
+sender or the keyring changes (a keyring is re-checked every ``refresh_s``, the revocation bound).
+docs/security.md has the figures.
 
-Threading: the format is per node; its refusal counters are locked. A sealer is called under its
-publisher's lock and on the repeater thread: its counter is an ``itertools.count`` (atomic under
-the GIL), its key and epoch one tuple swapped whole. A decoder (replay windows) belongs to one
-subscription, called one sample at a time.
+Threading: the format is per node; its refusal counters are locked (``opened``, ``sealed`` and
+``duplicate`` are statistics, counted without the lock). A sealer is called under its publisher's
+lock (the repeater re-sends sealed bytes, it does not seal) or by a service end's threads: its counter
+is an ``itertools.count`` (atomic under the GIL), its key and epoch one tuple swapped whole. A
+decoder (replay windows) belongs to one subscription, called one sample at a time.
 """
 from __future__ import annotations
 
@@ -63,6 +89,9 @@ if TYPE_CHECKING:
     from ..message import TypeSupport
 
 AUTH_ONLY, ENCRYPTED = 0x5A, 0x5B
+REPEATED = 0x04                     # a flag bit: this publisher re-sends these very bytes (its copies)
+SEAL_FLAGS = frozenset((AUTH_ONLY, ENCRYPTED, AUTH_ONLY | REPEATED, ENCRYPTED | REPEATED))
+_ENCRYPTED_BIT = AUTH_ONLY ^ ENCRYPTED
 HEAD = struct.Struct(">B4s8sI")     # flags, key id, epoch, counter
 HEAD_SIZE = HEAD.size               # 17
 TAG_SIZE = 16
@@ -85,7 +114,8 @@ class SealCounters:
     wrong_key: int = 0         # a key of another scope, or this node's own key
     revoked: int = 0
     bad_tag: int = 0           # forged, altered, truncated, or moved to another key expression
-    replayed: int = 0          # a counter seen before (captured bytes re-put)
+    replayed: int = 0          # a counter accepted before, of a sample sent once (captured bytes re-put)
+    duplicate: int = 0         # a counter accepted before, of a repeated sample: its copies (or a replay of one)
     stale: int = 0             # older than the replay window
     forged_claim: int = 0      # client_id is not the sealing GCS's
     malformed: int = 0         # too short or not sealed at all
@@ -96,29 +126,41 @@ class SealCounters:
 
 
 class ReplayWindow:
-    """Counters seen of one (key, epoch), the newest ``WINDOW`` below the highest: a fixed ring whose
-    slot ``c % WINDOW`` holds the last counter put there. A counter inside the window was seen iff its
-    slot holds it (a newer one there would be ``WINDOW`` ahead, which makes this one stale), so moving
-    forward clears nothing: O(1) per sample, no big-integer shifts."""
+    """Counters accepted of one (key, epoch), the newest ``WINDOW`` below the highest: a fixed ring whose
+    slot ``c % WINDOW`` holds ``c << 1 | repeated`` of the last counter accepted there. A counter inside
+    the window was accepted iff its slot holds it (a newer one there would be ``WINDOW`` ahead, which
+    makes this one stale), so moving forward clears nothing: O(1) per sample, no big-integer shifts.
+    :meth:`verdict` only reads (it runs before the tag check); :meth:`accept` runs after it."""
     __slots__ = ("top", "slots")
 
     def __init__(self) -> None:
         self.top = -1
         self.slots = [-1] * WINDOW
 
-    def check(self, counter: int) -> str | None:
-        """None if ``counter`` is fresh (and marks it), else "replayed" or "stale"."""
+    def verdict(self, counter: int) -> str | None:
+        """None if ``counter`` is fresh, else "stale", "duplicate" (accepted, flagged repeated) or "replayed"."""
         if counter > self.top:
-            self.top = counter
-            self.slots[counter & _SLOT] = counter
             return None
         if self.top - counter >= WINDOW:
             return "stale"
-        slot = counter & _SLOT
-        if self.slots[slot] == counter:
-            return "replayed"
-        self.slots[slot] = counter
+        held = self.slots[counter & _SLOT]
+        if held >> 1 == counter:
+            return "duplicate" if held & 1 else "replayed"
         return None
+
+    def accept(self, counter: int, repeated: bool) -> None:
+        """Mark ``counter`` accepted (its sample's tag verified)."""
+        if counter > self.top:
+            self.top = counter
+        self.slots[counter & _SLOT] = counter << 1 | repeated
+
+
+class DuplicateSample(MalformedSample):
+    """A copy of a sealed sample already delivered (wire/sealed.py), refused before any AEAD work and
+    counted as ``duplicate`` on the format: not malformed, so a subscription drops it silently."""
+
+
+_DUPLICATE = "sealed sample refused (duplicate)"
 
 
 def subkey_aead(secret: bytes, key_expr: bytes) -> Any:
@@ -156,11 +198,13 @@ class _SealState(NamedTuple):
 class _Sealer:
     """Seals payloads on one key expression with the node's current key for it (one publisher)."""
 
-    def __init__(self, keyring: Keyring, key_expr: str, encrypt: bool, counters: SealCounters) -> None:
+    def __init__(self, keyring: Keyring, key_expr: str, encrypt: bool, counters: SealCounters,
+                 repeated: bool = False) -> None:
         self._keyring = keyring
         self._key_expr = key_expr.encode()
         self._scope = scope_of(key_expr)
-        self._flags = ENCRYPTED if encrypt else AUTH_ONLY
+        self._encrypt = encrypt
+        self._flags = (ENCRYPTED if encrypt else AUTH_ONLY) | (REPEATED if repeated else 0)
         self._counters = counters
         self._lock = threading.Lock()
         self._due = 0.0
@@ -202,7 +246,7 @@ class _Sealer:
         nonce = state.epoch + counter.to_bytes(4, "big")
         head = state.prefix + nonce
         self._counters.sealed += 1     # a statistic: a lost increment between threads is fine
-        if self._flags == AUTH_ONLY:
+        if not self._encrypt:
             signed = head + inner
             tag: bytes = state.aead.encrypt(nonce, b"", signed)
             return signed + tag
@@ -212,7 +256,7 @@ class _Sealer:
 
 class SealingEncoder:
     """The inner format's encoder (``pack``: the inner bytes) and :meth:`sealer`, the function the
-    publisher passes every transmitted copy through."""
+    publisher passes every sample through once (its repeats re-send the sealed bytes)."""
 
     def __init__(self, fmt: SealedWireFormat, inner: SampleEncoder) -> None:
         self._fmt = fmt
@@ -224,8 +268,8 @@ class SealingEncoder:
     def attachment(self, seq: int, stamp_ns: int) -> bytes | None:
         return None
 
-    def sealer(self, key_expr: str) -> Callable[[bytes], bytes]:
-        return self._fmt.sealer(key_expr)
+    def sealer(self, key_expr: str, repeated: bool = False) -> Callable[[bytes], bytes]:
+        return self._fmt.sealer(key_expr, repeated)
 
 
 class _Opener:
@@ -316,9 +360,10 @@ class _Opener:
         self._hot_ident, self._hot = ident, entry
 
     def open(self, payload: bytes) -> tuple[bytes, LinkKey]:
-        """(inner bytes, the key that sealed them) of an authentic fresh sample; MalformedSample otherwise."""
+        """(inner bytes, the key that sealed them) of an authentic fresh sample; MalformedSample otherwise
+        (:class:`DuplicateSample` for a copy of one already opened)."""
         flags = payload[0] if len(payload) >= OVERHEAD else 0
-        if flags != AUTH_ONLY and flags != ENCRYPTED:
+        if flags not in SEAL_FLAGS:
             raise self._refuse("malformed", "not a sealed sample")
         ident = payload[1:13]
         entry = self._hot
@@ -328,23 +373,28 @@ class _Opener:
             entry = self._lookup(ident)
         assert entry is not None
         key, aead, window = entry
+        # Before any AEAD work: the window holds only counters whose tag verified (module doc: why).
+        counter = int.from_bytes(payload[13:HEAD_SIZE], "big")
+        verdict = window.verdict(counter)
+        if verdict is not None:
+            if verdict == "duplicate":
+                self._fmt.counters.duplicate += 1    # a statistic, as opened: the hot path takes no lock
+                raise DuplicateSample(_DUPLICATE)
+            raise self._refuse(verdict, f"counter {counter} of epoch {ident[4:].hex()} under key {key.key_id}")
         nonce = payload[5:HEAD_SIZE]
         try:
             # Copies, not memoryviews: for samples of up to a few kB a slice costs less than a view.
-            if flags == AUTH_ONLY:
+            if flags & _ENCRYPTED_BIT:
+                inner = aead.decrypt(nonce, payload[HEAD_SIZE:], payload[:HEAD_SIZE])
+            else:
                 aead.decrypt(nonce, payload[-TAG_SIZE:], payload[:-TAG_SIZE])
                 inner = payload[HEAD_SIZE:-TAG_SIZE]
-            else:
-                inner = aead.decrypt(nonce, payload[HEAD_SIZE:], payload[:HEAD_SIZE])
         except self._invalid_tag:
             raise self._refuse("bad_tag", f"tag does not verify under key {key.key_id} on this key") from None
         # After the tag: only an authentic sample may move (or make) a window.
         if not hot:
             self._remember(ident, entry)
-        counter = int.from_bytes(payload[13:HEAD_SIZE], "big")
-        verdict = window.check(counter)
-        if verdict is not None:
-            raise self._refuse(verdict, f"counter {counter} of epoch {ident[4:].hex()} under key {key.key_id}")
+        window.accept(counter, bool(flags & REPEATED))
         return inner, key
 
 
@@ -391,11 +441,12 @@ class SealedWireFormat:
     def encoder(self, type_support: TypeSupport, publisher_id: int) -> SealingEncoder:
         return SealingEncoder(self, self.inner.encoder(type_support, publisher_id))
 
-    def sealer(self, key_expr: str) -> Callable[[bytes], bytes]:
-        """Seals each payload handed to it on ``key_expr`` (one per publisher or service end)."""
+    def sealer(self, key_expr: str, repeated: bool = False) -> Callable[[bytes], bytes]:
+        """Seals each payload handed to it on ``key_expr`` (one per publisher or service end);
+        ``repeated``: the caller re-sends the sealed bytes as they are (copies count as duplicates)."""
         if "*" in key_expr:
             raise ValueError(f"sealed: {key_expr!r} is not one key (a seal binds the key it travels on)")
-        return _Sealer(self.keyring, key_expr, self.encrypt, self.counters)
+        return _Sealer(self.keyring, key_expr, self.encrypt, self.counters, repeated)
 
     def decoder(self, type_support: TypeSupport | None) -> Decoder:
         """A decoder that knows no key expression: it refuses every sample (the seal binds the key;
