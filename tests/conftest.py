@@ -18,6 +18,7 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -218,3 +219,23 @@ def talker(request: pytest.FixtureRequest) -> Iterator[str]:
     finally:
         kill_process(proc)
         env.undo()
+
+
+def bare_loss_monitor(monkeypatch: pytest.MonkeyPatch) -> tuple[Any, list[float]]:
+    """A LossMonitor's estimator alone (no session, no probe thread) on a clock the test drives:
+    set ``clock[0]`` (seconds) before each probe."""
+    from collections import OrderedDict
+
+    from zenoh_robot import loss_feedback
+    clock = [1000.0]
+
+    class FakeTime:
+        @staticmethod
+        def monotonic() -> float:
+            return clock[0]
+    monkeypatch.setattr(loss_feedback, "time", FakeTime)
+    m = loss_feedback.LossMonitor.__new__(loss_feedback.LossMonitor)
+    m.id, m.window_s, m.long_window_s, m.forget_s, m.max_peers = 1, 1.0, 5.0, 10.0, 32
+    m._peers, m._lock = OrderedDict(), threading.Lock()
+    m.probes_received = m.bad_probes = 0
+    return m, clock

@@ -8,15 +8,12 @@ import json
 import random
 import subprocess
 import sys
-import threading
 import time
-from collections import OrderedDict
 
 import pytest
-from conftest import skip_unless_required
+from conftest import bare_loss_monitor, skip_unless_required
 
 from drone_lab.experiment.netns import BurstModel, LossyLink, unavailable_reason
-from zenoh_robot import loss_feedback as feedback
 from zenoh_robot.loss_feedback import BurstEstimate, LinkProbe, LossMonitor, repeat_plan
 
 PERIOD = 0.05
@@ -24,18 +21,9 @@ PERIOD = 0.05
 
 def _estimator(monkeypatch: pytest.MonkeyPatch) -> tuple[LossMonitor, list[float]]:
     """A LossMonitor's estimator alone, on a clock the test drives (no session, no probe thread)."""
-    clock = [1000.0]
-
-    class FakeTime:
-        @staticmethod
-        def monotonic() -> float:
-            return clock[0]
-    monkeypatch.setattr(feedback, "time", FakeTime)
-    m = LossMonitor.__new__(LossMonitor)
-    m.id, m.window_s, m.long_window_s, m.forget_s, m.max_peers = 1, 1.0, 5.0, 10.0, 32
-    m._peers, m._lock = OrderedDict(), threading.Lock()
-    m.probes_received = m.bad_probes = 0
-    return m, clock
+    monitor: LossMonitor
+    monitor, clock = bare_loss_monitor(monkeypatch)
+    return monitor, clock
 
 
 def _feed(m: LossMonitor, clock: list[float], lost: list[bool], seq0: int = 0) -> None:

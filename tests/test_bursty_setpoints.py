@@ -8,17 +8,14 @@ from __future__ import annotations
 
 import random
 import statistics
-import threading
 import time
-from collections import OrderedDict
 
 import pytest
-from conftest import linked_nodes, wait_for
+from conftest import bare_loss_monitor, linked_nodes, wait_for
 
 from drone_contract.messages import DroneSetpoint
 from drone_contract.streams import PROFILES
-from zenoh_robot import loss_feedback as feedback
-from zenoh_robot.loss_feedback import BurstEstimate, LinkProbe, LossMonitor, apply_repeat_plan, repeat_plan
+from zenoh_robot.loss_feedback import BurstEstimate, LinkProbe, apply_repeat_plan, repeat_plan
 
 PERIOD = 0.05        # the monitor's probe period
 DEADLINE = 0.5       # the setpoint stream's deadline: PX4's 500 ms
@@ -26,19 +23,9 @@ DEADLINE = 0.5       # the setpoint stream's deadline: PX4's 500 ms
 
 def _estimates(monkeypatch: pytest.MonkeyPatch, drops_per_window: list[list[bool]]) -> list[BurstEstimate]:
     """A LossMonitor's burst estimate after each 5 s window of probes (lost or not), on a test clock."""
-    clock = [1000.0]
-
-    class FakeTime:
-        @staticmethod
-        def monotonic() -> float:
-            return clock[0]
-    monkeypatch.setattr(feedback, "time", FakeTime)
     out = []
     for drops in drops_per_window:
-        m = LossMonitor.__new__(LossMonitor)
-        m.id, m.window_s, m.long_window_s, m.forget_s, m.max_peers = 1, 1.0, 5.0, 10.0, 32
-        m._peers, m._lock = OrderedDict(), threading.Lock()
-        m.probes_received = m.bad_probes = 0
+        m, clock = bare_loss_monitor(monkeypatch)
         for i, drop in enumerate(drops):
             clock[0] = 1000.0 + i * PERIOD
             if not drop:

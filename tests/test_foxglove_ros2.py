@@ -11,13 +11,12 @@ import asyncio
 import json
 import secrets
 import struct
-import subprocess
 import threading
 import time
 from typing import Any
 
 import websockets as websockets
-from conftest import free_port, python_proc
+from conftest import free_port, python_proc, stop_process
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from zenoh_robot import Node, QoSProfile, SessionConfig
@@ -103,12 +102,7 @@ def test_bridge_shows_ros2_topics_as_cdr_channels_with_ros2msg_schemas() -> None
         finally:
             stop.set()
             talker.join()
-            bridge.terminate()
-            try:
-                out, _ = bridge.communicate(timeout=15)
-            except subprocess.TimeoutExpired:
-                bridge.kill()
-                out, _ = bridge.communicate()
+            out = stop_process(bridge)
     for topic, type_name in TOPICS.items():
         assert topic in channels, f"advertised: {sorted(channels)}"
         ch = channels[topic]

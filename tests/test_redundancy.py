@@ -195,24 +195,11 @@ def _reference_loss(arrivals: list[float], first_seen: float, period: float, now
 def test_link_monitor_running_counts_measure_the_same_loss_as_a_rescan(monkeypatch) -> None:
     """A synthetic probe pattern (clean, 30 % random loss, a 95 % burst, silence, a peer joining late):
     at every 20 Hz tick the monitor's per-window counts give the loss a full rescan gives."""
-    import threading
-    from collections import OrderedDict
+    from conftest import bare_loss_monitor
 
-    from zenoh_robot import loss_feedback as feedback
-    from zenoh_robot.loss_feedback import LinkProbe, LossMonitor
+    from zenoh_robot.loss_feedback import LinkProbe
 
-    clock = [1000.0]
-
-    class FakeTime:
-        @staticmethod
-        def monotonic() -> float:
-            return clock[0]
-    monkeypatch.setattr(feedback, "time", FakeTime)
-    # The estimator alone: no session, no probe thread (the clock is driven by the test).
-    m = LossMonitor.__new__(LossMonitor)
-    m.id, m.window_s, m.long_window_s, m.forget_s, m.max_peers = 1, 1.0, 5.0, 10.0, 32
-    m._peers, m._lock = OrderedDict(), threading.Lock()
-    m.probes_received = m.bad_probes = 0
+    m, clock = bare_loss_monitor(monkeypatch)   # the estimator alone, on the test's clock
 
     rnd = random.Random(17)
     sent: dict[int, list[float]] = {2: [], 3: []}
