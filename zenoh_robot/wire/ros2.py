@@ -26,6 +26,7 @@ import os
 import struct
 import threading
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -368,20 +369,32 @@ class Ros2WireFormat:
                 seq, stamp, gid = unpack_attachment(attachment)
                 return "", "", gids.get(gid), seq, stamp, payload, {}
             return decode_any
-        deserialize = _codec(type_support).deserialize
+        codec = _codec(type_support)
+        deserialize = codec.deserialize
+        generated = getattr(codec, "fast", None)      # the generated codec, when the type has one
+        fast: Callable[[bytes, bool], list[Any]] | None = generated.decode if generated is not None else None
         name, type_hash = type_support.name, type_support.hash
+        unpack, cdr_le = ATTACHMENT.unpack, CDR_HEADER[:2]
 
         def decode(payload: bytes, attachment: bytes | None) -> Header:
-            seq, stamp, gid = unpack_attachment(attachment)
-            if payload[:2] != CDR_HEADER[:2]:
+            # The hot path (issue #30): the common attachment unpacked here, the generated decoder called
+            # directly; anything else goes the long way, which names what is wrong.
+            if attachment is None or len(attachment) != ATTACHMENT_SIZE or attachment[16] != 16:
+                seq, stamp, gid = unpack_attachment(attachment)     # raises for all but the 33-byte form
+            else:
+                seq, stamp, _, gid = unpack(attachment)
+            if payload[:2] != cdr_le:
                 raise MalformedSample(f"not little-endian CDR (encapsulation {bytes(payload[:4]).hex()})")
             try:
                 # Bytes after the body are not read, as rmw_zenoh's Fast-CDR does not read them: PX4's zenoh
                 # module sends its uORB buffer's capacity (0-31 leftover bytes), and a strict reader would see
                 # none of PX4's topics. A body that does not fit is still refused.
-                body = deserialize(payload, cut_trailing=True)
-            except Exception as exc:    # rosbags raises several kinds for truncated or foreign bytes
-                raise MalformedSample(f"CDR does not decode as {name}: {type(exc).__name__}: {exc}") from None
+                body = fast(payload, True) if fast is not None else deserialize(payload, cut_trailing=True)
+            except Exception:
+                try:     # rosbags names what is wrong (or decodes what the generated codec did not foresee)
+                    body = deserialize(payload, cut_trailing=True)
+                except Exception as exc:    # rosbags raises several kinds for truncated or foreign bytes
+                    raise MalformedSample(f"CDR does not decode as {name}: {type(exc).__name__}: {exc}") from None
             return name, type_hash, gids.get(gid), seq, stamp, body, {}
         return decode
 
