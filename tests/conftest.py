@@ -239,3 +239,50 @@ def bare_loss_monitor(monkeypatch: pytest.MonkeyPatch) -> tuple[Any, list[float]
     m._peers, m._lock = OrderedDict(), threading.Lock()
     m.probes_received = m.bad_probes = 0
     return m, clock
+
+
+CLI = [sys.executable, "-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())"]
+
+
+def record_ros2_talker(out: Path, domain: int, duration: float) -> subprocess.CompletedProcess[str]:
+    """``zenoh-robot bag record -a`` (its own process) of a ROS 2 wire node that publishes, every 20 ms,
+    sample i as a PoseStamped on /zr/pose (x = i, y = 2.0, z = -3.5) and an Imu on /zr/imu
+    (angular velocity covariance [i] * 9, acceleration (0.5, -0.5, 9.81)), both with the header stamp
+    (100 + i s, 7 ns) and frame "map"; the talker stops when the recorder returns."""
+    from zenoh_robot import Node, QoSProfile, SessionConfig
+    from zenoh_robot.ros2 import ros2_type
+    from zenoh_robot.wire import ros2_wire
+
+    T = {n: ros2_type(n) for n in ("geometry_msgs/msg/PoseStamped", "sensor_msgs/msg/Imu", "std_msgs/msg/Header",
+                                   "builtin_interfaces/msg/Time", "geometry_msgs/msg/Pose",
+                                   "geometry_msgs/msg/Point", "geometry_msgs/msg/Vector3")}
+    port = free_port()
+    config = SessionConfig(listen=[f"tcp/127.0.0.1:{port}"], multicast_scouting=False, shared_memory=False)
+    with Node("talker", namespace="zr", config=config, wire=ros2_wire(domain)) as node:
+        pose_pub = node.create_publisher(T["geometry_msgs/msg/PoseStamped"], "pose", QoSProfile(depth=10))
+        imu_pub = node.create_publisher(T["sensor_msgs/msg/Imu"], "imu", QoSProfile(depth=10))
+        stop = threading.Event()
+
+        def talk() -> None:
+            i = 0
+            while not stop.wait(0.02):
+                header = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=100 + i, nanosec=7),
+                                                  frame_id="map")
+                point = T["geometry_msgs/msg/Point"](x=float(i), y=2.0, z=-3.5)
+                pose_pub.publish(T["geometry_msgs/msg/PoseStamped"](
+                    header=header, pose=T["geometry_msgs/msg/Pose"](position=point)))
+                imu_pub.publish(T["sensor_msgs/msg/Imu"](
+                    header=header, angular_velocity_covariance=[float(i)] * 9,
+                    linear_acceleration=T["geometry_msgs/msg/Vector3"](x=0.5, y=-0.5, z=9.81)))
+                i += 1
+
+        talker = threading.Thread(target=talk, daemon=True)
+        talker.start()
+        try:
+            return subprocess.run([*CLI, "bag", "record", "-a", "-o", str(out), "--duration", f"{duration:g}",
+                                   "--ros-domain-id", str(domain), "-e", f"tcp/127.0.0.1:{port}",
+                                   "-l", "tcp/127.0.0.1:0"],
+                                  cwd=ROOT, capture_output=True, text=True, timeout=60)
+        finally:
+            stop.set()
+            talker.join(timeout=2.0)

@@ -11,13 +11,12 @@ from __future__ import annotations
 
 import secrets
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
 from typing import Any
 
-from conftest import ROOT, free_port
+from conftest import CLI, ROOT, free_port, record_ros2_talker
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
@@ -27,7 +26,6 @@ from zenoh_robot.message import type_support
 from zenoh_robot.ros2 import cdr_codec, load_ros2_msg, ros2_type
 from zenoh_robot.wire import ros2_wire
 
-CLI = [sys.executable, "-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())"]
 POSE, IMU = "geometry_msgs/msg/PoseStamped", "sensor_msgs/msg/Imu"
 
 
@@ -78,35 +76,9 @@ def _recorded(path: Path) -> tuple[dict[str, list[Any]], dict[str, int]]:
 
 def test_bag_play_puts_a_ros2_recording_back_on_the_ros2_wire(tmp_path: Path) -> None:
     domain = 100 + secrets.randbelow(100)
-    T = {n: ros2_type(n) for n in (POSE, IMU, "std_msgs/msg/Header", "builtin_interfaces/msg/Time",
-                                   "geometry_msgs/msg/Pose", "geometry_msgs/msg/Point", "geometry_msgs/msg/Vector3")}
+    T = {n: ros2_type(n) for n in (POSE, IMU)}
     out = tmp_path / "ros2.mcap"
-    talker_port = free_port()
-    with Node("talker", namespace="zr", config=_config(talker_port), wire=ros2_wire(domain)) as node:
-        pose_pub = node.create_publisher(T[POSE], "pose", QoSProfile(depth=10))
-        imu_pub = node.create_publisher(T[IMU], "imu", QoSProfile(depth=10))
-        stop = threading.Event()
-
-        def talk() -> None:
-            i = 0
-            while not stop.wait(0.02):
-                header = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=100 + i, nanosec=7),
-                                                  frame_id="map")
-                pose_pub.publish(T[POSE](header=header, pose=T["geometry_msgs/msg/Pose"](
-                    position=T["geometry_msgs/msg/Point"](x=float(i), y=2.0, z=-3.5))))
-                imu_pub.publish(T[IMU](header=header, angular_velocity_covariance=[float(i)] * 9,
-                                       linear_acceleration=T["geometry_msgs/msg/Vector3"](x=0.5, y=-0.5, z=9.81)))
-                i += 1
-
-        talker = threading.Thread(target=talk, daemon=True)
-        talker.start()
-        try:
-            r = subprocess.run([*CLI, "bag", "record", "-a", "-o", str(out), "--duration", "3",
-                                *_session_flags(domain, talker_port)],
-                               cwd=ROOT, capture_output=True, text=True, timeout=60)
-        finally:
-            stop.set()
-            talker.join(timeout=2.0)
+    r = record_ros2_talker(out, domain, 3)
     assert r.returncode == 0, r.stderr
     recorded, spans = _recorded(out)
     assert len(recorded.get("/zr/pose", [])) > 20 and len(recorded.get("/zr/imu", [])) > 20, r.stderr

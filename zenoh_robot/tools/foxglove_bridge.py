@@ -61,7 +61,6 @@ class FoxgloveBridge(Tap):
         self.counters = BridgeCounters()
         self._channels: dict[tuple[str, str], Any] = {}
         self._view_maker = schemas.ViewMaker()
-        self._no_definition: set[str] = set()     # at most MAX_CHANNELS
 
     @property
     def url(self) -> str:
@@ -115,14 +114,10 @@ class FoxgloveBridge(Tap):
             self._log_view(view, received_ns)
 
     def _handle_cdr(self, sample: TapSample) -> None:
-        pub = self.ros2_publisher(sample)
+        pub = self.ros2_publisher(sample, self.counters)
         if pub is None:
-            self.counters.untyped += 1
             return
         type_name = pub.topic_type
-        if type_name in self._no_definition:
-            self.counters.no_definition += 1
-            return
         fx = self._foxglove
         try:
             ch = self._channel(sample.topic, type_name, lambda: fx.Channel(
@@ -131,11 +126,8 @@ class FoxgloveBridge(Tap):
                 message_encoding=encodings.CDR, context=self.context,
                 metadata={"zr.type": type_name, "zr.hash": pub.topic_type_hash}))
         except KeyError:
-            if len(self._no_definition) < MAX_CHANNELS:
-                self._no_definition.add(type_name)
-            self.counters.no_definition += 1
-            log.warning("no ROS 2 definition of %s here: %s not shown (load its .msg with "
-                        "zenoh_robot.ros2.load_ros2_msg)", type_name, sample.topic)
+            self.no_ros2_definition(type_name, sample.topic, self.counters,
+                                    "not shown (load its .msg with zenoh_robot.ros2.load_ros2_msg)")
             return
         if ch is not None:
             payload = sample.data if sample.data is not None else sample.fields

@@ -83,7 +83,6 @@ class BagRecorder(Tap):
         self._schemas: dict[str, int] = {}
         self._channels: dict[tuple[str, str, str], int] = {}
         self._view_maker = schemas.ViewMaker()
-        self._no_definition: set[str] = set()     # ROS 2 types without a definition here (at most MAX_CHANNELS)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = open(self.path, "wb")
         self._writer = Writer(self._file, chunk_size=chunk_size,
@@ -163,21 +162,14 @@ class BagRecorder(Tap):
                 self._write_view(view, received_ns, sample.stamp_ns)
 
     def _handle_cdr(self, sample: TapSample) -> None:
-        pub = self.ros2_publisher(sample)
+        pub = self.ros2_publisher(sample, self.counters)
         if pub is None:
-            self.counters.untyped += 1
-            return
-        if pub.topic_type in self._no_definition:
-            self.counters.no_definition += 1
             return
         try:
             cid = self._channel(sample.topic, "cdr", pub.topic_type, lambda: self._cdr_channel(sample.topic, pub))
         except KeyError:
-            if len(self._no_definition) < MAX_CHANNELS:
-                self._no_definition.add(pub.topic_type)
-            self.counters.no_definition += 1
-            log.warning("no ROS 2 definition of %s here: %s not recorded (its schema could not be written)",
-                        pub.topic_type, sample.topic)
+            self.no_ros2_definition(pub.topic_type, sample.topic, self.counters,
+                                    "not recorded (its schema could not be written)")
             return
         if cid is None:
             return

@@ -33,6 +33,7 @@ log = logging.getLogger("zenoh_robot.bag")
 
 MAX_TOPICS = 512                 # a peer inventing topics cannot grow a tap without limit
 MAX_QUEUE_BYTES = 64 << 20       # samples waiting for the worker thread
+MAX_UNKNOWN_TYPES = 4096         # ROS 2 types remembered as having no definition here
 
 
 @dataclass(slots=True)
@@ -100,6 +101,7 @@ class Tap:
         self._sub_qos: dict[str, QoSProfile] = {}
         self._last_data: dict[str, bytes] = {}
         self._announced: set[str] = set()
+        self._no_definition: set[str] = set()     # ROS 2 types with no definition here (MAX_UNKNOWN_TYPES)
         self._cond = threading.Condition()
         self._stop = False
         self._closed = False
@@ -155,12 +157,28 @@ class Tap:
     def finish(self) -> None:
         pass
 
-    def ros2_publisher(self, sample: TapSample) -> TopicEndpointInfo | None:
+    def ros2_publisher(self, sample: TapSample, counters: Any) -> TopicEndpointInfo | None:
         """The typed ROS 2 publisher of a CDR sample (a raw ROS 2 subscription gets no type name): its own
-        token, else one of the topic's publishers; None while the graph has told of none."""
+        token, else one of the topic's publishers. None, counted on ``counters`` (a subclass's, with
+        ``untyped`` and ``no_definition``), while the graph has told of none, or for a type found to
+        have no definition here (:meth:`no_ros2_definition`)."""
         pubs = [p for p in self.node.graph.endpoints(sample.topic[1:], EndpointType.PUBLISHER) if p.topic_type]
+        if not pubs:
+            counters.untyped += 1
+            return None
         pubs.sort(key=lambda p: p.endpoint_gid != sample.publisher_id)   # its own token first
-        return pubs[0] if pubs else None
+        if pubs[0].topic_type in self._no_definition:
+            counters.no_definition += 1
+            return None
+        return pubs[0]
+
+    def no_ros2_definition(self, type_name: str, topic: str, counters: Any, what: str) -> None:
+        """A ROS 2 type this process has no definition of (its schema cannot be made): counted, named once
+        in the log, and its later samples refused early by :meth:`ros2_publisher`."""
+        counters.no_definition += 1
+        if len(self._no_definition) < MAX_UNKNOWN_TYPES:
+            self._no_definition.add(type_name)
+            log.warning("no ROS 2 definition of %s here: %s %s", type_name, topic, what)
 
     # -- discovery (Zenoh's thread: hand on only) ------------------------------------------
     def _on_graph(self, appeared: bool, info: TopicEndpointInfo) -> None:
