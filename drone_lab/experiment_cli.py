@@ -36,7 +36,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--transport", default="default",
                    help="comma-separated: default (each profile's own: multicast for resilient), unicast "
                         "(resilient over a UDP/TCP peer-to-peer session with fast open retries), router "
-                        "(resilient through a Zenoh router in the GCS namespace, both apps its clients)")
+                        "(every profile through a Zenoh router in the GCS namespace, both apps its clients)")
     p.add_argument("--loss-model", default="uniform",
                    help="comma-separated: uniform (independent drops, the thesis) and/or bursty (a two-state "
                         "channel at the same mean: 95 %% fades of 100 ms - 2 s, mean --burst-mean)")
@@ -83,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
         cells = [CellSpec(p, loss, s, args.duration, args.warmup, t, loss_model=m, burst_mean_s=args.burst_mean,
                           pattern=args.pattern, run=run)
                  for run in range(args.runs) for m in models for s in starts for p in profiles
-                 for t in transports if t == "default" or p == "resilient" for loss in args.loss]
+                 for t in transports if t in ("default", "router") or p == "resilient" for loss in args.loss]
         # Each flight: start-up, arm and climb (~15 s), warm-up, window, tail, landing (~15 s).
         console.print(f"{len(cells)} flown cells of {args.duration:g} s ({args.runs} runs each): about "
                       f"{len(cells) * (args.duration + args.warmup + 35) / 60:.0f} min; results in {out}")

@@ -11,6 +11,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 from conftest import last_json, skip_unless_required, wait_ready
@@ -251,3 +252,30 @@ def test_a_cell_flies_its_mission_through_50_percent_loss(tmp_path: Path) -> Non
     assert r["topics"]["setpoint"]["sent"] >= 70, r["topics"]["setpoint"]
     assert r["bandwidth_kBps"]["gcs"] > 0 and r["bandwidth_kBps"]["drone"] > 0, r["bandwidth_kBps"]
     assert (tmp_path / "cell" / "vehicle.jsonl").stat().st_size > 0
+
+
+class _Addresses:
+    """What transport_for asks of a link: each side's address (no namespaces needed)."""
+
+    def addr(self, side: str) -> str:
+        return {"gcs": "10.77.0.1", "drone": "10.77.0.2"}[side]
+
+    def dev(self, side: str) -> str:
+        return f"veth-{side}"
+
+
+def test_thesis_variants_through_a_router_are_plain_clients_over_tcp() -> None:
+    from drone_lab.experiment.cell import ROUTER_LOCAL, transport_for
+
+    link: Any = _Addresses()
+    for profile in ("reliable", "best_effort"):
+        gcs, drone = (transport_for(profile, link, side, "router") for side in ("gcs", "drone"))
+        assert (gcs["mode"], drone["mode"]) == ("client", "client")
+        assert gcs["connect"]["endpoints"] == [ROUTER_LOCAL]
+        assert drone["connect"]["endpoints"] == ["tcp/10.77.0.1:7447"]
+        assert drone["listen"]["endpoints"] == [] and not drone["scouting"]["multicast"]["enabled"]
+        # Zenoh's defaults, as the thesis ran them: none of the resilient profile's lossy tuning.
+        assert "link" not in drone["transport"] and "link" not in gcs["transport"]
+        assert "link" in transport_for("resilient", link, "drone", "router")["transport"]
+        with pytest.raises(ValueError, match="resilient profile only"):
+            transport_for(profile, link, "drone", "unicast")

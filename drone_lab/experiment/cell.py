@@ -51,6 +51,7 @@ class CellSpec:
     warmup: float = 5.0
     transport: str = "default"  # the profile's own; "unicast": resilient over a UDP/TCP peer-to-peer session;
     # "router": a Zenoh router in the GCS namespace, the GCS its client over loopback, the drone across the veth
+    # (the thesis's variants too: plain clients over one TCP link each, as rmw_zenoh deploys them)
     startup_timeout: float = STARTUP_TIMEOUT_S   # launch -> both apps up (a client's up = its session formed)
     loss_model: str = "uniform"   # "bursty": the netns two-state channel at the same mean (netns.BurstyChannel)
     burst_mean_s: float = 0.3     # the bursty channel's mean fade (clamped 0.1-2 s)
@@ -127,6 +128,12 @@ def transport_for(profile: str, link: LossyLink, side: str, transport: str = "de
     # touch every byte).
     endpoints = [f"tcp/{link.addr('gcs')}:{PORT}", f"udp/{link.addr('gcs')}:{PORT}"]
     plain: _Tuning = {"multicast_scouting": False, "shared_memory": False, "accept_timeout_s": 10.0}
+    if transport == "router":
+        # As rmw_zenoh deploys them: both apps clients of the ground router over one TCP link.
+        connect = [ROUTER_LOCAL] if side == "gcs" else endpoints[:1]
+        return SessionConfig(mode="client", listen=[], connect=connect, **plain).to_json5()
+    if transport != "default":
+        raise ValueError(f"transport {transport!r} is flown with the resilient profile only")
     if side == "gcs":
         cfg = SessionConfig(listen=endpoints, **plain)
     else:
