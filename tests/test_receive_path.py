@@ -84,6 +84,25 @@ def test_channel_path_keep_last_holds_only_the_newest_depth_samples(ns: str) -> 
         assert not sub.pending
 
 
+def test_channel_path_keep_last_under_depth_delivers_the_waiters_sample_first(ns: str) -> None:
+    with linked_nodes(ns) as (a, b):
+        got: list[int] = []
+        sub = b.create_subscription(Setpoint, "sp", lambda m, info: got.append(info.seq), QoSProfile(depth=5),
+                                    receive="channel")
+        pub = a.create_publisher(Setpoint, "sp", QoSProfile(depth=5))
+        time.sleep(0.3)
+        for burst in (1, 3, 2):     # nobody spins: the waiter holds the first, the ring the rest
+            start = len(got)
+            for _ in range(burst):
+                pub.publish(Setpoint(x=0.0))
+            time.sleep(0.3)
+            assert b.spin_until(lambda: len(got) == start + burst, 5.0), (got, sub.counters)
+        b.spin_until(lambda: False, 0.2)
+        assert got == [1, 2, 3, 4, 5, 6]
+        c = sub.counters
+        assert c.received == c.delivered == 6 and c.dropped == c.lost == 0 and not sub.pending
+
+
 def test_channel_path_counts_malformed_and_oversize_and_keeps_draining(ns: str) -> None:
     with linked_nodes(ns) as (a, b):
         got: list[float] = []
