@@ -28,6 +28,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from drone_contract.commands import NO_SETPOINTS_YET
 from drone_contract.messages import DroneSetpoint, valid_client_id
 from px4_link.targets import PositionTarget, Target, TargetRefused, TargetValidator, VehicleMotion, VelocityTarget
 from px4_link.telemetry import LocalPosition
@@ -197,7 +198,7 @@ class SetpointGate:
         cfg = self._config()
         fresh = cand is not None and now - cand.at <= max(cfg.setpoint_deadline, 0.5)
         if cand is None or not fresh:
-            raise TargetRefused("no_setpoints", f"no recent setpoints from {client}: stream setpoints (from the "
+            raise TargetRefused("no_setpoints", f"{NO_SETPOINTS_YET} from {client}: stream setpoints (from the "
                                                 "vehicle's position) before asking for OFFBOARD")
         if cand.sp is None:
             raise TargetRefused("setpoints_refused", f"setpoints refused: {cand.refused}")

@@ -17,6 +17,11 @@ HAND_OVER_S = 10.0   # how long an offer of control (hand_over) waits for the na
 # The drone's command service: ``<drone id>/command`` (Command -> CommandResult).
 COMMAND_SERVICE = "command"
 
+# How an offboard_start refusal for want of the sender's setpoints begins: the one refusal that
+# passes by itself (the stream has not reached the drone yet, e.g. a lossy link at start-up), so a
+# mission may ask again while it streams.
+NO_SETPOINTS_YET = "no recent setpoints"
+
 
 class CommandName(enum.StrEnum):
     ARM = "arm"

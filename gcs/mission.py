@@ -21,11 +21,14 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from drone_contract.commands import NO_SETPOINTS_YET
+
 from .app import DroneView, Gcs
 
 ON_FAILURE = ("continue", "hold")
 # PX4 SITL passes its pre-arm checks ~4 s after boot; a real vehicle's GPS fix can take longer.
 ARMABLE_TIMEOUT_S = 30.0
+OFFBOARD_START_WAIT_S = 15.0   # asking again while the drone has none of our setpoints yet
 
 
 class MissionFailed(Exception):
@@ -140,6 +143,22 @@ def _fly(gcs: Gcs, drone: DroneView, duration: float, out: dict[str, Any], log: 
                                                 "latency_s": time.monotonic() - t0, "detail": res.message})
         step(name, res.success, res.message)
 
+    def start_offboard() -> None:
+        # Refused for want of our setpoints, asked again while they stream (a lossy link at start-up
+        # may carry none of the first ones); any other refusal, or none reaching it in time, fails.
+        end = time.monotonic() + OFFBOARD_START_WAIT_S
+        while True:
+            t0 = time.monotonic()
+            res = drone.command("offboard_start")
+            out.setdefault("commands", []).append({"command": "offboard_start", "ok": res.success,
+                                                    "latency_s": time.monotonic() - t0, "detail": res.message})
+            if res.success or not res.message.startswith(NO_SETPOINTS_YET) or time.monotonic() >= end:
+                step("offboard_start", res.success, res.message)
+                return
+            log(f"mission: {drone.id}: offboard_start refused ({res.message}); asking again while the "
+                "setpoints stream")
+            until(lambda: False, 1.0)
+
     connected = until(lambda: bool(drone.state and drone.state.connected and drone.setpoints_sent > 5), 30.0)
     # Setpoints go only to a drone nobody else controls (gcs/app.py): say so rather than time out mutely.
     step("drone connected", connected,
@@ -147,7 +166,7 @@ def _fly(gcs: Gcs, drone: DroneView, duration: float, out: dict[str, Any], log: 
          f"{drone.state.controller} is in control of {drone.id}: no setpoints sent (take over with "
          "--take-control)" if not drone.may_stream else "")
     time.sleep(0.3)   # a few setpoints from the drone's position reach the companion first
-    command("offboard_start")
+    start_offboard()
     # Like an operator: arm once PX4's pre-arm checks pass (real PX4 refuses for ~4 s after boot,
     # "Preflight Fail: heading estimate not stable"), not at once and not after a fixed sleep.
     armable = until(lambda: bool(drone.state and drone.state.armable), ARMABLE_TIMEOUT_S)

@@ -1,0 +1,65 @@
+"""The mission asks for OFFBOARD again only while the drone lacks its setpoints (a lossy start-up),
+never after any other refusal, and never past its wait."""
+from __future__ import annotations
+
+import threading
+from types import SimpleNamespace
+from typing import Any
+
+import pytest
+
+from drone_contract.commands import NO_SETPOINTS_YET
+from drone_contract.messages import CommandResult, VehicleState
+from gcs import mission
+
+
+class _Drone:
+    """What the mission reads and calls of a drone, with scripted offboard_start answers."""
+
+    def __init__(self, answers: list[CommandResult]) -> None:
+        self.id = "uav1"
+        self.state = VehicleState(connected=True, armable=False)
+        self.setpoints_sent = 10
+        self.may_stream = True
+        self.failures: list[str] = []
+        self.answers = answers
+        self.asked: list[str] = []
+
+    def command(self, name: str, value: float = 0.0) -> CommandResult:
+        self.asked.append(name)
+        return self.answers.pop(0)
+
+
+def _fly(drone: _Drone) -> tuple[dict[str, Any], str]:
+    out: dict[str, Any] = {"steps": []}
+    gcs: Any = SimpleNamespace(config=SimpleNamespace(altitude=5.0))
+    with pytest.raises(mission.MissionFailed) as failed:
+        mission._fly(gcs, drone, 1.0, out, lambda *a: None, threading.Event(), lambda: "")
+    return out, str(failed.value)
+
+
+def test_offboard_start_is_asked_again_while_the_setpoints_have_not_arrived(monkeypatch: Any) -> None:
+    monkeypatch.setattr(mission, "ARMABLE_TIMEOUT_S", 0.2)     # the flight stops at "armable": enough here
+    no_setpoints = CommandResult(False, f"{NO_SETPOINTS_YET} from gcs: stream setpoints first")
+    drone = _Drone([no_setpoints, no_setpoints, CommandResult(True, "OFFBOARD", "OFFBOARD")])
+    out, why = _fly(drone)
+    assert drone.asked == ["offboard_start"] * 3
+    assert [c["ok"] for c in out["commands"]] == [False, False, True]
+    assert [s["step"] for s in out["steps"] if s["ok"]] == ["drone connected", "offboard_start"]
+    assert why.startswith("armable")
+
+
+def test_any_other_refusal_fails_the_mission_at_once() -> None:
+    drone = _Drone([CommandResult(False, "setpoints refused: outside the fence")])
+    out, why = _fly(drone)
+    assert drone.asked == ["offboard_start"]
+    assert why == "offboard_start: setpoints refused: outside the fence"
+
+
+def test_the_setpoints_never_arriving_fails_after_the_wait(monkeypatch: Any) -> None:
+    monkeypatch.setattr(mission, "OFFBOARD_START_WAIT_S", 1.5)
+    refusal = CommandResult(False, f"{NO_SETPOINTS_YET} from gcs")
+    drone = _Drone([refusal] * 10)
+    out, why = _fly(drone)
+    assert 2 <= len(drone.asked) <= 3
+    assert why.startswith(f"offboard_start: {NO_SETPOINTS_YET}")
