@@ -63,3 +63,36 @@ def test_the_setpoints_never_arriving_fails_after_the_wait(monkeypatch: Any) -> 
     out, why = _fly(drone)
     assert 2 <= len(drone.asked) <= 3
     assert why.startswith(f"offboard_start: {NO_SETPOINTS_YET}")
+
+
+class _LateServer:
+    """A command client whose drone's service turns up during a wait (of over 1 s) after a first call."""
+
+    def __init__(self, ready: bool) -> None:
+        self.ready = ready
+        self.calls = 0
+
+    def call(self, request: Any, timeout: float) -> CommandResult:
+        from zenoh_robot.services import ServiceUnavailable
+        self.calls += 1
+        if not self.ready:
+            raise ServiceUnavailable("service /uav1/command: no server")
+        return CommandResult(True, request.name, "OFFBOARD")
+
+    def wait_for_service(self, timeout: float | None = None) -> bool:
+        self.ready = self.ready or self.calls > 0 and timeout is not None and timeout > 1.0
+        return self.ready
+
+
+def test_a_command_waits_for_a_service_not_yet_known_then_sends_it_once() -> None:
+    from gcs.app import DroneView
+
+    view: Any = SimpleNamespace(commands=_LateServer(ready=False), gcs=SimpleNamespace(
+        config=SimpleNamespace(client_id="gcs")))
+    res = DroneView.command(view, "offboard_start", timeout=3.0)
+    assert res.success and view.commands.calls == 2
+    # No server within the timeout: a failed result naming it, not an exception.
+    view.commands = _LateServer(ready=False)
+    res = DroneView.command(view, "offboard_start", timeout=0.5)
+    assert not res.success and res.message == "ServiceUnavailable: service /uav1/command: no server"
+    assert view.commands.calls == 1
