@@ -63,13 +63,19 @@ def test_channel_path_keeps_order_across_batches_on_the_executor_thread(ns: str,
         assert calls["on_sample"] >= 1
 
 
+def _keep_last_5(a: Any, b: Any, got: list[int]) -> tuple[Any, Any]:
+    """A KEEP_LAST(5) channel subscription on ``b`` recording sequence numbers, and its publisher on ``a``."""
+    sub = b.create_subscription(Setpoint, "sp", lambda m, info: got.append(info.seq), QoSProfile(depth=5),
+                                receive="channel")
+    pub = a.create_publisher(Setpoint, "sp", QoSProfile(depth=5))
+    time.sleep(0.3)
+    return sub, pub
+
+
 def test_channel_path_keep_last_holds_only_the_newest_depth_samples(ns: str) -> None:
     with linked_nodes(ns) as (a, b):
         got: list[int] = []
-        sub = b.create_subscription(Setpoint, "sp", lambda m, info: got.append(info.seq), QoSProfile(depth=5),
-                                    receive="channel")
-        pub = a.create_publisher(Setpoint, "sp", QoSProfile(depth=5))
-        time.sleep(0.3)
+        sub, pub = _keep_last_5(a, b, got)
         for i in range(100):        # nobody spins: Zenoh's ring keeps the newest 5
             pub.publish(Setpoint(x=float(i)))
         time.sleep(0.5)
@@ -87,16 +93,14 @@ def test_channel_path_keep_last_holds_only_the_newest_depth_samples(ns: str) -> 
 def test_channel_path_keep_last_under_depth_delivers_the_waiters_sample_first(ns: str) -> None:
     with linked_nodes(ns) as (a, b):
         got: list[int] = []
-        sub = b.create_subscription(Setpoint, "sp", lambda m, info: got.append(info.seq), QoSProfile(depth=5),
-                                    receive="channel")
-        pub = a.create_publisher(Setpoint, "sp", QoSProfile(depth=5))
-        time.sleep(0.3)
+        sub, pub = _keep_last_5(a, b, got)
         for burst in (1, 3, 2):     # nobody spins: the waiter holds the first, the ring the rest
             start = len(got)
             for _ in range(burst):
                 pub.publish(Setpoint(x=0.0))
             time.sleep(0.3)
-            assert b.spin_until(lambda: len(got) == start + burst, 5.0), (got, sub.counters)
+            want = start + burst
+            assert b.spin_until(lambda want=want: len(got) == want, 5.0), (got, sub.counters)
         b.spin_until(lambda: False, 0.2)
         assert got == [1, 2, 3, 4, 5, 6]
         c = sub.counters
