@@ -156,6 +156,20 @@ def test_runs_give_median_and_range_and_the_flight_table_shows_what_the_vehicle_
     assert streams.endswith("| 69.1 | 507.1 |")
 
 
+def test_a_flight_that_failed_before_its_window_counts_as_a_failed_flight() -> None:
+    """From start-up a session or a command may not cross the loss: the mission fails before the window
+    and no setpoint is sent in it. That is a failed flight (0/1 in the table, listed with its reason),
+    not a window to leave out."""
+    failed = _flown("resilient", 50, 0, float("nan"), share=float("nan"), start="startup",
+                    transport="unicast", mission_failed="FAILED: drone connected: no state from the drone")
+    failed["flight"]["mission_ok"] = False
+    failed["topics"]["setpoint"] = {"sent": 0, "unique": 0}
+    md = markdown_report([failed])
+    assert any(line.startswith("| 50% | resilient@unicast | 1 | 0/1 |") for line in md.splitlines()), md
+    assert "- 50% resilient@unicast run 0: FAILED: drone connected: no state" in md
+    assert "Cells left out" not in md
+
+
 def test_report_only_regenerates_from_the_kept_raw_results(tmp_path: Path) -> None:
     """One command redraws every table from results.jsonl, the invalid lines included in the listing."""
     from zenoh_robot.tools.cli.main import main as cli

@@ -108,7 +108,11 @@ def skipped_reason(r: dict[str, Any]) -> str | None:
         return f"error: {r['error']}"
     if r.get("invalid"):
         return f"invalid: {r['invalid']}"
-    if not r.get("topics", {}).get("setpoint", {}).get("sent") and not r.get("link_failed"):
+    if (not r.get("topics", {}).get("setpoint", {}).get("sent") and not r.get("link_failed")
+            and not r.get("mission_failed")):
+        # A mission that failed before the window (a session or a command the loss did not let
+        # through, from start-up) is a failed flight, counted as one: only a window that missed
+        # streams for the harness's own reasons is left out.
         return "invalid: no setpoint sent in the window"
     return None
 
