@@ -151,6 +151,10 @@ def test_runs_give_median_and_range_and_the_flight_table_shows_what_the_vehicle_
     assert "| 90% | 1 | 845 ms | 1 |" in bursty
     assert "- 50% resilient run 3: invalid: sensor not sent" in md
     assert "- 50% resilient~bursty run 0: FAILED: offboard: drone left" in md
+    # One that failed after its window (the land's answer lost) is listed too, with the mission's reason.
+    late = _flown("resilient", 90, 0, 300.0)
+    late["flight"]["mission_ok"], late["flight"]["mission_result"] = False, "FAILED: land: ServiceTimeout"
+    assert "- 90% resilient run 0: FAILED: land: ServiceTimeout" in markdown_report([late])
     assert "9.0 s" not in md    # the invalid run's age is in no figure
     streams = next(line for line in md.splitlines() if line.startswith("| 50% | resilient | 3 | 80 |"))
     assert streams.endswith("| 69.1 | 507.1 |")

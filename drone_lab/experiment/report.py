@@ -273,8 +273,11 @@ def skipped_list(rows: list[dict[str, Any]]) -> str:
     items = [f"- {float(r.get('loss', math.nan)):g}% {r.get('profile')}{_run_tag(r)}: {why}" for r, why in bad if why]
     failed = [f"- {float(r.get('loss', math.nan)):g}% {r.get('profile')}{_run_tag(r)}: {r['link_failed']}"
               for r in rows if r.get("link_failed")]
-    flights = [f"- {float(r.get('loss', math.nan)):g}% {r.get('profile')}{_run_tag(r)}: {r['mission_failed']}"
-               for r in rows if r.get("mission_failed")]
+    # Every failed flight, the ones that failed after their window too (a land whose answer was lost).
+    flights = [f"- {float(r.get('loss', math.nan)):g}% {r.get('profile')}{_run_tag(r)}: "
+               f"{r.get('mission_failed') or r['flight'].get('mission_result', 'no mission record')}"
+               for r in rows if r.get("mission_failed")
+               or (r.get("flight") and not r["flight"].get("mission_ok") and not skipped_reason(r))]
     parts = (["Cells left out (not measurements):", *items] if items else []) + \
         (["Cells where the link failed the stack (both apps ran; counted as 0 % delivered):", *failed]
          if failed else []) + \
