@@ -135,8 +135,11 @@ def run_pub(args: argparse.Namespace) -> dict[str, Any]:
 
             def send() -> None:
                 # The encoding work a node does per publish (as the raw subscriber decodes per sample):
-                # the ratio is then the framework's own cost, not the message's serialisation.
-                pub.put(msgpack.packb((time.time_ns(), encode(msg)), use_bin_type=True))
+                # the ratio is then the framework's own cost, not the message's serialisation. Stamped
+                # where a Node's publish stamps (publisher.py: after the field values, before packing).
+                body = encode(msg)
+                stamp = time.time_ns()
+                pub.put(msgpack.packb((stamp, body), use_bin_type=True))
             sent, elapsed = _loop(send, args.count, period)
         finally:
             session.close()
