@@ -58,7 +58,7 @@ from zenoh_robot.image_fec import FecAssembler, ImageShare
 from zenoh_robot.image_transport import MAX_SLICES, FrameInfo, ImageSlice
 from zenoh_robot.loss_feedback import LossMonitor, apply_repeat_plan
 from zenoh_robot.msgs import Header, Image, SensorCombined
-from zenoh_robot.services import ServiceCallError, ServiceUnavailable, command_retry
+from zenoh_robot.services import ServiceCallError, command_retry
 from zenoh_robot.tools.stream_metrics import StreamRecorder
 from zenoh_robot.topic_statistics import with_cpu_budget
 
@@ -364,16 +364,15 @@ class DroneView:
         """Send a command and wait for the drone's answer; errors come back as a failed result.
 
         A drone whose state arrives before its command service is known (a lossy link: its streams
-        may cross before its declarations) is waited for within ``timeout``: nothing was sent yet."""
+        may cross before its declarations) is waited for within ``timeout`` before the one call: a
+        second call would be a new command that could run twice."""
         request = Command(name, float(value), text, force, self.gcs.config.client_id)
         end = time.monotonic() + timeout
+        client = self.commands
+        if client.discovers_servers and not client.service_is_ready():
+            client.wait_for_service(0.8 * timeout)   # the call itself keeps the rest of the timeout
         try:
-            try:
-                return self.commands.call(request, timeout=timeout)
-            except ServiceUnavailable:
-                if not self.commands.wait_for_service(max(0.0, end - time.monotonic())):
-                    raise
-                return self.commands.call(request, timeout=max(0.5, end - time.monotonic()))
+            return client.call(request, timeout=max(0.5, end - time.monotonic()))
         except ServiceCallError as exc:
             return CommandResult(False, f"{type(exc).__name__}: {exc}", "")
 

@@ -66,11 +66,22 @@ def test_the_setpoints_never_arriving_fails_after_the_wait(monkeypatch: Any) -> 
 
 
 class _LateServer:
-    """A command client whose drone's service turns up during a wait (of over 1 s) after a first call."""
+    """A command client (unicast: it discovers servers) whose drone's service turns up during a wait."""
 
-    def __init__(self, ready: bool) -> None:
-        self.ready = ready
+    def __init__(self, turns_up: bool) -> None:
+        self.turns_up = turns_up
+        self.ready = False
+        self.discovers_servers = True
         self.calls = 0
+        self.waited: list[float] = []
+
+    def service_is_ready(self) -> bool:
+        return self.ready
+
+    def wait_for_service(self, timeout: float | None = None) -> bool:
+        self.waited.append(timeout or 0.0)
+        self.ready = self.turns_up
+        return self.ready
 
     def call(self, request: Any, timeout: float) -> CommandResult:
         from zenoh_robot.services import ServiceUnavailable
@@ -79,20 +90,20 @@ class _LateServer:
             raise ServiceUnavailable("service /uav1/command: no server")
         return CommandResult(True, request.name, "OFFBOARD")
 
-    def wait_for_service(self, timeout: float | None = None) -> bool:
-        self.ready = self.ready or self.calls > 0 and timeout is not None and timeout > 1.0
-        return self.ready
 
-
-def test_a_command_waits_for_a_service_not_yet_known_then_sends_it_once() -> None:
+def test_a_command_waits_for_a_service_not_yet_known_and_is_sent_once() -> None:
     from gcs.app import DroneView
 
-    view: Any = SimpleNamespace(commands=_LateServer(ready=False), gcs=SimpleNamespace(
+    view: Any = SimpleNamespace(commands=_LateServer(turns_up=True), gcs=SimpleNamespace(
         config=SimpleNamespace(client_id="gcs")))
     res = DroneView.command(view, "offboard_start", timeout=3.0)
-    assert res.success and view.commands.calls == 2
-    # No server within the timeout: a failed result naming it, not an exception.
-    view.commands = _LateServer(ready=False)
+    assert res.success and view.commands.calls == 1 and view.commands.waited == [pytest.approx(2.4)]
+    # No server within the wait: one call still goes (it fails at once, nothing sent), a failed result.
+    view.commands = _LateServer(turns_up=False)
     res = DroneView.command(view, "offboard_start", timeout=0.5)
     assert not res.success and res.message == "ServiceUnavailable: service /uav1/command: no server"
     assert view.commands.calls == 1
+    # A multicast client (no declarations cross) never waits: its calls ride puts.
+    view.commands = _LateServer(turns_up=False)
+    view.commands.discovers_servers, view.commands.ready = False, True
+    assert DroneView.command(view, "hold").success and view.commands.waited == []

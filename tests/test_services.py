@@ -96,6 +96,7 @@ def test_timeout_when_the_server_does_not_spin(ns, client_node):
 
 def test_no_server_is_unavailable_quickly(client_node):
     client = client_node.create_client("nobody_serves_this", AddRequest, AddResponse)
+    assert client.discovers_servers      # a unicast session: service_is_ready follows declarations
     assert not client.wait_for_service(0.2)
     t0 = time.monotonic()
     with pytest.raises(ServiceUnavailable, match="no server"):

@@ -225,6 +225,7 @@ def test_put_carried_call_sends_the_asked_reply_copies_once_per_burst(ns, monkey
         _spin(srv)
         client = cli.create_client("bump", Bump, Count)
         assert client.retry is services_mod.ADAPTIVE_RETRY
+        assert not client.discovers_servers   # no declarations on a multicast session: only answers tell
         client.set_loss(0.5)
         copies = cp.call_plan(0.5, 3.0).reply_copies
         assert copies == 4

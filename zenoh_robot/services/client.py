@@ -219,6 +219,12 @@ class Client(Generic[Req, Resp]):
         self.loss = float(loss)
 
     # -- discovery -------------------------------------------------------------------
+    @property
+    def discovers_servers(self) -> bool:
+        """Whether :meth:`service_is_ready` follows the servers' declarations (False on a multicast
+        session, where none cross: it then says only whether a server has answered)."""
+        return not self._multicast
+
     def service_is_ready(self) -> bool:
         if self._multicast:
             return self._answered
