@@ -127,6 +127,8 @@ def test_a_second_format_carries_samples_between_two_nodes(json_pair, ns: str) -
     assert [(i.seq, i.source_stamp_ns, i.publisher_id) for _, i in got] == \
         [(s.seq, s.stamp_ns, pub.publisher_id) for s in sent]
     assert got[0][1].type_name == type_support(Setpoint).name
+    # The plain subscriber's callback runs on Zenoh's thread, not the spin: give it its own wait.
+    assert wait_for(lambda: len(keys) == 5), keys
     assert keys[0] == f"jz/{ns}/sp/{_mangle(type_support(Setpoint).name)}" == pub.data_key
     assert sub.counters.malformed == 0 and sub.counters.lost == 0
 
