@@ -206,6 +206,9 @@ def test_one_gcs_in_control_others_refused_and_told_why(ns: str) -> None:
         assert not res.success and "op is in control" in res.message
         # Its setpoints are refused and reported to it, and the refusal reaches the GCS in control too.
         assert wait_for(lambda: "setpoint_rejected" in r.other.kinds("intruder"), 5)
+        # Each GCS hears the event on its own subscription: wait for the one in control too.
+        assert wait_for(lambda: any(e.kind == "setpoint_rejected" and e.client_id == "intruder"
+                                    for e in r.op.events), 5)
         ev = next(e for e in r.op.events if e.kind == "setpoint_rejected" and e.client_id == "intruder")
         assert "op is in control" in ev.detail
         assert wait_for(lambda: "control_refused" in r.op.kinds("intruder"), 5)
