@@ -134,13 +134,17 @@ def _fly(gcs: Gcs, drone: DroneView, duration: float, out: dict[str, Any], log: 
             time.sleep(0.1)
         return pred()
 
-    def command(name: str, value: float = 0.0) -> None:
+    def send(name: str, value: float = 0.0) -> Any:
         # One call: the client retries it under one request id and the companion runs it once
-        # (services.py); a second call here would be a new command that could run twice.
+        # (services.py); a second call is a new command, made only after a refusal (start_offboard).
         t0 = time.monotonic()
         res = drone.command(name, value)
         out.setdefault("commands", []).append({"command": name, "ok": res.success,
                                                 "latency_s": time.monotonic() - t0, "detail": res.message})
+        return res
+
+    def command(name: str, value: float = 0.0) -> None:
+        res = send(name, value)
         step(name, res.success, res.message)
 
     def start_offboard() -> None:
@@ -148,10 +152,7 @@ def _fly(gcs: Gcs, drone: DroneView, duration: float, out: dict[str, Any], log: 
         # may carry none of the first ones); any other refusal, or none reaching it in time, fails.
         end = time.monotonic() + OFFBOARD_START_WAIT_S
         while True:
-            t0 = time.monotonic()
-            res = drone.command("offboard_start")
-            out.setdefault("commands", []).append({"command": "offboard_start", "ok": res.success,
-                                                    "latency_s": time.monotonic() - t0, "detail": res.message})
+            res = send("offboard_start")
             if res.success or not res.message.startswith(NO_SETPOINTS_YET) or time.monotonic() >= end:
                 step("offboard_start", res.success, res.message)
                 return
