@@ -7,14 +7,13 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from conftest import ROOT, linked_configs, wait_for
+from conftest import CLI, ROOT, linked_configs, wait_for
 from mcap.reader import make_reader  # noqa: E402
 
 from drone_contract.messages import VehicleState  # noqa: E402
@@ -24,8 +23,6 @@ from zenoh_robot.tools.bag.info import Record, iter_records, read_info  # noqa: 
 from zenoh_robot.tools.bag.play import BagPlayer  # noqa: E402
 from zenoh_robot.tools.bag.record import BagRecorder  # noqa: E402
 from zenoh_robot.wire import ENVELOPE  # noqa: E402
-
-CLI = [sys.executable, "-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())"]
 
 
 class Talker:

@@ -12,18 +12,16 @@ import json
 import secrets
 import socket
 import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import pytest
-from conftest import ROOT, free_port, python_proc, stop_process
+from conftest import CLI, ROOT, free_port, python_proc, stop_process
 from mcap.reader import make_reader  # noqa: E402
 
 DOMAIN = str(100 + secrets.randbelow(120))
 ENV = {"ZR_DOMAIN": DOMAIN}
-CLI = [sys.executable, "-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())"]
 
 
 def _strict(text: str) -> object:
@@ -133,36 +131,11 @@ def test_mavlink_tunnel_reaches_a_local_qgc_port(live_gcs):
 
 
 def test_gcs_foxglove_serves_the_live_view(drone, live_gcs):
-    import websockets as websockets
-    from test_foxglove import SUBPROTOCOLS
+    from foxglove_client import watch
 
     port = live_gcs.foxglove_port
-
-    async def advertised(timeout: float) -> dict[str, dict]:
-        channels: dict[str, dict] = {}
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:    # the server starts with the GCS: retry until it listens
-            try:
-                ws = await websockets.connect(f"ws://127.0.0.1:{port}", subprotocols=SUBPROTOCOLS, max_size=None,
-                                              open_timeout=2)
-                break
-            except OSError:
-                await asyncio.sleep(0.3)
-        else:
-            return channels
-        async with ws:
-            while time.monotonic() < deadline and f"/{drone}/state/pose" not in channels:
-                try:
-                    raw = await asyncio.wait_for(ws.recv(), max(0.1, deadline - time.monotonic()))
-                except TimeoutError:
-                    break
-                if isinstance(raw, str):
-                    msg = json.loads(raw)
-                    if msg.get("op") == "advertise":
-                        channels.update({ch["topic"]: ch for ch in msg["channels"]})
-        return channels
-
-    channels = asyncio.run(advertised(30.0))
+    pose = f"/{drone}/state/pose"
+    channels, _ = asyncio.run(watch(port, 30.0, lambda channels, got: pose in channels, retry_connect=True))
     assert f"/{drone}/state/pose" in channels and f"/{drone}/state" in channels, \
         (sorted(channels), live_gcs.out()[-2000:])
     assert channels[f"/{drone}/state"]["schemaName"] == "zenoh_robot/VehicleState"

@@ -61,3 +61,14 @@ def test_ros2_bench_alternates_modes_and_reports_median_spread_and_load(tmp_path
     assert "PoseStamped throughput | ros2 | 300/300" in md and "| 2 |" in md
     write_json(tmp_path / "ros2.json", codec, rows)
     assert json.loads((tmp_path / "ros2.json").read_text())["end_to_end"][0]["runs"][1]["received"] == 300
+
+
+def test_express_cells_run_both_sides_express_and_say_so() -> None:
+    """`zenoh-robot bench --express`: both sides publish express; every figure still there, and the
+    table says the cells were express (issue #30: express measured, not assumed)."""
+    r = run_cell(Cell("setpoint", "throughput", 0, 500), express=True)
+    assert r.express and not r.framework.error and not r.raw.error
+    assert r.framework.received == r.raw.received == 500
+    md = markdown([r], None)
+    assert md.splitlines()[-1] == "Both sides published with Zenoh's express (each sample sent at once, no batching)."
+    assert "express" not in markdown([run_cell(Cell("setpoint", "latency", 200, 50))], None)

@@ -6,17 +6,14 @@ import os
 import re
 import secrets
 import subprocess
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from conftest import ROOT, Lines, free_port, python_proc
+from conftest import CLI, ROOT, Lines, free_port, python_proc
 from conftest import kill_process as _stop
 
 from zenoh_robot import SessionConfig
-
-CLI = [sys.executable, "-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())"]
 
 TALKER = r"""
 import sys

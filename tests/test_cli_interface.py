@@ -2,11 +2,8 @@
 from __future__ import annotations
 
 import subprocess
-import sys
 
-from conftest import ROOT
-
-CLI = [sys.executable, "-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())"]
+from conftest import CLI, ROOT
 
 
 def cli(*args: str) -> subprocess.CompletedProcess:

@@ -7,16 +7,13 @@ one read-only, with an on-set callback that agrees to delete only ``scratch``.
 from __future__ import annotations
 
 import subprocess
-import sys
 import threading
 
-from conftest import ROOT
+from conftest import CLI, ROOT
 
 from zenoh_robot import Node
 from zenoh_robot.parameters import ParameterClient, ParameterType, SetParametersResult
 from zenoh_robot.parameters.types import Parameter
-
-CLI = [sys.executable, "-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())"]
 
 TALKER = r"""
 import sys

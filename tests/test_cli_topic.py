@@ -15,7 +15,7 @@ import sys
 import time
 
 import pytest
-from conftest import ROOT, Lines, kill_process
+from conftest import CLI, ROOT, Lines, kill_process
 
 from zenoh_robot import (
     DurabilityPolicy,
@@ -29,7 +29,6 @@ from zenoh_robot import (
 )
 from zenoh_robot.tools.cli.topic import adapted_qos
 
-CLI = [sys.executable, "-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())"]
 # As from a terminal: a test run started in the background (`pytest &`) passes an ignored
 # SIGINT on to its children, and Python then never turns Ctrl-C into KeyboardInterrupt.
 INTERACTIVE_CLI = [sys.executable, "-c", "import signal, sys; "

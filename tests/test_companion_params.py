@@ -6,14 +6,13 @@ import json
 import os
 import secrets
 import subprocess
-import sys
 import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from conftest import ROOT, free_port, python_proc, wait_for
+from conftest import CLI, ROOT, free_port, python_proc, wait_for
 
 from companion.params import SPECS, qos_param_names
 from drone_contract.messages import CONTROL_TOKEN_PREFIX, Command, CommandResult, FailsafeEvent, VehicleState
@@ -21,7 +20,6 @@ from drone_contract.streams import stream_profile
 from zenoh_robot import Node, SessionConfig
 
 OPERATOR = "tester"   # the client id the test's sets carry; it takes control first (safety limits: holder only)
-CLI = [sys.executable, "-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())"]
 
 
 def cli(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:

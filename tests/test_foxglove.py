@@ -8,24 +8,18 @@ from __future__ import annotations
 
 import asyncio
 import json
-import struct
 import subprocess
 import threading
 import time
 from pathlib import Path
 
 import numpy as np
-import websockets as websockets
 from conftest import free_port, linked_configs, python_proc
+from foxglove_client import watch
 
 from drone_contract.messages import VehicleState  # noqa: E402
 from zenoh_robot import Node, msgs, qos  # noqa: E402
 from zenoh_robot.image_transport import ImagePublisher  # noqa: E402
-
-SUBPROTOCOL = "foxglove.websocket.v1"     # the protocol's published name (Foxglove, Lichtblick)
-# foxglove-sdk >= 0.2x names the same protocol foxglove.sdk.v1 in its handshake: offer both, as apps do.
-SUBPROTOCOLS = [SUBPROTOCOL, "foxglove.sdk.v1"]
-MESSAGE_DATA = 0x01
 
 
 def _publish(node: Node, stop: threading.Event) -> None:
@@ -42,37 +36,6 @@ def _publish(node: Node, stop: threading.Event) -> None:
             camera.publish(frame)
         i += 1
         time.sleep(0.02)
-
-
-async def _client(port: int, want_topics: set[str], timeout: float) -> tuple[dict[str, dict], bytes]:
-    """Channels advertised (topic -> channel) and one message of the camera view."""
-    channels: dict[str, dict] = {}
-    async with websockets.connect(f"ws://127.0.0.1:{port}", subprotocols=SUBPROTOCOLS,
-                                  max_size=None, open_timeout=timeout) as ws:
-        assert ws.subprotocol in SUBPROTOCOLS
-        deadline = time.monotonic() + timeout
-        subscribed = False
-        while time.monotonic() < deadline:
-            try:
-                raw = await asyncio.wait_for(ws.recv(), max(0.1, deadline - time.monotonic()))
-            except TimeoutError:
-                break
-            if isinstance(raw, str):
-                msg = json.loads(raw)
-                if msg.get("op") == "advertise":
-                    for ch in msg["channels"]:
-                        channels[ch["topic"]] = ch
-                if not subscribed and want_topics <= set(channels):
-                    image = channels[next(t for t in want_topics if t.endswith("/image/image"))]
-                    await ws.send(json.dumps({"op": "subscribe",
-                                              "subscriptions": [{"id": 7, "channelId": image["id"]}]}))
-                    subscribed = True
-                    deadline = time.monotonic() + timeout    # a frame every 0.1 s: time enough on a busy box
-            elif raw and raw[0] == MESSAGE_DATA:
-                sub_id, _log_time = struct.unpack_from("<IQ", raw, 1)
-                assert sub_id == 7
-                return channels, raw[13:]
-    return channels, b""
 
 
 def test_bridge_advertises_topics_and_streams_camera_frames(ns: str, tmp_path: Path):
@@ -96,7 +59,10 @@ def test_bridge_advertises_topics_and_streams_camera_frames(ns: str, tmp_path: P
             threading.Thread(target=lambda: lines.extend(bridge.stdout), daemon=True).start()
             want = {f"/{ns}/state", f"/{ns}/state/pose", f"/{ns}/state/fix", "/tf", f"/{ns}/setpoint/pose",
                     f"/{ns}/image/image"}
-            channels, payload = asyncio.run(_client(port, want, 20.0))
+            image_topic = f"/{ns}/image/image"
+            channels, got = asyncio.run(watch(port, 20.0, lambda channels, got: bool(got),
+                                              subscribe=lambda ch: [image_topic] if want <= set(ch) else []))
+            payload = got.get(image_topic, b"")
         finally:
             stop.set()
             pub.join()

@@ -8,23 +8,18 @@ alone (an empty typestore), as Foxglove does.
 from __future__ import annotations
 
 import asyncio
-import json
 import secrets
-import struct
 import threading
-import time
 from typing import Any
 
-import websockets as websockets
 from conftest import free_port, python_proc, stop_process
+from foxglove_client import watch
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from zenoh_robot import Node, QoSProfile, SessionConfig
 from zenoh_robot.ros2 import ros2_type
 from zenoh_robot.wire import ros2_wire
 
-SUBPROTOCOLS = ["foxglove.websocket.v1", "foxglove.sdk.v1"]
-MESSAGE_DATA = 0x01
 POSE, STATUS = "geometry_msgs/msg/PoseStamped", "px4_msgs/msg/VehicleStatus"
 TOPICS = {"/zr/pose": POSE, "/fmu/out/vehicle_status": STATUS}
 
@@ -41,37 +36,6 @@ def _talk(node: Node, stop: threading.Event) -> None:
                              pose=T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=1.5, y=-2.0))))
         status.publish(T[STATUS](timestamp=1000 + i, arming_state=2, nav_state=14))
         i += 1
-
-
-async def _client(port: int, timeout: float) -> tuple[dict[str, dict[str, Any]], dict[str, bytes]]:
-    """The channels advertised (topic -> channel) and one message of each of TOPICS."""
-    channels: dict[str, dict[str, Any]] = {}
-    by_sub: dict[int, str] = {}
-    got: dict[str, bytes] = {}
-    async with websockets.connect(f"ws://127.0.0.1:{port}", subprotocols=SUBPROTOCOLS,   # type: ignore[list-item]
-                                  max_size=None, open_timeout=timeout) as ws:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline and len(got) < len(TOPICS):
-            try:
-                raw = await asyncio.wait_for(ws.recv(), max(0.1, deadline - time.monotonic()))
-            except TimeoutError:
-                break
-            if isinstance(raw, str):
-                msg = json.loads(raw)
-                if msg.get("op") != "advertise":
-                    continue
-                subs = []
-                for ch in msg["channels"]:
-                    channels[ch["topic"]] = ch
-                    if ch["topic"] in TOPICS:
-                        by_sub[len(by_sub) + 1] = ch["topic"]
-                        subs.append({"id": len(by_sub), "channelId": ch["id"]})
-                if subs:
-                    await ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
-            elif raw and raw[0] == MESSAGE_DATA:
-                sub_id, _log_time = struct.unpack_from("<IQ", raw, 1)
-                got.setdefault(by_sub[sub_id], bytes(raw[13:]))
-    return channels, got
 
 
 def _decode(channel: dict[str, Any], payload: bytes) -> Any:
@@ -98,7 +62,8 @@ def test_bridge_shows_ros2_topics_as_cdr_channels_with_ros2msg_schemas() -> None
                 lines.append(bridge.stdout.readline())
             assert bridge.poll() is None, "".join(lines)
             threading.Thread(target=lambda: lines.extend(bridge.stdout or []), daemon=True).start()
-            channels, got = asyncio.run(_client(ws_port, 20.0))
+            channels, got = asyncio.run(watch(ws_port, 20.0, lambda channels, got: len(got) == len(TOPICS),
+                                              subscribe=lambda ch: [t for t in TOPICS if t in ch]))
         finally:
             stop.set()
             talker.join()

@@ -9,15 +9,13 @@ CDR reader refused every PX4 sample.
 from __future__ import annotations
 
 import subprocess
-import sys
 import time
 
 import zenoh
+from conftest import CLI
 from px4_zenoh_probe import _conf, free_port
 
 from px4_zenoh.sim import ZenohSimulator
-
-CLI = [sys.executable, "-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())"]
 
 
 def test_topic_list_and_echo_show_px4s_fmu_topics_decoded() -> None:

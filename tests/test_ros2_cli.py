@@ -10,14 +10,12 @@ from __future__ import annotations
 
 import secrets
 import subprocess
-import sys
 from collections.abc import Iterator
 
 import pytest
-from conftest import ROOT, kill_process, wait_for
+from conftest import CLI, ROOT, kill_process, wait_for
 from ros2_peer import PEER_PRELUDE, Peer, router, start_peer, write_msgs
 
-CLI = [sys.executable, "-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())"]
 STRING = "std_msgs/msg/String"
 ADD = "example_interfaces/srv/AddTwoInts"
 

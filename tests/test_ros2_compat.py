@@ -10,18 +10,15 @@ import logging
 import secrets
 import struct
 import subprocess
-import sys
 
 import pytest
 import zenoh
-from conftest import ROOT, free_port, wait_for
+from conftest import CLI, ROOT, free_port, wait_for
 
 from zenoh_robot import Node, QoSProfile, SessionConfig
 from zenoh_robot.message import type_support
 from zenoh_robot.ros2 import compat, ros2_type, typestore
 from zenoh_robot.wire import ros2_wire
-
-CLI = [sys.executable, "-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())"]
 
 
 def _raw_session(port: int) -> zenoh.Session:

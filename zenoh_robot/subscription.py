@@ -49,7 +49,9 @@ Two receive paths (``Node.create_subscription(..., receive=...)``):
   holds back Zenoh's receive thread for that peer instead of dropping (a reliable publisher is
   then pushed back on, as a DDS KEEP_ALL reader does; its other topics wait too, so a KEEP_ALL
   channel subscription must not share a peer with a setpoint stream it can fall 10,000 samples
-  behind). What it gives up: the ring's own overwrites are invisible to Python, so a sample the executor
+  behind. In its own session it is worse: a publish made on this node's executor into the full
+  channel waits for a drain only that executor runs, and never returns).
+  What it gives up: the ring's own overwrites are invisible to Python, so a sample the executor
   was too slow to take shows as ``lost`` (a sequence gap), not ``dropped``; ``received`` and
   ``oversize`` count at the drain; the bytes held are bounded by count x ``max_sample_bytes`` only;
   ``pending`` counts only what Python holds (the waiter's sample, a batch being handled). KEEP_LAST(n)

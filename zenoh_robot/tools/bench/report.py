@@ -49,7 +49,8 @@ HEAD = ["payload", "size", "rate", "framework / raw (medians)", "ratio median (s
 
 
 def table(results: list[CellResult]) -> Table:
-    t = Table(title="zenoh-robot vs raw zenoh-python (same run, same processes layout, same bytes)")
+    express = ", express" if any(r.express for r in results) else ""
+    t = Table(title=f"zenoh-robot vs raw zenoh-python (same run, same processes layout, same bytes{express})")
     for h in HEAD:
         t.add_column(h)
     for row in rows(results):
@@ -60,6 +61,8 @@ def table(results: list[CellResult]) -> Table:
 def markdown(results: list[CellResult], soak: dict[str, Any] | None) -> str:
     lines = ["| " + " | ".join(HEAD) + " |", "|" + "---|" * len(HEAD)]
     lines += ["| " + " | ".join(r) + " |" for r in rows(results)]
+    if any(r.express for r in results):
+        lines += ["", "Both sides published with Zenoh's express (each sample sent at once, no batching)."]
     if soak:
         lines += ["", f"Soak: {soak['minutes']:g} min at {soak['rate_hz']:g} Hz, subscriber RSS growth "
                       f"{_f(soak['rss_growth_mb'])} MB (target < {TARGETS['soak_mb']} MB), "

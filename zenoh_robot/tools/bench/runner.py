@@ -50,6 +50,7 @@ class CellResult:
     runs: list[dict[str, float]] = field(default_factory=list)  # per repetition: ratios and the load average
     load: tuple[float, float] = (math.nan, math.nan)            # 1-minute load average: min, max over the cell
     receive: str = "default"
+    express: bool = False       # both sides' publishers sent with Zenoh's express (no batching)
 
 
 def plan(quick: bool = False, only: list[str] | None = None) -> list[Cell]:
@@ -73,9 +74,12 @@ def _free_port() -> int:
         return port
 
 
-def run_pair(mode: str, cell: Cell, timeout: float, rss_every: float = 0.0, receive: str | None = None) -> Figures:
+def run_pair(mode: str, cell: Cell, timeout: float, rss_every: float = 0.0, receive: str | None = None,
+             express: bool = False) -> Figures:
     port = _free_port()
     common = [cell.payload, "--count", str(cell.count), "--port", str(port)]
+    if express:
+        common.append("--express")
     if receive is not None and mode == "framework":
         common += ["--receive", receive]
     if cell.kind == "throughput":
@@ -132,7 +136,7 @@ def _median_figures(runs: list[Figures]) -> Figures:
     return out
 
 
-def run_cell(cell: Cell, reps: int = 1, receive: str | None = None) -> CellResult:
+def run_cell(cell: Cell, reps: int = 1, receive: str | None = None, express: bool = False) -> CellResult:
     """``reps`` alternating repetitions (framework, raw, framework, raw, ...): load that comes and
     goes on a shared machine then falls on both sides alike. Ratios are medians of each
     repetition's own ratio; ``runs`` keeps them all (the spread) with the load average of each."""
@@ -144,8 +148,8 @@ def run_cell(cell: Cell, reps: int = 1, receive: str | None = None) -> CellResul
     raws: list[Figures] = []
     runs: list[dict[str, float]] = []
     for _ in range(max(1, reps)):
-        fw = run_pair("framework", cell, timeout, receive=receive)
-        raw = run_pair("raw", cell, timeout)
+        fw = run_pair("framework", cell, timeout, receive=receive, express=express)
+        raw = run_pair("raw", cell, timeout, express=express)
         for f in (fw, raw):
             f.mb_per_s = f.msgs_per_s * size / 1e6 if cell.kind == "throughput" else math.nan
         fws.append(fw)
@@ -155,7 +159,7 @@ def run_cell(cell: Cell, reps: int = 1, receive: str | None = None) -> CellResul
               for k in runs[0] if k != "load1"}
     loads = [r["load1"] for r in runs]
     return CellResult(cell, _median_figures(fws), _median_figures(raws), size, ratios, runs,
-                      (min(loads), max(loads)), receive or "default")
+                      (min(loads), max(loads)), receive or "default", express)
 
 
 def spread(result: CellResult, key: str) -> tuple[float, float]:
@@ -172,12 +176,12 @@ def run_soak(minutes: float, rate: float = 1000.0) -> dict[str, Any]:
 
 
 def run_all(cells: list[Cell], progress: Callable[[Cell], None] | None = None, reps: int = 1,
-            receive: str | None = None) -> list[CellResult]:
+            receive: str | None = None, express: bool = False) -> list[CellResult]:
     results = []
     for cell in cells:
         if progress:
             progress(cell)
-        results.append(run_cell(cell, reps, receive))
+        results.append(run_cell(cell, reps, receive, express))
     return results
 
 

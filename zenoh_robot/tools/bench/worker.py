@@ -46,11 +46,11 @@ def _config(args: argparse.Namespace) -> SessionConfig:
     return SessionConfig(listen=[], connect=endpoint, multicast_scouting=False, shared_memory=False)
 
 
-def _qos(throughput: bool) -> QoSProfile:
+def _qos(throughput: bool, express: bool = False) -> QoSProfile:
     # Throughput: reliable and KEEP_ALL (BLOCK), so nothing may be lost; latency: keep last 100.
     return QoSProfile(reliability=ReliabilityPolicy.RELIABLE,
                       history=HistoryPolicy.KEEP_ALL if throughput else HistoryPolicy.KEEP_LAST,
-                      depth=0 if throughput else 100)
+                      depth=0 if throughput else 100, express=express)
 
 
 def run_sub(args: argparse.Namespace) -> dict[str, Any]:
@@ -127,7 +127,8 @@ def run_pub(args: argparse.Namespace) -> dict[str, Any]:
         session = zenoh.open(cfg.to_zenoh())
         try:
             cc = zenoh.CongestionControl.BLOCK if args.throughput else zenoh.CongestionControl.DROP
-            pub = session.declare_publisher(KEY, reliability=zenoh.Reliability.RELIABLE, congestion_control=cc)
+            pub = session.declare_publisher(KEY, reliability=zenoh.Reliability.RELIABLE, congestion_control=cc,
+                                            express=args.express)
             time.sleep(args.settle)
             cpu0 = _cpu()
 
@@ -145,7 +146,7 @@ def run_pub(args: argparse.Namespace) -> dict[str, Any]:
             session.close()
     else:
         with Node("bench_pub", config=cfg) as node:
-            node_pub = node.create_publisher(type(msg), "/" + KEY, _qos(args.throughput))
+            node_pub = node.create_publisher(type(msg), "/" + KEY, _qos(args.throughput, args.express))
             time.sleep(args.settle)
             cpu0 = _cpu()
             sent, elapsed = _loop(lambda: node_pub.publish(msg), args.count, period)
@@ -180,6 +181,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--rss-every", type=float, default=0.0)
     p.add_argument("--receive", choices=("callback", "channel"), default=None,
                    help="the framework subscription's receive path (default: the library's)")
+    p.add_argument("--express", action="store_true", help="publish with Zenoh's express (no batching), both modes")
     args = p.parse_args(argv)
     zenoh.init_log_from_env_or("error")
     out = run_sub(args) if args.role == "sub" else run_pub(args)

@@ -16,6 +16,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="the ROS 2 wire: CDR codec per type, and end to end beside the envelope and raw zenoh")
     p.add_argument("--reps", type=int, default=5, help="alternating framework/raw repetitions per cell (medians)")
     p.add_argument("--receive", choices=("callback", "channel"), help="the framework's receive path")
+    p.add_argument("--express", action="store_true",
+                   help="both sides publish with Zenoh's express (each sample sent at once, no batching), as the "
+                        "setpoint, control and resilient profiles do")
     p.set_defaults(func=run)
 
 
@@ -35,8 +38,9 @@ def run(args: argparse.Namespace) -> int:
     console = Console()
     with console.status("") as status:
         results = run_all(cells, lambda c: status.update(
-            f"{c.payload} {c.kind} {c.rate:g} Hz x{c.count}: framework and raw zenoh-python, {args.reps} times"),
-            reps=args.reps, receive=args.receive)
+            f"{c.payload} {c.kind} {c.rate:g} Hz x{c.count}: framework and raw zenoh-python, {args.reps} times"
+            + (" (express)" if args.express else "")),
+            reps=args.reps, receive=args.receive, express=args.express)
         soak = None
         if args.soak:
             status.update(f"soak: {args.soak_minutes:g} min at 1 kHz")
