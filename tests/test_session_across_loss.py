@@ -11,8 +11,8 @@ time (about an hour of tries: docs/results/transports.md); there the multicast t
 shim is the answer, not these settings. What is asserted is the session formed (the listener sees
 its peer); the first sample is reported beside it, since it also needs the subscriber's declaration,
 sent once over a UDP-only link and sometimes lost (of 24 local sessions, one sample came 10.7 s after
-its session formed and one 2.2 s after; in a CI rehearsal one none within 15 s). Needs root; with ZR_REQUIRE_NETNS=1 (CI) a missing capability
-fails the test."""
+its session formed and one 2.2 s after; in a CI rehearsal, one session saw no sample within 15 s).
+Needs root; with ZR_REQUIRE_NETNS=1 (CI) a missing capability fails the test."""
 from __future__ import annotations
 
 import subprocess
