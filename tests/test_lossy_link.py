@@ -35,12 +35,12 @@ def lossy_link():
 
 def _cell(link: LossyLink, profile: str, loss: float, tmp_path: Path, duration: float = 5.0,
           rate: float = 20.0) -> tuple[int, dict]:
-    start = tmp_path / f"start-{profile}"
-    gcs = link.addr("gcs")
+    start, stop = tmp_path / f"start-{profile}", tmp_path / f"stop-{profile}"
     common = ["--ns", f"cell{profile}", "--profile", profile, "--rate", str(rate)]
     sub = subprocess.Popen(link.exec_in("drone") + [sys.executable, PEER, "sub", *common,
                            "--listen", f"tcp/{link.addr('drone')}:7447", "--listen", f"udp/{link.addr('drone')}:7447",
-                           "--duration", str(duration + 4)], stdout=subprocess.PIPE, text=True, cwd=ROOT)
+                           "--duration", str(duration + 60), "--stop-file", str(stop)],
+                           stdout=subprocess.PIPE, text=True, cwd=ROOT)
     pub = subprocess.Popen(link.exec_in("gcs") + [sys.executable, PEER, "pub", *common,
                            "--connect", f"tcp/{link.addr('drone')}:7447", "--connect", f"udp/{link.addr('drone')}:7447",
                            "--duration", str(duration), "--start-file", str(start)],
@@ -51,10 +51,10 @@ def _cell(link: LossyLink, profile: str, loss: float, tmp_path: Path, duration: 
     link.set_loss(loss)
     start.touch()
     pub_out, _ = pub.communicate(timeout=duration + 20)
-    sub_out, _ = sub.communicate(timeout=duration + 20)
+    stop.touch()                    # the publisher lingered 1 s after its last sample: copies have landed
+    sub_out, _ = sub.communicate(timeout=20)
     assert pub.returncode == 0 and sub.returncode == 0, (pub_out, sub_out)
     sent = last_json(pub_out)["sent"]
-    _ = gcs
     return sent, last_json(sub_out)
 
 
@@ -93,11 +93,11 @@ def test_fec_images_arrive_whole_at_30_percent_loss(lossy_link: LossyLink, tmp_p
     """Sliced JPEG strips gave ~1 % whole fresh frames at 30 % loss (a frame needs all ~8 packets);
     one JPEG in shares + parity sized for 30 % is whole whenever >= k of n shares arrive."""
     peer = str(ROOT / "tests" / "procs" / "fec_peer.py")
-    start = tmp_path / "start"
+    start, stop = tmp_path / "start", tmp_path / "stop"
     duration = 4.0
     common = ["--ns", "cellfec", "--loss", "0.3"]
     sub = subprocess.Popen(lossy_link.exec_in("drone") + [sys.executable, peer, "sub", *common, "--iface",
-                           lossy_link.dev("drone"), "--duration", str(duration + 4)],
+                           lossy_link.dev("drone"), "--duration", str(duration + 60), "--stop-file", str(stop)],
                            stdout=subprocess.PIPE, text=True, cwd=ROOT)
     pub = subprocess.Popen(lossy_link.exec_in("gcs") + [sys.executable, peer, "pub", *common, "--iface",
                            lossy_link.dev("gcs"), "--duration", str(duration), "--start-file", str(start)],
@@ -108,7 +108,8 @@ def test_fec_images_arrive_whole_at_30_percent_loss(lossy_link: LossyLink, tmp_p
     lossy_link.set_loss(30)
     start.touch()
     pub_out, _ = pub.communicate(timeout=duration + 20)
-    sub_out, _ = sub.communicate(timeout=duration + 20)
+    stop.touch()
+    sub_out, _ = sub.communicate(timeout=20)
     assert pub.returncode == 0 and sub.returncode == 0, (pub_out, sub_out)
     sent = last_json(pub_out)
     got = last_json(sub_out)

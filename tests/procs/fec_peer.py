@@ -19,6 +19,8 @@ p.add_argument("--iface", required=True)
 p.add_argument("--loss", type=float, default=0.3, help="loss the parity is sized for (0..1)")
 p.add_argument("--fps", type=float, default=30.0)
 p.add_argument("--duration", type=float, default=4.0)
+p.add_argument("--stop-file", help="receive until this file exists (the publisher has finished); "
+               "--duration caps the wait")
 p.add_argument("--start-file")
 args = p.parse_args()
 
@@ -42,6 +44,11 @@ with Node(args.role, namespace=args.ns, config=cfg) as node:
         frames: list[int] = []
         sub = FecImageSubscription(node, "image", lambda img, info: frames.append(info.frame))
         print("READY", flush=True)
-        node.spin(timeout=args.duration)
+        # Until the test says the publisher is done: a receiver timed from its own start ends early
+        # when a loaded machine slows the publisher's start, and the tail reads as lost.
+        if args.stop_file:
+            node.spin_until(lambda: os.path.exists(args.stop_file), timeout=args.duration)
+        else:
+            node.spin(timeout=args.duration)
         print(json.dumps({"frames": frames, "share_loss": sub.assembler.loss,
                           "decode_errors": sub.assembler.decode_errors}), flush=True)

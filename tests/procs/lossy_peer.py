@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 
 from zenoh_robot import Node, SessionConfig, qos
@@ -16,6 +17,8 @@ p.add_argument("--listen", action="append", default=[])
 p.add_argument("--connect", action="append", default=[])
 p.add_argument("--rate", type=float, default=20.0)
 p.add_argument("--duration", type=float, default=5.0)
+p.add_argument("--stop-file", help="receive until this file exists (the publisher has finished); "
+               "--duration caps the wait")
 p.add_argument("--start-file", help="publish only once this file exists (loss is in place)")
 args = p.parse_args()
 
@@ -31,7 +34,6 @@ with Node(args.role, namespace=args.ns, config=cfg) as node:
         pub = node.create_publisher(Setpoint, "setpoint", profile)
         print("READY", flush=True)
         if args.start_file:
-            import os
             while not os.path.exists(args.start_file):
                 time.sleep(0.05)
         n = int(args.duration * args.rate)
@@ -48,6 +50,11 @@ with Node(args.role, namespace=args.ns, config=cfg) as node:
                                        lambda m: (seqs.append(m.header.seq), arrivals.append(time.monotonic())),
                                        profile.replace(depth=100))
         print("READY", flush=True)
-        node.spin(timeout=args.duration)
+        # Until the test says the publisher is done: a receiver timed from its own start ends early
+        # when a loaded machine slows the publisher's start, and the tail reads as lost.
+        if args.stop_file:
+            node.spin_until(lambda: os.path.exists(args.stop_file), timeout=args.duration)
+        else:
+            node.spin(timeout=args.duration)
         gaps = [b - a for a, b in zip(arrivals, arrivals[1:], strict=False)]
         print(json.dumps({"seqs": seqs, "max_gap": max(gaps) if gaps else None}), flush=True)
