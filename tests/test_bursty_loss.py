@@ -9,6 +9,7 @@ import random
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 from conftest import bare_loss_monitor, skip_unless_required
@@ -120,13 +121,15 @@ def test_burst_model_keeps_the_mean() -> None:
 # -- the channel on real datagrams -----------------------------------------------------------------
 
 RECV = """
-import json, socket, sys, time
+import json, os, socket, sys, time
 s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
 s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
 s.bind((sys.argv[1], 9999)); s.settimeout(0.5)
 print("READY", flush=True)
+# Until the sender is done (the stop file), not for a fixed time: a sender slow to start on a loaded
+# machine would otherwise lose its tail, counted as drops.
 got, end = [], time.monotonic() + float(sys.argv[2])
-while time.monotonic() < end:
+while time.monotonic() < end and not os.path.exists(sys.argv[3]):
     try:
         got.append(int(s.recv(64)))
     except socket.timeout:
@@ -146,16 +149,18 @@ for i in range(n):
 RATE = 400      # datagrams per second: a 100 ms fade is 40 of them
 
 
-def _drops(link: LossyLink, seconds: float) -> tuple[list[bool], int, int]:
+def _drops(link: LossyLink, seconds: float, stop: Path) -> tuple[list[bool], int, int]:
     """Send RATE datagrams/s GCS -> drone for ``seconds``; which were lost, and the window (ns)."""
     n = int(seconds * RATE)
     recv = subprocess.Popen(link.exec_in("drone") + [sys.executable, "-c", RECV, link.addr("drone"),
-                            str(seconds + 3)], stdout=subprocess.PIPE, text=True)
+                            str(seconds + 60), str(stop)], stdout=subprocess.PIPE, text=True)
     assert recv.stdout is not None and recv.stdout.readline().strip() == "READY"
     t0 = time.time_ns()
     subprocess.run(link.exec_in("gcs") + [sys.executable, "-c", SEND, link.addr("drone"), str(n), str(1 / RATE)],
                    check=True, timeout=seconds + 30)
     t1 = time.time_ns()
+    time.sleep(0.5)         # the last datagrams cross the veth
+    stop.touch()
     out, _ = recv.communicate(timeout=30)
     got = set(json.loads(out.strip().splitlines()[-1]))
     return [i not in got for i in range(n)], t0, t1
@@ -173,14 +178,14 @@ def _runs(drops: list[bool]) -> list[int]:
 
 
 @pytest.mark.netns
-def test_bursty_channel_keeps_the_mean_and_drops_in_bursts() -> None:
+def test_bursty_channel_keeps_the_mean_and_drops_in_bursts(tmp_path: Path) -> None:
     reason = unavailable_reason()
     if reason:
         skip_unless_required(f"bursty-loss test: network namespaces are unavailable: {reason}")
     with LossyLink(loss_pct=0, loss_model="bursty", burst=BurstModel(seed=29)) as link:
         link.set_loss(50)
         time.sleep(0.3)
-        drops, t0, t1 = _drops(link, 15.0)
+        drops, t0, t1 = _drops(link, 15.0, tmp_path / "stop")
         summary = link.timeline_summary(t0, t1)
         link.set_loss(0)
         assert link.timeline[-1][1:] == ("clean", 0)
