@@ -98,7 +98,7 @@ def test_hold_within_bound_while_a_20_s_command_runs(ns: str) -> None:
                 _resume(r)
             slow = _SlowVehicleParams()
             r.link.param.set = slow.set   # type: ignore[method-assign]
-            _in_background(lambda: r.op.command("set_param", 5.0, SLOW_PARAM))
+            background = _in_background(lambda: r.op.command("set_param", 5.0, SLOW_PARAM))
             assert slow.entered.wait(5), "the slow command never started"
             t0 = time.monotonic()
             res = r.op.command("take_control")   # answered without PX4: the executor is free
@@ -108,6 +108,7 @@ def test_hold_within_bound_while_a_20_s_command_runs(ns: str) -> None:
             assert wait_for(lambda n=i + 1: r.companion.failsafe.holds == n, 3), r.companion.summary()["failsafe"]
             assert not r.link.offboard.streaming
             slow.release.set()
+            assert wait_for(lambda b=background: bool(b), 15), "the slow command was never answered"
         assert not r.sim.failsafe_log, "PX4's own failsafe fired: our HOLD came too late"
         s = r.companion.summary()
         assert s["failsafe"]["holds"] == 5 and s["px4_worker"]["failsafe_failed"] == 0, s["failsafe"]
@@ -138,6 +139,8 @@ def test_three_slow_commands_do_not_starve_the_watchdog_and_the_queue_is_bounded
         # The event crosses Zenoh after the HOLD the simulator already shows: wait for it.
         assert wait_for(lambda: "setpoint_deadline_missed" in r.op.kinds(), 5), r.op.kinds()
         slow.release.set()
+        # Every call is answered (run, or abandoned at its deadline) before the rig closes its sessions.
+        assert wait_for(lambda: all(replies), 15), [[res for _, res in out] for out in replies]
 
 
 def test_a_timed_out_command_never_runs_later(ns: str) -> None:
