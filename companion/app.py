@@ -156,6 +156,20 @@ class Companion:
             self.events.event("lifecycle", wrong, "stream stopped")
         self.telemetry.check_sensor_rate(now)
 
+    def settle(self, timeout: float = 2.0) -> None:
+        """Before the summary at exit: PX4 back in OFFBOARD after landing (it restores the mode it
+        had) is parked now if the watchdog has not, and the summary waits, at most ``timeout``, for
+        PX4's heartbeat (1 Hz) to show it, so the final mode reported is the one the vehicle is in."""
+        if self.lifecycle.in_session or not self.link.connected or self.link.mode != "OFFBOARD":
+            return
+        now = time.monotonic()
+        if now - self._park_sent > 2.0:
+            self._park_sent = now
+            self.worker.submit_guarded("park", self._park)
+        end = now + timeout
+        while self.link.mode == "OFFBOARD" and time.monotonic() < end:
+            time.sleep(0.05)
+
     def _park(self) -> None:
         if self.lifecycle.park("PX4 in OFFBOARD outside a session"):
             self.events.event("stray_offboard", "PX4 in OFFBOARD without an operator-requested session", SAFE_MODE)

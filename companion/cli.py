@@ -248,6 +248,7 @@ def run(args: argparse.Namespace) -> int:
             spinner.join(timeout=2.0)
             if ros2_topics is not None:   # after the camera stopped (node.shutdown), before the link goes
                 ros2_topics.close()
+        companion.settle()
         summary = companion.summary()
         log.info("%s", summary_line(args.id, connection, summary))
         if args.record:

@@ -111,8 +111,8 @@ def _spin(node: Node) -> None:
 
 @BACKENDS
 def test_mission_end_to_end(ns: str, tmp_path: Path, backend: str) -> None:
-    record = tmp_path / "gcs.json"
-    with drone(ns, backend=backend) as (sim, companion):
+    record, companion_record = tmp_path / "gcs.json", tmp_path / "companion.json"
+    with drone(ns, 1, "--record", str(companion_record), backend=backend) as (sim, companion):
         gcs = gcs_proc("--drones", ns, "--mission", "--duration", "4", "--pattern", "square", "--size", "4",
                        "--altitude", "2.5", "--record", str(record))
         out, _ = gcs.communicate(timeout=120)
@@ -129,6 +129,10 @@ def test_mission_end_to_end(ns: str, tmp_path: Path, backend: str) -> None:
     assert d["frames"] > 30 and streams["image"]["age_avg_ms"] < 300
     assert d["max_path_error_m"] < 3.0
     assert d["final_state"]["landed"] and not d["final_state"]["armed"]
+    # PX4 returns to OFFBOARD once disarmed after landing: the companion parks it, and its summary at
+    # exit says what PX4 then was in (the demo printed "final mode OFFBOARD" before the heartbeat came).
+    assert sim.mode != "OFFBOARD"
+    assert json.loads(companion_record.read_text())["final_mode"] == sim.mode, sim.mode
 
 
 @BACKENDS
