@@ -433,13 +433,20 @@ class Gcs:
             d.failures.append(why)
             del d.failures[:-d.MAX_EVENTS]
 
-    def _adapt_copies(self, loss: float) -> None:
+    def _adapt_copies(self, worst: float) -> None:
+        # Per drone, from that drone's own probes (their origin is its id; the worst link until it is
+        # heard): one drone in a fade must not raise every drone's copies on a shared radio channel.
         # Fades: copies sized for the loss that follows a loss too (loss_feedback.BurstEstimate).
-        burst = self.link_monitor.burst() if self.link_monitor is not None else None
-        for d in list(self.drones.values()):
+        monitor = self.link_monitor
+        if monitor is None:
+            return
+        for drone_id, d in list(self.drones.items()):
+            loss = monitor.outgoing_loss(drone_id)
+            if math.isnan(loss):
+                loss = worst
             d.commands.set_loss(loss)    # command retries and reply copies sized from it (services.py)
             if d.setpoint_pub.qos.repeat and d.setpoint_pub.qos.deadline:
-                apply_repeat_plan(d.setpoint_pub, loss, burst, 1.0 / self.config.rate_hz)
+                apply_repeat_plan(d.setpoint_pub, loss, monitor.burst(drone_id), 1.0 / self.config.rate_hz)
 
     def _declare_parameters(self) -> None:
         """What this GCS runs with, for `zenoh-robot param list /gcs` (read-only: set at start)."""

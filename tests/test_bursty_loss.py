@@ -93,6 +93,35 @@ def test_burst_estimate_forgets_old_runs_and_ignores_late_probes_and_restarts(mo
     assert m2.burst().longest_run == 2
 
 
+def test_each_drone_is_sized_for_its_own_link(monkeypatch) -> None:
+    """A GCS hears two drones: uav1 clean, uav2 in a fade. Per origin, uav1's copies stay those of
+    a clean link and uav2's follow its fade (before, the worst of all sized every drone's). A drone
+    not heard yet is sized like the worst link; a third peer claiming uav2's name with a clean link
+    cannot lower uav2's figure, and an over-long origin is refused."""
+    m, clock = _estimator(monkeypatch)
+    for i in range(100):                               # 5 s: uav1 every probe; uav2 silent from 3 s
+        clock[0] = 1000.0 + i * PERIOD
+        m._on_probe(LinkProbe(2, i, 50, [], [], "uav1"))
+        if i < 60:
+            m._on_probe(LinkProbe(3, i, 50, [], [], "uav2"))
+    assert m.outgoing_loss("uav1") < 0.05
+    assert m.outgoing_loss("uav2") > 0.3
+    assert not m.burst("uav1").fading and m.burst("uav2").fading
+    assert m.outgoing_loss("uav9") == m.outgoing_loss() == m.outgoing_loss("uav2")
+
+    def copies_per_s(origin: str) -> float:
+        copies, window = repeat_plan(m.outgoing_loss(origin), 1.0, burst=m.burst(origin), period_s=0.1)
+        return copies / window
+    assert copies_per_s("uav1") < copies_per_s("uav2")
+    for i in range(100, 120):                          # an impostor, clean, under uav2's name
+        clock[0] = 1000.0 + i * PERIOD
+        m._on_probe(LinkProbe(4, i, 50, [], [], "uav2"))
+    assert m.outgoing_loss("uav2") > 0.3 and m.burst("uav2").fading
+    bad = m.bad_probes
+    m._on_probe(LinkProbe(5, 1, 50, [], [], "x" * 129))
+    assert m.bad_probes == bad + 1 and all(p.origin != "x" * 129 for p in m._peers.values())
+
+
 def test_copies_sized_for_fades_cross_a_95_percent_fade_within_the_deadline() -> None:
     deadline = 0.5
     for mean, cond in ((0.5, 0.5), (0.3, 0.3)):                    # independent loss: unchanged

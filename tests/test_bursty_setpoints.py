@@ -139,3 +139,31 @@ def test_the_first_fade_after_a_clean_stretch_is_called_from_its_silence(monkeyp
     rnd = random.Random(7)
     window = [rnd.random() < 0.5 for _ in range(100)] + [False]
     assert not _estimates(monkeypatch, [window + [True] * 3])[0].fading
+
+
+def test_the_gcs_sizes_each_drone_from_its_own_probes(monkeypatch) -> None:
+    """Two drones, uav2 silent (in a fade): only uav2's setpoint copies and command loss go up."""
+    from types import SimpleNamespace
+
+    from gcs.app import Gcs
+
+    m, clock = bare_loss_monitor(monkeypatch)
+    for i in range(100):
+        clock[0] = 1000.0 + i * PERIOD
+        m._on_probe(LinkProbe(2, i, 50, [], [], "uav1"))
+        if i < 60:
+            m._on_probe(LinkProbe(3, i, 50, [], [], "uav2"))
+
+    class View:
+        def __init__(self) -> None:
+            self.setpoint_pub = SimpleNamespace(qos=SimpleNamespace(repeat=16, deadline=DEADLINE), plan=(0, 0.0))
+            self.setpoint_pub.set_repeats = lambda n, w: setattr(self.setpoint_pub, "plan", (n, w))
+            self.commands = SimpleNamespace(loss=None)
+            self.commands.set_loss = lambda p: setattr(self.commands, "loss", p)
+    views = {"uav1": View(), "uav2": View()}
+    gcs = SimpleNamespace(link_monitor=m, drones=views, config=SimpleNamespace(rate_hz=10.0))
+    Gcs._adapt_copies(gcs, m.outgoing_loss())     # type: ignore[arg-type]
+    one, two = views["uav1"], views["uav2"]
+    assert one.commands.loss < 0.05 < 0.3 < two.commands.loss
+    assert _rate(one.setpoint_pub.plan) < _rate(two.setpoint_pub.plan)
+    assert two.setpoint_pub.plan[0] == 64          # the ceiling: uav2 is in a fade

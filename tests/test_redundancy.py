@@ -170,6 +170,7 @@ def test_link_monitor_measures_silence_and_adapts_a_publisher(ns: str) -> None:
             # Callbacks run on the node's executor: spin a (b's probes are what a measures).
             assert a.spin_until(lambda: len(seen) > 25 and seen[-1] < 0.2, 6.0), seen[-5:]
             assert pub.repeats == 16 and abs(pub.repeat_window - 0.4) < 1e-9
+            assert [p.origin for p in ma._peers.values()] == [ns]   # the probe names its node's namespace
             mb.close()                          # b falls silent: a must see it as loss within ~1 s
             assert a.spin_until(lambda: ma.outgoing_loss() >= 0.9, 4.0), ma.outgoing_loss()
             time.sleep(0.2)

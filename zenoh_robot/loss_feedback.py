@@ -9,7 +9,9 @@ from their reports. :meth:`LossMonitor.outgoing_loss` is the worst of both over 
 heard recently (loss is usually symmetric, and (a) needs no round trip, so it answers a
 sudden burst in about one short window). Adapters (:meth:`LossMonitor.adapt`) are called
 with it at every probe: e.g. ``monitor.adapt(lambda p: apply_repeat_plan(setpoint_pub, p))``
-or ``monitor.adapt(image_pub.set_loss)``.
+or ``monitor.adapt(image_pub.set_loss)``. A probe names its sender's namespace (``origin``, a drone's
+id), so a GCS can size each drone's copies for that drone's link: ``outgoing_loss(origin)`` and
+``burst(origin)`` (one drone in a fade no longer raises every drone's copies).
 
 Estimates: probes that arrived in the last ``window_s`` (and ``long_window_s``) over those
 the peer's period says were sent; the larger of the two, so a rise is seen within the short
@@ -63,6 +65,7 @@ log = logging.getLogger("zenoh_robot.feedback")
 LINK_TOPIC = "/zr_link"
 ROLES = ("gcs", "drone")     # a monitor hears the other role's probes only (see the module doc)
 MAX_PEERS = 32
+MAX_ORIGIN = 128      # characters of a probe's origin (a namespace)
 MAX_LOSS = 0.97
 PROBE_QOS = QoSProfile(ReliabilityPolicy.BEST_EFFORT, depth=8)
 
@@ -77,6 +80,8 @@ class LinkProbe(Message):
     period_ms: int = ros_field("uint16", default=50)  # how often the sender probes
     peers: list[int] = array("uint64", default=None)        # monitors the sender hears ...
     loss: list[float] = array("float32", default=None)      # ... and the loss it measures on each (0..1)
+    # The sender's namespace (a drone's id): a GCS sizes each drone's copies for that drone's link alone.
+    origin: str = ros_field("string", default="")
 
 
 MAX_ARRIVALS = 2048   # per window: a peer probing faster than it claims saturates the count, not memory
@@ -148,6 +153,7 @@ class _Peer:
     # Arrival times inside the short and the long window (oldest first), trimmed as they slide.
     short: deque[float] = field(default_factory=lambda: deque(maxlen=MAX_ARRIVALS))
     long: deque[float] = field(default_factory=lambda: deque(maxlen=MAX_ARRIVALS))
+    origin: str = ""                          # the peer's namespace, as its probes say
     reported: float = math.nan                # the loss this peer sees on our probes
     reported_at: float = 0.0
     last_seq: int | None = None               # highest probe seq heard (loss runs)
@@ -262,6 +268,7 @@ class LossMonitor:
     def __init__(self, node: Any, role: str, topic: str = LINK_TOPIC, period_s: float = 0.05, window_s: float = 1.0,
                  long_window_s: float = 5.0, forget_s: float = 10.0, max_peers: int = MAX_PEERS) -> None:
         self.role = role
+        self.origin = str(getattr(node, "namespace", "") or "")
         self.probe_topic, self.peer_topic = probe_topics(role, topic)
         self.id = secrets.randbits(63)
         self.period_s = period_s
@@ -293,7 +300,8 @@ class LossMonitor:
     def _on_probe(self, msg: LinkProbe, info: Any = None) -> None:
         if msg.id == self.id:
             return
-        if not (1 <= msg.period_ms <= 10_000 and len(msg.peers) == len(msg.loss) <= MAX_PEERS):
+        if not (1 <= msg.period_ms <= 10_000 and len(msg.peers) == len(msg.loss) <= MAX_PEERS
+                and len(msg.origin) <= MAX_ORIGIN):
             self.bad_probes += 1
             return
         with self._lock:
@@ -305,6 +313,7 @@ class LossMonitor:
                     self._peers.popitem(last=False)
             self._peers.move_to_end(msg.id)
             peer.period = msg.period_ms / 1000
+            peer.origin = msg.origin
             peer.arrive(now)
             peer.sequence(msg.seq, now)
             self.probes_received += 1
@@ -329,26 +338,37 @@ class LossMonitor:
             now = time.monotonic()
             return {pid: self._incoming(p, now) for pid, p in self._peers.items()}
 
-    def burst(self) -> BurstEstimate:
+    def _of(self, origin: str | None) -> list[_Peer]:
+        """The peers whose probes name ``origin`` (all peers for None, or when none does: a drone not
+        heard yet is sized like the worst link heard). Called with the lock held. Of several peers
+        naming one origin the worst counts, so a peer that claims another's name can raise its
+        copies, never lower them."""
+        peers = list(self._peers.values())
+        if origin is None:
+            return peers
+        return [p for p in peers if p.origin == origin] or peers
+
+    def burst(self, origin: str | None = None) -> BurstEstimate:
         """The burstiest peer heard (by the loss that follows a loss), over the long window, and the
-        longest silence of a peer now."""
+        longest silence of a peer now; of the peers named ``origin`` when given (see ``_of``)."""
         worst: BurstEstimate | None = None
         silent = 0.0
         with self._lock:
             now = time.monotonic()
-            for p in self._peers.values():
+            for p in self._of(origin):
                 b = p.burst(self.long_window_s, now)
                 if worst is None or b.loss_after_loss > worst.loss_after_loss:
                     worst = b
                 silent = max(silent, (now - p.last) / p.period)
         return replace(worst or BurstEstimate(), silent_probes=silent)
 
-    def outgoing_loss(self) -> float:
-        """The worst loss towards any peer heard recently (NaN if none): what to size copies for."""
+    def outgoing_loss(self, origin: str | None = None) -> float:
+        """The worst loss towards any peer heard recently (NaN if none): what to size copies for; towards
+        the peers named ``origin`` when given (see ``_of``)."""
         worst = math.nan
         with self._lock:
             now = time.monotonic()
-            for p in self._peers.values():
+            for p in self._of(origin):
                 loss = self._incoming(p, now)
                 if now - p.reported_at < 3.0 and math.isfinite(p.reported):
                     loss = max(loss, p.reported)
@@ -378,7 +398,7 @@ class LossMonitor:
             measured = [(pid, self._incoming(p, now)) for pid, p in self._peers.items()]
         self._seq = (self._seq + 1) & 0xFFFFFFFF
         self._pub.publish(LinkProbe(self.id, self._seq, round(self.period_s * 1000),
-                                    [pid for pid, _ in measured], [loss for _, loss in measured]))
+                                    [pid for pid, _ in measured], [loss for _, loss in measured], self.origin))
         self.probes_sent += 1
         if not measured:
             return
