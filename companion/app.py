@@ -146,26 +146,29 @@ class Companion:
         self.failsafe.check(now)
         self.worker.expire(now)   # commands past their reply's deadline never run later
         self.desk.watch_control(now)
-        if not self.lifecycle.in_session and self.link.mode == "OFFBOARD" and self.link.connected \
-                and now - self._park_sent > 2.0:
-            # Real PX4 returns to OFFBOARD after landing and auto-disarm: never leave it there.
-            self._park_sent = now
-            self.worker.submit_guarded("park", self._park)
+        self._park_if_stray(now)
         wrong = self.lifecycle.audit()
         if wrong:
             self.events.event("lifecycle", wrong, "stream stopped")
         self.telemetry.check_sensor_rate(now)
 
+    def _stray_offboard(self) -> bool:
+        return not self.lifecycle.in_session and self.link.mode == "OFFBOARD" and self.link.connected
+
+    def _park_if_stray(self, now: float) -> None:
+        # Real PX4 returns to OFFBOARD after landing and auto-disarm: never leave it there.
+        if self._stray_offboard() and now - self._park_sent > 2.0:
+            self._park_sent = now
+            self.worker.submit_guarded("park", self._park)
+
     def settle(self, timeout: float = 2.0) -> None:
         """Before the summary at exit: PX4 back in OFFBOARD after landing (it restores the mode it
         had) is parked now if the watchdog has not, and the summary waits, at most ``timeout``, for
         PX4's heartbeat (1 Hz) to show it, so the final mode reported is the one the vehicle is in."""
-        if self.lifecycle.in_session or not self.link.connected or self.link.mode != "OFFBOARD":
+        if not self._stray_offboard():
             return
         now = time.monotonic()
-        if now - self._park_sent > 2.0:
-            self._park_sent = now
-            self.worker.submit_guarded("park", self._park)
+        self._park_if_stray(now)
         end = now + timeout
         while self.link.mode == "OFFBOARD" and time.monotonic() < end:
             time.sleep(0.05)

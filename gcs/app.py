@@ -433,17 +433,16 @@ class Gcs:
             d.failures.append(why)
             del d.failures[:-d.MAX_EVENTS]
 
-    def _adapt_copies(self, worst: float) -> None:
+    def _adapt_copies(self, _worst: float) -> None:
         # Per drone, from that drone's own probes (their origin is its id; the worst link until it is
-        # heard): one drone in a fade must not raise every drone's copies on a shared radio channel.
+        # heard), not the adapter's worst of all: one drone in a fade must not raise every drone's copies
+        # on a shared radio channel. Never NaN here: the monitor adapts only once a peer is heard.
         # Fades: copies sized for the loss that follows a loss too (loss_feedback.BurstEstimate).
         monitor = self.link_monitor
         if monitor is None:
             return
         for drone_id, d in list(self.drones.items()):
             loss = monitor.outgoing_loss(drone_id)
-            if math.isnan(loss):
-                loss = worst
             d.commands.set_loss(loss)    # command retries and reply copies sized from it (services.py)
             if d.setpoint_pub.qos.repeat and d.setpoint_pub.qos.deadline:
                 apply_repeat_plan(d.setpoint_pub, loss, monitor.burst(drone_id), 1.0 / self.config.rate_hz)

@@ -46,9 +46,6 @@ with Node(args.role, namespace=args.ns, config=cfg) as node:
         print("READY", flush=True)
         # Until the test says the publisher is done: a receiver timed from its own start ends early
         # when a loaded machine slows the publisher's start, and the tail reads as lost.
-        if args.stop_file:
-            node.spin_until(lambda: os.path.exists(args.stop_file), timeout=args.duration)
-        else:
-            node.spin(timeout=args.duration)
+        node.spin_until(lambda: bool(args.stop_file) and os.path.exists(args.stop_file), timeout=args.duration)
         print(json.dumps({"frames": frames, "share_loss": sub.assembler.loss,
                           "decode_errors": sub.assembler.decode_errors}), flush=True)

@@ -52,9 +52,6 @@ with Node(args.role, namespace=args.ns, config=cfg) as node:
         print("READY", flush=True)
         # Until the test says the publisher is done: a receiver timed from its own start ends early
         # when a loaded machine slows the publisher's start, and the tail reads as lost.
-        if args.stop_file:
-            node.spin_until(lambda: os.path.exists(args.stop_file), timeout=args.duration)
-        else:
-            node.spin(timeout=args.duration)
+        node.spin_until(lambda: bool(args.stop_file) and os.path.exists(args.stop_file), timeout=args.duration)
         gaps = [b - a for a, b in zip(arrivals, arrivals[1:], strict=False)]
         print(json.dumps({"seqs": seqs, "max_gap": max(gaps) if gaps else None}), flush=True)
