@@ -222,7 +222,12 @@ def test_secure_a_second_gcs_of_the_drone_not_in_control_is_refused(tmp_path: Pa
                              multicast_scouting=False)
 
     try:
-        time.sleep(1.0)
+        # Its first line comes once it listens (a fixed 1 s was too short for a loaded CI machine).
+        # (EOF ends the wait if the router dies.)
+        lines = [router.stdout.readline()]
+        while lines[-1] and "listening on" not in lines[-1]:
+            lines.append(router.stdout.readline())
+        assert "listening on" in lines[-1], lines
         with Px4Link("udpin:127.0.0.1:0") as link, \
                 Simulator(1, port=0, target_port=link.local_port) as sim, \
                 Node("companion", namespace="uav1", config=client("uav1")) as cnode, \
