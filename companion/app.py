@@ -228,5 +228,6 @@ class Companion:
                         **self.link.backend_summary()},
                 "parameters": {"changed": self.params.changed, "refused": self.params.refused},
                 "failsafe": self.failsafe.summary(), "px4_worker": self.worker.summary(),
+                "repeater": self.node.repeater_stats(),
                 "logs": {"sent": {k: v.to_dict() for k, v in self.sent.items()},
                          "received": {"setpoint": received.to_dict()}}}

@@ -142,6 +142,54 @@ def test_deadline_copies_are_spread_and_a_newer_payload_replaces_them() -> None:
     assert len(new) == 10 and len(other) == 2
 
 
+def test_a_starved_repeater_counts_the_copies_it_sent_late() -> None:
+    """A copy held back past its time leaves together with the next ones (one datagram, lost
+    together): the repeater counts it, so a flight's record tells a starved thread from the link."""
+    import threading
+
+    from zenoh_robot._wire.repeater import LATE_S, Repeater
+
+    hold = threading.Event()
+    sent: list[bytes] = []
+
+    def put(b: bytes) -> None:
+        if b == b"slow":
+            hold.wait(5.0)          # the repeater's thread is busy: everything after it is due meanwhile
+        sent.append(b)
+
+    r = Repeater()
+    try:
+        r.schedule(put, b"slow", copies=1, interval=0.001)
+        r.schedule(put, b"next", copies=5, interval=0.005)
+        time.sleep(0.15)            # all of "next" is due, and late by more than LATE_S
+        assert r.stats()["sent"] == 1 and r.stats()["late"] == 0
+        hold.set()
+        deadline = time.monotonic() + 5.0
+        while len(sent) < 6 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        stats = r.stats()
+    finally:
+        r.close()
+    assert sent == [b"slow"] + [b"next"] * 5
+    assert stats["sent"] == 6 and stats["late"] >= 5, stats
+    assert stats["max_late_ms"] >= 100 > LATE_S * 1000, stats
+
+
+def test_a_node_reports_its_repeater_only_once_something_repeated(ns: str) -> None:
+    from zenoh_robot import qos
+    from zenoh_robot.msgs import Setpoint
+
+    with Node("rep", namespace=ns) as node:
+        assert node.repeater_stats() is None
+        pub = node.create_publisher(Setpoint, "setpoint", qos.SETPOINT.replace(repeat=3))
+        pub.publish(Setpoint(x=1.0))
+        deadline = time.monotonic() + 5.0
+        while (node.repeater_stats() or {}).get("sent", 0) < 3 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        stats = node.repeater_stats()
+    assert stats is not None and stats["sent"] == 3 and stats["dropped"] == 0, stats
+
+
 def test_repeat_plan_follows_loss_and_bounds_cost() -> None:
     from zenoh_robot.loss_feedback import repeat_plan
     plans = {p: repeat_plan(p, 0.5) for p in (0.0, 0.3, 0.5, 0.7, 0.9)}

@@ -115,6 +115,11 @@ class EntityContext:
                 self._qos_monitor = QoSMonitor()
             return self._qos_monitor
 
+    def repeater_stats(self) -> dict[str, float] | None:
+        """The repeater's counters (``Repeater.stats``), or None if no publisher ever repeated."""
+        repeater = self._repeater
+        return None if repeater is None else repeater.stats()
+
     def qos_monitor_if_any(self, fn: Callable[[QoSMonitor], None]) -> None:
         monitor = self._qos_monitor
         if monitor is not None:

@@ -219,6 +219,10 @@ class Node:
     def qos_monitor_if_any(self, fn: Callable[[QoSMonitor], None]) -> None:
         self._context.qos_monitor_if_any(fn)
 
+    def repeater_stats(self) -> dict[str, float] | None:
+        """Delayed copies sent, late, the worst lateness and dropped; None if nothing repeated."""
+        return self._context.repeater_stats()
+
     def add_on_close(self, fn: Callable[[], None]) -> None:
         """Run ``fn`` when the node closes, before its session does (for add-ons)."""
         self._on_close.append(fn)

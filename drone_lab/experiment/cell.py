@@ -456,6 +456,8 @@ def analyse_cell(spec: CellSpec, workdir: Path, t0: int, t1: int, exit_codes: di
         pairs["image_whole"] = pairs["image_strip"] = pairs["image"]
     for topic, (received, sent) in pairs.items():
         result["topics"][topic] = analyse(rec(received), rec(sent), t0, t1).as_dict()
+    # Copies a starved repeater sent late (together): a gap they explain is the machine's, not the link's.
+    result["repeater"] = {"gcs": gcs.get("repeater"), "drone": drone.get("repeater")}
     sp = result["topics"]["setpoint"]
     # Arrivals only (what reached the companion); the flight's own record decides offboard_kept.
     result["setpoint_gap_ok"] = sp["unique"] > 0 and sp["longest_gap_ms"] <= OFFBOARD_GAP_MS

@@ -75,6 +75,8 @@ FLIGHT_CSV: dict[str, Callable[[dict[str, Any]], Any]] = {
     "path_error_max_m": lambda r: _flight(r, "path_error_window", "max_m"),
     "kBps_gcs": lambda r: (r.get("bandwidth_kBps") or {}).get("gcs"),
     "kBps_drone": lambda r: (r.get("bandwidth_kBps") or {}).get("drone"),
+    "gcs_late_copies": lambda r: ((r.get("repeater") or {}).get("gcs") or {}).get("late"),
+    "gcs_copy_max_late_ms": lambda r: ((r.get("repeater") or {}).get("gcs") or {}).get("max_late_ms"),
 }
 
 

@@ -12,6 +12,12 @@ the pending copies of the older one (it carries the older samples in its redunda
 history, and an old copy delivered after a newer sample would only be stale). Under
 independent loss p, a gap longer than the window needs every one of the ~``copies``
 packets in it lost: p ** copies (0.9 ** 64 = 1e-3 at 90 % loss).
+
+That bound assumes each copy leaves when it is due. A thread starved of the CPU sends its
+late copies back to back, in one datagram, and the window they were spread over is lost
+with them; :meth:`Repeater.stats` counts the copies that left more than ``LATE_S`` after
+their time (and the worst lateness), so a flight's record tells a starved repeater from a
+lossy link.
 """
 from __future__ import annotations
 
@@ -27,6 +33,8 @@ log = logging.getLogger("zenoh_robot._wire.repeater")
 # Not a multiple of common stream periods (5, 10, 33 ms): a copy must not share a batch with
 # the next original sample of a 200 Hz stream.
 REPEAT_INTERVAL_S = 0.003
+# Late enough that the copy may share a datagram with the next ones (several intervals).
+LATE_S = 0.02
 
 
 class Repeater:
@@ -38,6 +46,9 @@ class Repeater:
         self._count = itertools.count()
         self._closed = False
         self.dropped = 0
+        self.sent = 0             # copies handed to Zenoh
+        self.late = 0             # ... of them more than LATE_S after their time
+        self.max_late_s = 0.0
         self._thread = threading.Thread(target=self._run, name="zr-repeater", daemon=True)
         self._thread.start()
 
@@ -82,13 +93,24 @@ class Repeater:
                     self._cond.wait(timeout)
                 if self._closed:
                     return
-                _, _, put, payload, tag = heapq.heappop(self._heap)
+                due, _, put, payload, tag = heapq.heappop(self._heap)
                 if tag is not None and self._generation.get(tag[0]) != tag[1]:
                     continue     # superseded by a newer payload of the same publisher
+                late = time.monotonic() - due
+                self.sent += 1
+                if late > LATE_S:
+                    self.late += 1
+                self.max_late_s = max(self.max_late_s, late)
             try:
                 put(payload)
             except Exception as exc:   # the publisher closed meanwhile: nothing to repeat to
                 log.debug("repeat dropped: %s", exc)
+
+    def stats(self) -> dict[str, float]:
+        """Copies sent, late (more than LATE_S after their time), the worst lateness, and dropped."""
+        with self._cond:
+            return {"sent": self.sent, "late": self.late, "max_late_ms": round(self.max_late_s * 1000, 1),
+                    "dropped": self.dropped}
 
     def close(self) -> None:
         with self._cond:
