@@ -285,9 +285,9 @@ def _say(line: str) -> None:
 def summarize(gcs: Gcs, profile: str) -> dict[str, Any]:
     out: dict[str, Any] = {"profile": profile, "pattern": gcs.config.pattern, "formation": gcs.config.formation,
                            "drones": {}}
-    # The rates asked of each drone (None: its own): received rates are judged against these.
     # Late copies left together and could be lost together: a starved repeater, not the link.
     out["repeater"] = gcs.node.repeater_stats()
+    # The rates asked of each drone (None: its own): received rates are judged against these.
     out["downlink_asked"] = {"sensor_rate_hz": gcs.config.sensor_rate_hz, "camera_rate_hz": gcs.config.camera_rate_hz}
     for d in gcs.drones.values():
         streams = {name: rec.summary().as_dict() for name, rec in d.streams.items()}

@@ -65,6 +65,11 @@ def _flight(r: dict[str, Any], *path: str) -> Any:
     return node
 
 
+def _gcs_repeater(key: str) -> Callable[[dict[str, Any]], Any]:
+    """A figure of the GCS's repeater (``cell.analyse_cell``'s ``repeater``; None in older records)."""
+    return lambda r: ((r.get("repeater") or {}).get("gcs") or {}).get(key)
+
+
 FLIGHT_CSV: dict[str, Callable[[dict[str, Any]], Any]] = {
     "mission_ok": lambda r: _flight(r, "mission_ok"),
     "offboard_share": lambda r: _flight(r, "offboard_share_window"),
@@ -75,8 +80,8 @@ FLIGHT_CSV: dict[str, Callable[[dict[str, Any]], Any]] = {
     "path_error_max_m": lambda r: _flight(r, "path_error_window", "max_m"),
     "kBps_gcs": lambda r: (r.get("bandwidth_kBps") or {}).get("gcs"),
     "kBps_drone": lambda r: (r.get("bandwidth_kBps") or {}).get("drone"),
-    "gcs_late_copies": lambda r: ((r.get("repeater") or {}).get("gcs") or {}).get("late"),
-    "gcs_copy_max_late_ms": lambda r: ((r.get("repeater") or {}).get("gcs") or {}).get("max_late_ms"),
+    "gcs_late_copies": _gcs_repeater("late"),
+    "gcs_copy_max_late_ms": _gcs_repeater("max_late_ms"),
 }
 
 
