@@ -12,17 +12,12 @@ Setpoints go only to a drone this GCS may steer: one whose state names this GCS 
 or no controller (the first claim: PX4 needs setpoints before ``offboard_start``); never one another
 GCS controls, so an observer never fills a gap in control.
 
-Targets start where the drone is: until the drone's offboard session is active under this
-GCS, the target follows the drone's reported position (climbing towards the altitude at
-most ``MAX_LEAD_M`` ahead); once active, the pattern is flown relative to that anchor. So
-a restarted GCS, or a resume after a failsafe hold anywhere, never asks for a jump. Each
-drone has its own anchor.
-
-Swarms (gcs/formation.py): with a formation (``line``, ``grid``; the CLI's ``auto`` picks
-``line`` for several drones) each drone has its own slot, taken in join order, and all fly
-one pattern clock from the shared origin shifted by their slots, so no two drones are ever
-sent the same point; a drone far from its slot is led there at most ``MAX_LEAD_M`` ahead.
-A drone may fly its own pattern (``GcsConfig.patterns``).
+Targets start where the drone is and a pattern is flown from that anchor, or from the
+drone's formation slot (gcs/planner.py: each ``DroneView`` has its ``TargetPlanner``, fed
+with the drone's reported position). Swarms (gcs/formation.py): with a formation (``line``,
+``grid``; the CLI's ``auto`` picks ``line`` for several drones) each drone has its own slot,
+taken in join order, and all fly the ``Gcs``'s one formation clock. A drone may fly its own
+pattern (``GcsConfig.patterns``).
 
 Receive path: telemetry callbacks only record; image slices are filed, not decoded, on
 the executor (gcs/frames.py), so many camera streams cannot starve setpoints and sensors.
@@ -41,7 +36,6 @@ from typing import Any
 import numpy as np
 
 from drone_contract.commands import COMMAND_SERVICE
-from drone_contract.limits import GCS_MAX_LEAD_M, GCS_MAX_TARGET_SPEED_MS
 from drone_contract.messages import (
     CONTROL_TOKEN_PREFIX,
     FAILSAFE_KINDS,
@@ -63,14 +57,13 @@ from zenoh_robot.tools.stream_metrics import StreamRecorder
 from zenoh_robot.topic_statistics import with_cpu_budget
 
 from .downlink import DownlinkRates
-from .formation import lead, slot
+from .formation import slot
 from .frames import FrameKeeper
-from .patterns import PathPoint, make_pattern, path_distance
+from .patterns import PathPoint, make_pattern
+from .planner import FormationClock, Position, TargetPlanner
 
 log = logging.getLogger("gcs")
 _DRONE_ID = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
-MAX_LEAD_M = GCS_MAX_LEAD_M      # within the companion's max_offset_m (drone_contract.limits)
-MAX_TARGET_SPEED = GCS_MAX_TARGET_SPEED_MS   # within its max_speed
 # Executor time (% of one core) each drone stream may take before `zenoh-robot stats` shows it red
 # and the log warns (TopicStatisticsOptions.cpu_budget_pct). The whole GCS costs ~2-3.5 % of a core
 # per drone with the swarm downlink (docs/swarm.md). busy_pct measured (1 drone, FEC camera, quiet
@@ -82,9 +75,6 @@ STREAM_CPU_BUDGET_PCT = {"sensor": 2.0, "state": 0.5, "image": 2.0}
 # default, never under its 1 s setpoint deadline), so a GCS that no longer streams (waiting for a landing)
 # keeps control where its liveliness token does not reach the drone (UDP multicast carries none).
 PRESENCE_PERIOD_S = 0.5
-# A formation drone has reached its slot's path once its target is that path (no longer a lead towards it)
-# and the drone is this close to it; its path error counts from then on.
-PATH_JOIN_M = 1.0
 
 
 def default_client_id() -> str:
@@ -135,7 +125,9 @@ class DroneView:
         self.index = index
         self.slot = slot(index, cfg.formation, cfg.spacing)
         self.pattern_name = cfg.patterns.get(drone_id, cfg.pattern)
-        self.pattern = make_pattern(self.pattern_name, cfg.altitude, cfg.size, cfg.speed)
+        self.plan = TargetPlanner(self.pattern_name, altitude=cfg.altitude, size=cfg.size, speed=cfg.speed,
+                                  rate_hz=cfg.rate_hz, formation=cfg.formation, slot=self.slot,
+                                  formation_clock=gcs.formation_clock, fly=cfg.auto_fly)
         q = cfg.profile.qos
         self.setpoints_sent = 0
         self.state: VehicleState | None = None
@@ -150,24 +142,6 @@ class DroneView:
         self.sent = {"setpoint": StreamRecorder()}
         self.image = ImageStats()
         self.frames = FrameKeeper()
-        # Path error: the horizontal distance from the drone to its own commanded path (its slot's copy of
-        # the pattern), from the moment it first reached that path: the lead-in from home to a far slot is a
-        # transit the GCS commands on purpose, not an error of the flight.
-        self.max_path_error = 0.0
-        self.path_error_sum = 0.0
-        self.path_error_samples = 0
-        self.on_path = False               # joined its path: errors count from here
-        self._target_on_path = False       # the target is the path itself (formation: no longer led)
-        # Targets: see the module docstring.
-        self.fly = gcs.config.auto_fly          # fly the pattern once the session is active
-        self._hover: PathPoint | None = None
-        self._anchor: PathPoint | None = None
-        self._t0 = 0.0
-        self._frozen: PathPoint | None = None
-        # Set once a mission has sent LAND: nothing more to stream, and a stream into a landing drone
-        # is only noise (the companion ends its session on LAND and ignores setpoints outside one).
-        self.done = False
-        self._led: PathPoint | None = None     # the last formation target (see target())
         ns = f"/{drone_id}"
         # Names and types from the contract's stream table (drone_contract.streams): the companion
         # wires the other end from the same rows, and tests/test_contract.py checks both are there.
@@ -210,17 +184,7 @@ class DroneView:
         if self.gcs.downlink is not None:   # a join (or rejoin): ask for this GCS's downlink rates
             self.gcs.downlink.on_state(self.id, previous_at, self.state_at, float(msg.sensor_rate_requested_hz),
                                        msg.controller)
-        if msg.mode == "OFFBOARD" and self._anchor is not None and self._target_on_path and not self.done:
-            # In the pattern's own frame: the path flown is anchor + p(t) - p(0).
-            p0 = self.pattern(0.0)
-            x, y = msg.position[0] - self._anchor.x + p0.x, msg.position[1] - self._anchor.y + p0.y
-            err = path_distance(x, y, self.pattern_name, self.gcs.config.size)
-            if not self.on_path and err > PATH_JOIN_M:
-                return
-            self.on_path = True
-            self.max_path_error = max(self.max_path_error, err)
-            self.path_error_sum += err
-            self.path_error_samples += 1
+        self.plan.track(msg.position, msg.mode == "OFFBOARD")
 
     def lost_pct(self, stream: str) -> float:
         """Share of ``stream`` that never arrived (NaN before there is anything to say). Strips are numbered
@@ -230,10 +194,6 @@ class DroneView:
             k = self.frames
             return 100.0 * (1 - k.strips_fresh / k.strips_expected) if k.strips_expected else float("nan")
         return self.streams[stream].lost_pct()
-
-    @property
-    def mean_path_error(self) -> float:
-        return self.path_error_sum / self.path_error_samples if self.path_error_samples else float("nan")
 
     @property
     def in_control(self) -> bool:
@@ -307,56 +267,26 @@ class DroneView:
         got = self.frames.latest()
         return None if got is None else got[0]
 
-    # -- targets ---------------------------------------------------------------------
-    def target(self) -> PathPoint | None:
-        """What to stream now, or None (no position known: nothing safe to send)."""
-        if self.done:
-            return None
-        if self._frozen is not None:
-            return self._frozen
+    # -- targets (gcs/planner.py) -----------------------------------------------------
+    def _position(self) -> Position | None:
         s = self.state
         if s is None or not s.connected or not all(math.isfinite(v) for v in s.position):
             return None
         x, y, z = (float(v) for v in s.position)
-        alt = -abs(self.gcs.config.altitude)
-        toward = min(max(alt, z - MAX_LEAD_M), z + MAX_LEAD_M)   # climb (or descend) from where it is
-        if not self.session_active:
-            self._anchor = self._led = None
-            self.on_path = self._target_on_path = False
-            self._hover = PathPoint(x, y, toward, self._hover.yaw if self._hover else 0.0)
-            return self._hover
-        if self._hover is None:
-            self._hover = PathPoint(x, y, toward)
-        if not self.fly:   # session active, pattern not started: hold x, y, keep climbing
-            self._hover = PathPoint(self._hover.x, self._hover.y, toward, self._hover.yaw)
-            return self._hover
-        if self.gcs.config.formation != "none":
-            # One clock for the whole formation; the slot shifts this drone's copy of the path.
-            self._anchor = PathPoint(*self.slot, 0.0)
-            p0, p = self.pattern(0.0), self.pattern(self.gcs.formation_time())
-            px, py = self.slot[0] + p.x - p0.x, self.slot[1] + p.y - p0.y
-            tx, ty = lead(x, y, px, py, MAX_LEAD_M)
-            # Led from the last target, never faster than MAX_TARGET_SPEED: no jump to refuse.
-            prev = self._led or self._hover
-            tx, ty = lead(prev.x, prev.y, tx, ty, MAX_TARGET_SPEED / self.gcs.config.rate_hz)
-            self._target_on_path = self._target_on_path or (tx, ty) == (px, py)
-            self._led = PathPoint(tx, ty, min(max(p.z, z - MAX_LEAD_M), z + MAX_LEAD_M), p.yaw)
-            return self._led
-        if self._anchor is None:
-            self._anchor, self._t0 = self._hover, time.monotonic()
-            self.on_path = self._target_on_path = True   # the pattern starts where the drone is
-        p0, p = self.pattern(0.0), self.pattern(time.monotonic() - self._t0)
-        return PathPoint(self._anchor.x + p.x - p0.x, self._anchor.y + p.y - p0.y,
-                      min(max(p.z, z - MAX_LEAD_M), z + MAX_LEAD_M), p.yaw)
+        return x, y, z
 
-    def start_pattern(self) -> None:
-        self.fly, self._anchor, self._frozen = True, None, None
-        self.on_path = self._target_on_path = False
+    def target(self) -> PathPoint | None:
+        """What to stream now, or None (no position known: nothing safe to send)."""
+        return self.plan.target(self._position(), self.session_active)
 
     def freeze(self) -> None:
         """Keep sending the current target (a jump back to the start would be refused)."""
-        self._frozen = self.target()
-        self.fly = False
+        self.plan.freeze(self._position(), self.session_active)
+
+    @property
+    def fly(self) -> bool:
+        """The pattern is flown once the session is active (else the drone holds where it began)."""
+        return self.plan.fly
 
     # -- commands --------------------------------------------------------------------
     def command(self, name: str, value: float = 0.0, text: str = "", force: bool = False,
@@ -400,7 +330,7 @@ class Gcs:
         for name in config.patterns.values():
             make_pattern(name)   # an unknown name fails here, not at the first setpoint
         slot(0, config.formation, config.spacing)
-        self._formation_t0: float | None = None
+        self.formation_clock = FormationClock()
         self.streaming = True
         self._declare_parameters()
         rates = {k: v for k, v in (("sensor_rate_hz", config.sensor_rate_hz),
@@ -462,13 +392,6 @@ class Gcs:
                 ("camera_rate", c.camera_rate_hz or 0.0, "camera rate asked of each drone, fps (0: not asked)")):
             if not self.node.has_parameter(name):
                 self.node.declare_parameter(name, value, what, read_only=True)
-
-    def formation_time(self) -> float:
-        """Seconds on the formation's shared clock (started by the first drone to fly)."""
-        now = time.monotonic()
-        if self._formation_t0 is None:
-            self._formation_t0 = now
-        return now - self._formation_t0
 
     def _on_any_state(self, sample: Any) -> None:   # Zenoh thread: hand over to the executor
         drone_id = str(sample.key_expr).split("/")[0]

@@ -298,10 +298,10 @@ def summarize(gcs: Gcs, profile: str) -> dict[str, Any]:
             "frames": d.image.frames, "frames_complete": d.image.complete,
             "frames_decoded": d.frames.decoded, "decode_cpu_s": d.frames.decode_s,
             "slot": list(d.slot), "pattern": d.pattern_name,
-            "max_path_error_m": d.max_path_error,
-            # Against the drone's own (slot's) path, from when it joined it (gcs/app.py, PATH_JOIN_M).
-            "mean_path_error_m": d.mean_path_error, "path_error_samples": d.path_error_samples,
-            "joined_path": d.on_path,
+            "max_path_error_m": d.plan.max_path_error,
+            # Against the drone's own (slot's) path, from when it joined it (gcs/planner.py, PATH_JOIN_M).
+            "mean_path_error_m": d.plan.mean_path_error, "path_error_samples": d.plan.path_error_samples,
+            "joined_path": d.plan.on_path,
             "final_state": d.state.to_dict() if d.state else None,
             "events": [e.to_dict() for e in d.events],
             "downlink": gcs.downlink.status[d.id].as_dict()

@@ -1,7 +1,7 @@
 """A scripted flight: wait for the drone, OFFBOARD, arm, fly the pattern, land.
 
 Setpoints stream from the GCS's timer the whole time, starting at the drone's current
-position (see gcs/app.py), so PX4's rule that OFFBOARD needs a setpoint stream beforehand
+position (see gcs/planner.py), so PX4's rule that OFFBOARD needs a setpoint stream beforehand
 is met and a mission may start anywhere. Commands go through the drone's command
 service and are retried while the answer is a lost request or reply (a lossy link), never
 when the drone refused: a refusal is the answer.
@@ -41,23 +41,23 @@ def run_mission(gcs: Gcs, drone_id: str, duration: float, log: Callable[..., Non
     ``why()`` saying which drone's failure it was."""
     out: dict[str, Any] = {"ok": False, "steps": [], "result": ""}
     drone = gcs.add_drone(drone_id)
-    drone.fly = False
+    drone.plan.fly = False
     try:
         _fly(gcs, drone, duration, out, log, abort or threading.Event(), why or (lambda: "aborted"))
         out["ok"] = True
         out["result"] = (f"ok: flew the {drone.pattern_name} pattern for {duration:.0f} s, landed and disarmed "
-                         f"(largest distance from the path {drone.max_path_error:.2f} m, "
-                         f"mean {drone.mean_path_error:.2f} m)")
+                         f"(largest distance from the path {drone.plan.max_path_error:.2f} m, "
+                         f"mean {drone.plan.mean_path_error:.2f} m)")
     except MissionFailed as exc:
         out["result"] = f"FAILED: {exc}"
         if drone.state is not None and drone.state.armed and drone.in_control:
             drone.freeze()
             res = drone.command("hold")   # whatever went wrong, do not leave it following a stale plan
             log(f"mission: hold after failure: {'ok' if res.success else 'FAILED'} {res.message}")
-    # Against the drone's own path (its formation slot's), from when it joined it (gcs/app.py).
-    out["max_path_error_m"] = drone.max_path_error
-    out["mean_path_error_m"] = drone.mean_path_error
-    out["joined_path"] = drone.on_path
+    # Against the drone's own path (its formation slot's), from when it joined it (gcs/planner.py).
+    out["max_path_error_m"] = drone.plan.max_path_error
+    out["mean_path_error_m"] = drone.plan.mean_path_error
+    out["joined_path"] = drone.plan.on_path
     out["asked_s"] = duration
     out.setdefault("offboard_s", 0.0)
     out["offboard_share"] = out["offboard_s"] / duration if duration > 0 else float("nan")
@@ -179,7 +179,7 @@ def _fly(gcs: Gcs, drone: DroneView, duration: float, out: dict[str, Any], log: 
     climbed = until(lambda: bool(drone.state and -drone.state.position[2] > 0.8 * alt), 30.0)
     step("climb", climbed, "" if climbed else f"altitude {-drone.state.position[2] if drone.state else 0:.1f} m "
                                                f"after 30 s (asked {alt:g} m)")
-    drone.start_pattern()
+    drone.plan.start_pattern()
     log(f"mission: {drone.id}: flying the {drone.pattern_name} pattern for {duration:.0f} s")
     start = time.monotonic()
     end = start + duration
@@ -200,6 +200,6 @@ def _fly(gcs: Gcs, drone: DroneView, duration: float, out: dict[str, Any], log: 
     drone.freeze()
     landing = True
     command("land")
-    drone.done = True   # PX4 lands by itself: the companion has ended the session and would ignore setpoints
+    drone.plan.done = True   # PX4 lands by itself: the companion has ended the session and would ignore setpoints
     landed = until(lambda: bool(drone.state and drone.state.landed and not drone.state.armed), 40.0)
     step("landed and disarmed", landed)
