@@ -2,7 +2,7 @@
 
 One ``Gcs`` holds one Node (one Zenoh session) and a ``DroneView`` per drone. Drones
 are given (``--drones uav1,uav2``) or discovered from the ``*/state`` topics they
-publish. Everything a dashboard or a summary shows is read from ``DroneView``.
+publish (gcs/discovery.py). Everything a dashboard or a summary shows is read from ``DroneView``.
 
 Identity: every setpoint and command carries this GCS's ``client_id`` (``user@host`` by
 default), and the session declares the liveliness token ``zr_gcs/<client_id>`` by which
@@ -56,6 +56,7 @@ from zenoh_robot.services import ServiceCallError, command_retry
 from zenoh_robot.tools.stream_metrics import StreamRecorder
 from zenoh_robot.topic_statistics import with_cpu_budget
 
+from .discovery import watch_drones
 from .downlink import DownlinkRates
 from .formation import slot
 from .frames import FrameKeeper
@@ -63,7 +64,6 @@ from .patterns import PathPoint, make_pattern
 from .planner import FormationClock, Position, TargetPlanner
 
 log = logging.getLogger("gcs")
-_DRONE_ID = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 # Executor time (% of one core) each drone stream may take before `zenoh-robot stats` shows it red
 # and the log warns (TopicStatisticsOptions.cpu_budget_pct). The whole GCS costs ~2-3.5 % of a core
 # per drone with the swarm downlink (docs/swarm.md). busy_pct measured (1 drone, FEC camera, quiet
@@ -343,8 +343,7 @@ class Gcs:
         for d in config.drones:
             self.add_drone(d)
         if not config.drones:
-            # Discovery: any namespace publishing a VehicleState on <id>/state is a drone.
-            self._discovery = node.session.declare_subscriber("*/state", self._on_any_state)
+            self._discovery = watch_drones(node, self._on_drone_heard)
         node.create_timer(1.0 / config.rate_hz, self._stream)
         node.create_timer(PRESENCE_PERIOD_S, self._presence)
         # Loss feedback (loss_feedback.py): setpoint copies follow the loss the drones measure.
@@ -393,9 +392,8 @@ class Gcs:
             if not self.node.has_parameter(name):
                 self.node.declare_parameter(name, value, what, read_only=True)
 
-    def _on_any_state(self, sample: Any) -> None:   # Zenoh thread: hand over to the executor
-        drone_id = str(sample.key_expr).split("/")[0]
-        if drone_id not in self.drones and _DRONE_ID.match(drone_id):
+    def _on_drone_heard(self, drone_id: str) -> None:   # Zenoh thread: hand over to the executor
+        if drone_id not in self.drones:
             def add() -> None:
                 self.add_drone(drone_id)
             self.node.executor.call_soon(add)

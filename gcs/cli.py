@@ -26,6 +26,7 @@ from zenoh_robot.wire import ENVELOPE, WireFormat
 
 from .app import Gcs, GcsConfig
 from .dashboard import RateMeter, plain_lines, render
+from .discovery import discover_drones
 from .formation import FORMATIONS, resolve
 from .mission import ON_FAILURE, run_mission, run_swarm_mission
 from .patterns import PATTERNS
@@ -422,18 +423,3 @@ def run_command(args: argparse.Namespace) -> int:
               + (f"; FAILED: {', '.join(sorted(failed))}" if failed else ""))
     return 1 if failed else 0
 
-
-def discover_drones(node: Node, seconds: float) -> list[str]:
-    """Drone ids heard publishing ``<id>/state`` within ``seconds`` (states come at 5 Hz)."""
-    import re
-    found: set[str] = set()
-    ok = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
-
-    def on(sample: Any) -> None:
-        drone = str(sample.key_expr).split("/")[0]
-        if ok.match(drone) and len(found) < 1000:   # bounded: a flood of names cannot grow it
-            found.add(drone)
-    sub = node.session.declare_subscriber("*/state", on)
-    time.sleep(max(0.0, seconds))
-    sub.undeclare()
-    return sorted(found)
