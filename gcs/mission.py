@@ -13,6 +13,10 @@ GCS's setpoints, or when the drone is not doing what the mission asked.
 Several drones (``run_swarm_mission``): each flies its own mission on its own thread, at
 the same time. A drone that fails is reported (and put on hold) and, by the policy, the
 others ``continue`` their missions or ``hold`` where they are at once, each told why.
+
+``Mission`` is one drone's flight: each step a method (``wait_connected``, ``start_offboard``,
+``wait_armable``, ``arm``, ``climb``, ``fly_pattern``, ``land``), each run in ``fly``'s order;
+a step the drone did not do is recorded and raises ``MissionFailed``.
 """
 from __future__ import annotations
 
@@ -22,6 +26,7 @@ from collections.abc import Callable
 from typing import Any
 
 from drone_contract.commands import NO_SETPOINTS_YET
+from drone_contract.messages import CommandResult
 
 from .app import DroneView, Gcs
 
@@ -35,35 +40,171 @@ class MissionFailed(Exception):
     pass
 
 
+class Mission:
+    """One drone's scripted flight (see the module docstring); ``abort`` (set by a swarm's ``hold``
+    policy) stops it as a failure, ``why()`` saying which drone's failure it was."""
+
+    def __init__(self, gcs: Gcs, drone: DroneView, duration: float, log: Callable[..., None],
+                 abort: threading.Event | None = None, why: Callable[[], str] | None = None,
+                 out: dict[str, Any] | None = None) -> None:
+        self.gcs, self.drone, self.duration, self.log = gcs, drone, duration, log
+        self.abort = abort or threading.Event()
+        self.why = why or (lambda: "aborted")
+        self.out: dict[str, Any] = out if out is not None else {"ok": False, "steps": [], "result": ""}
+        self._failures_at_start = len(drone.failures)
+        self._landing = False   # a drone already landing lands: another drone's failure does not hold it in the air
+
+    def run(self) -> dict[str, Any]:
+        """The flight and its outcome: what the mission summary and the swarm's policy read."""
+        out, drone = self.out, self.drone
+        try:
+            self.fly()
+            out["ok"] = True
+            out["result"] = (f"ok: flew the {drone.pattern_name} pattern for {self.duration:.0f} s, landed and "
+                             f"disarmed (largest distance from the path {drone.plan.max_path_error:.2f} m, "
+                             f"mean {drone.plan.mean_path_error:.2f} m)")
+        except MissionFailed as exc:
+            out["result"] = f"FAILED: {exc}"
+            if drone.state is not None and drone.state.armed and drone.in_control:
+                drone.freeze()
+                res = drone.command("hold")   # whatever went wrong, do not leave it following a stale plan
+                self.log(f"mission: hold after failure: {'ok' if res.success else 'FAILED'} {res.message}")
+        # Against the drone's own path (its formation slot's), from when it joined it (gcs/planner.py).
+        out["max_path_error_m"] = drone.plan.max_path_error
+        out["mean_path_error_m"] = drone.plan.mean_path_error
+        out["joined_path"] = drone.plan.on_path
+        out["asked_s"] = self.duration
+        out.setdefault("offboard_s", 0.0)
+        out["offboard_share"] = out["offboard_s"] / self.duration if self.duration > 0 else float("nan")
+        out["failures"] = list(drone.failures)
+        self.log(f"mission: {drone.id}: {out['result']}")
+        return out
+
+    def fly(self) -> None:
+        """Every step in order; MissionFailed at the first the drone did not do."""
+        self.wait_connected()
+        time.sleep(0.3)   # a few setpoints from the drone's position reach the companion first
+        self.start_offboard()
+        self.wait_armable()
+        self.arm()
+        self.climb()
+        self.fly_pattern()
+        self.land()
+
+    # -- the steps -------------------------------------------------------------------
+    def wait_connected(self) -> None:
+        drone = self.drone
+        connected = self._until(lambda: bool(drone.state and drone.state.connected and drone.setpoints_sent > 5),
+                                30.0)
+        # Setpoints go only to a drone nobody else controls (gcs/app.py): say so rather than time out mutely.
+        self._step("drone connected", connected,
+                   "" if connected else "no state from the drone" if drone.state is None else
+                   f"{drone.state.controller} is in control of {drone.id}: no setpoints sent (take over with "
+                   "--take-control)" if not drone.may_stream else "")
+
+    def start_offboard(self) -> None:
+        # Refused for want of our setpoints, asked again while they stream (a lossy link at start-up
+        # may carry none of the first ones); any other refusal, or none reaching it in time, fails.
+        end = time.monotonic() + OFFBOARD_START_WAIT_S
+        while True:
+            res = self._send("offboard_start")
+            if res.success or not res.message.startswith(NO_SETPOINTS_YET) or time.monotonic() >= end:
+                self._step("offboard_start", res.success, res.message)
+                return
+            self.log(f"mission: {self.drone.id}: offboard_start refused ({res.message}); asking again while the "
+                     "setpoints stream")
+            self._until(lambda: False, 1.0)
+
+    def wait_armable(self) -> None:
+        # Like an operator: arm once PX4's pre-arm checks pass (real PX4 refuses for ~4 s after boot,
+        # "Preflight Fail: heading estimate not stable"), not at once and not after a fixed sleep.
+        drone = self.drone
+        armable = self._until(lambda: bool(drone.state and drone.state.armable), ARMABLE_TIMEOUT_S)
+        self._step("armable", armable, "" if armable else
+                   f"PX4's pre-arm checks did not pass within {ARMABLE_TIMEOUT_S:g} s (mode "
+                   f"{drone.state.mode if drone.state else '?'}): see the drone's log for PX4's reason")
+
+    def arm(self) -> None:
+        self._command("arm")
+
+    def climb(self) -> None:
+        drone, alt = self.drone, self.gcs.config.altitude
+        climbed = self._until(lambda: bool(drone.state and -drone.state.position[2] > 0.8 * alt), 30.0)
+        self._step("climb", climbed, "" if climbed else
+                   f"altitude {-drone.state.position[2] if drone.state else 0:.1f} m after 30 s (asked {alt:g} m)")
+
+    def fly_pattern(self) -> None:
+        drone, out, duration = self.drone, self.out, self.duration
+        drone.plan.start_pattern()
+        self.log(f"mission: {drone.id}: flying the {drone.pattern_name} pattern for {duration:.0f} s")
+        start = time.monotonic()
+        end = start + duration
+        # The pattern's window (wall clock), for figures taken over the flight itself (drone_lab's swarm).
+        out["pattern_window"] = [time.time(), float("nan")]
+        while time.monotonic() < end:
+            self._check()
+            s = drone.state
+            if s is not None and (s.mode != "OFFBOARD" or s.offboard_state != "active"):
+                self._step("offboard", False, f"drone left the offboard session: mode {s.mode}, "
+                                              f"companion {s.offboard_state or '?'} {s.failsafe}".strip())
+            out["offboard_s"] = min(time.monotonic() - start, duration)   # in OFFBOARD, as the drone last said
+            out["pattern_window"][1] = time.time()
+            time.sleep(0.2)
+        s = drone.state
+        if s is not None and s.mode == "OFFBOARD" and s.offboard_state == "active":
+            out["offboard_s"] = duration
+
+    def land(self) -> None:
+        drone = self.drone
+        drone.freeze()
+        self._landing = True
+        self._command("land")
+        drone.plan.done = True   # PX4 lands by itself: the companion has ended the session and would ignore setpoints
+        landed = self._until(lambda: bool(drone.state and drone.state.landed and not drone.state.armed), 40.0)
+        self._step("landed and disarmed", landed)
+
+    # -- what every step uses --------------------------------------------------------
+    def _step(self, name: str, ok: bool, detail: str = "") -> None:
+        self.out["steps"].append({"step": name, "ok": ok, "detail": detail, "t": time.time()})
+        self.log(f"mission: {self.drone.id}: {name}: {'ok' if ok else 'FAILED'} {detail}")
+        if not ok:
+            raise MissionFailed(f"{name}: {detail}" if detail else name)
+
+    def _check(self) -> None:
+        if self.abort.is_set() and not self._landing:
+            self._step("other drones fine", False, self.why())
+        if len(self.drone.failures) > self._failures_at_start:
+            self._step("no failsafe, no refused setpoint", False, self.drone.failures[-1])
+
+    def _until(self, pred: Callable[[], bool], timeout: float) -> bool:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            self._check()
+            if pred():
+                return True
+            time.sleep(0.1)
+        return pred()
+
+    def _send(self, name: str, value: float = 0.0) -> CommandResult:
+        # One call: the client retries it under one request id and the companion runs it once
+        # (services.py); a second call is a new command, made only after a refusal (start_offboard).
+        t0 = time.monotonic()
+        res = self.drone.command(name, value)
+        self.out.setdefault("commands", []).append({"command": name, "ok": res.success,
+                                                     "latency_s": time.monotonic() - t0, "detail": res.message})
+        return res
+
+    def _command(self, name: str, value: float = 0.0) -> None:
+        res = self._send(name, value)
+        self._step(name, res.success, res.message)
+
+
 def run_mission(gcs: Gcs, drone_id: str, duration: float, log: Callable[..., None],
                 abort: threading.Event | None = None, why: Callable[[], str] | None = None) -> dict[str, Any]:
-    """One drone's mission; ``abort`` (set by a swarm's ``hold`` policy) stops it as a failure,
-    ``why()`` saying which drone's failure it was."""
-    out: dict[str, Any] = {"ok": False, "steps": [], "result": ""}
+    """One drone's mission (``Mission``), the drone taken on by the GCS if it was not yet."""
     drone = gcs.add_drone(drone_id)
     drone.plan.fly = False
-    try:
-        _fly(gcs, drone, duration, out, log, abort or threading.Event(), why or (lambda: "aborted"))
-        out["ok"] = True
-        out["result"] = (f"ok: flew the {drone.pattern_name} pattern for {duration:.0f} s, landed and disarmed "
-                         f"(largest distance from the path {drone.plan.max_path_error:.2f} m, "
-                         f"mean {drone.plan.mean_path_error:.2f} m)")
-    except MissionFailed as exc:
-        out["result"] = f"FAILED: {exc}"
-        if drone.state is not None and drone.state.armed and drone.in_control:
-            drone.freeze()
-            res = drone.command("hold")   # whatever went wrong, do not leave it following a stale plan
-            log(f"mission: hold after failure: {'ok' if res.success else 'FAILED'} {res.message}")
-    # Against the drone's own path (its formation slot's), from when it joined it (gcs/planner.py).
-    out["max_path_error_m"] = drone.plan.max_path_error
-    out["mean_path_error_m"] = drone.plan.mean_path_error
-    out["joined_path"] = drone.plan.on_path
-    out["asked_s"] = duration
-    out.setdefault("offboard_s", 0.0)
-    out["offboard_share"] = out["offboard_s"] / duration if duration > 0 else float("nan")
-    out["failures"] = list(drone.failures)
-    log(f"mission: {drone.id}: {out['result']}")
-    return out
+    return Mission(gcs, drone, duration, log, abort, why).run()
 
 
 def run_swarm_mission(gcs: Gcs, drone_ids: list[str], duration: float, log: Callable[..., None],
@@ -110,96 +251,5 @@ def run_swarm_mission(gcs: Gcs, drone_ids: list[str], duration: float, log: Call
 
 def _fly(gcs: Gcs, drone: DroneView, duration: float, out: dict[str, Any], log: Callable[..., None],
          abort: threading.Event, why: Callable[[], str]) -> None:
-    failures_at_start = len(drone.failures)
-    landing = False   # a drone already landing lands: another drone's failure does not hold it in the air
-
-    def step(name: str, ok: bool, detail: str = "") -> None:
-        out["steps"].append({"step": name, "ok": ok, "detail": detail, "t": time.time()})
-        log(f"mission: {drone.id}: {name}: {'ok' if ok else 'FAILED'} {detail}")
-        if not ok:
-            raise MissionFailed(f"{name}: {detail}" if detail else name)
-
-    def check() -> None:
-        if abort.is_set() and not landing:
-            step("other drones fine", False, why())
-        if len(drone.failures) > failures_at_start:
-            step("no failsafe, no refused setpoint", False, drone.failures[-1])
-
-    def until(pred: Callable[[], bool], timeout: float) -> bool:
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            check()
-            if pred():
-                return True
-            time.sleep(0.1)
-        return pred()
-
-    def send(name: str, value: float = 0.0) -> Any:
-        # One call: the client retries it under one request id and the companion runs it once
-        # (services.py); a second call is a new command, made only after a refusal (start_offboard).
-        t0 = time.monotonic()
-        res = drone.command(name, value)
-        out.setdefault("commands", []).append({"command": name, "ok": res.success,
-                                                "latency_s": time.monotonic() - t0, "detail": res.message})
-        return res
-
-    def command(name: str, value: float = 0.0) -> None:
-        res = send(name, value)
-        step(name, res.success, res.message)
-
-    def start_offboard() -> None:
-        # Refused for want of our setpoints, asked again while they stream (a lossy link at start-up
-        # may carry none of the first ones); any other refusal, or none reaching it in time, fails.
-        end = time.monotonic() + OFFBOARD_START_WAIT_S
-        while True:
-            res = send("offboard_start")
-            if res.success or not res.message.startswith(NO_SETPOINTS_YET) or time.monotonic() >= end:
-                step("offboard_start", res.success, res.message)
-                return
-            log(f"mission: {drone.id}: offboard_start refused ({res.message}); asking again while the "
-                "setpoints stream")
-            until(lambda: False, 1.0)
-
-    connected = until(lambda: bool(drone.state and drone.state.connected and drone.setpoints_sent > 5), 30.0)
-    # Setpoints go only to a drone nobody else controls (gcs/app.py): say so rather than time out mutely.
-    step("drone connected", connected,
-         "" if connected else "no state from the drone" if drone.state is None else
-         f"{drone.state.controller} is in control of {drone.id}: no setpoints sent (take over with "
-         "--take-control)" if not drone.may_stream else "")
-    time.sleep(0.3)   # a few setpoints from the drone's position reach the companion first
-    start_offboard()
-    # Like an operator: arm once PX4's pre-arm checks pass (real PX4 refuses for ~4 s after boot,
-    # "Preflight Fail: heading estimate not stable"), not at once and not after a fixed sleep.
-    armable = until(lambda: bool(drone.state and drone.state.armable), ARMABLE_TIMEOUT_S)
-    step("armable", armable, "" if armable else
-         f"PX4's pre-arm checks did not pass within {ARMABLE_TIMEOUT_S:g} s (mode "
-         f"{drone.state.mode if drone.state else '?'}): see the drone's log for PX4's reason")
-    command("arm")
-    alt = gcs.config.altitude
-    climbed = until(lambda: bool(drone.state and -drone.state.position[2] > 0.8 * alt), 30.0)
-    step("climb", climbed, "" if climbed else f"altitude {-drone.state.position[2] if drone.state else 0:.1f} m "
-                                               f"after 30 s (asked {alt:g} m)")
-    drone.plan.start_pattern()
-    log(f"mission: {drone.id}: flying the {drone.pattern_name} pattern for {duration:.0f} s")
-    start = time.monotonic()
-    end = start + duration
-    # The pattern's window (wall clock), for figures taken over the flight itself (drone_lab's swarm).
-    out["pattern_window"] = [time.time(), float("nan")]
-    while time.monotonic() < end:
-        check()
-        s = drone.state
-        if s is not None and (s.mode != "OFFBOARD" or s.offboard_state != "active"):
-            step("offboard", False, f"drone left the offboard session: mode {s.mode}, "
-                                    f"companion {s.offboard_state or '?'} {s.failsafe}".strip())
-        out["offboard_s"] = min(time.monotonic() - start, duration)   # in OFFBOARD, as the drone last said
-        out["pattern_window"][1] = time.time()
-        time.sleep(0.2)
-    s = drone.state
-    if s is not None and s.mode == "OFFBOARD" and s.offboard_state == "active":
-        out["offboard_s"] = duration
-    drone.freeze()
-    landing = True
-    command("land")
-    drone.plan.done = True   # PX4 lands by itself: the companion has ended the session and would ignore setpoints
-    landed = until(lambda: bool(drone.state and drone.state.landed and not drone.state.armed), 40.0)
-    step("landed and disarmed", landed)
+    """The steps alone, into ``out`` (tests/test_mission_offboard_start.py flies a stand-in drone)."""
+    Mission(gcs, drone, duration, log, abort, why, out).fly()
