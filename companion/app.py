@@ -29,6 +29,7 @@ import time
 from typing import Any
 
 from drone_contract.commands import COMMAND_SERVICE
+from drone_contract.link_protection import RefusalWatch, link_refusals
 from drone_contract.messages import CONTROL_TOKEN_PREFIX, Command, CommandResult, valid_client_id
 from drone_contract.streams import DOWN, UP, message_of, wired
 from px4_link.telemetry import LocalPosition
@@ -76,6 +77,7 @@ class Companion:
         events = wired("events", DOWN)
         self.events = EventReporter(node.create_publisher(message_of(events), events.name, q[events.name]),
                                     config.report_interval_s)
+        self.link_refusals = RefusalWatch(node.wire, config.report_interval_s)   # sealed links: an attack shows
         self.worker = Px4Worker(self.events, link.cancel_command)
         self.control = ControlArbiter(config.control_lease_s)
         self.lifecycle = OffboardLifecycle(link, self._on_transition)
@@ -139,7 +141,7 @@ class Companion:
 
     def _publish_state(self) -> None:
         self.telemetry.publish_state(self.failsafe.reason, self.gate.rejected, self.lifecycle.state.value,
-                                     self.control.holder, self.desk.refused)
+                                     self.control.holder, self.desk.refused, self.link_refusals.total())
 
     def _watchdog(self) -> None:
         now = time.monotonic()
@@ -151,6 +153,15 @@ class Companion:
         if wrong:
             self.events.event("lifecycle", wrong, "stream stopped")
         self.telemetry.check_sensor_rate(now)
+        self._report_link_refusals(now)
+
+    def _report_link_refusals(self, now: float) -> None:
+        new = self.link_refusals.poll(now)
+        if new:
+            n = sum(new.values())
+            why = ", ".join(f"{k} {v}" for k, v in sorted(new.items(), key=lambda kv: -kv[1]))
+            self.events.event("link_refused", f"refused {n} sealed sample(s) or call(s) on the link ({why}): "
+                              "forged, replayed or recorded before a restart", "refused", count=n)
 
     def _stray_offboard(self) -> bool:
         return not self.lifecycle.in_session and self.link.mode == "OFFBOARD" and self.link.connected
@@ -229,5 +240,6 @@ class Companion:
                 "parameters": {"changed": self.params.changed, "refused": self.params.refused},
                 "failsafe": self.failsafe.summary(), "px4_worker": self.worker.summary(),
                 "repeater": self.node.repeater_stats(),
+                "link_refused": link_refusals(self.node.wire),
                 "logs": {"sent": {k: v.to_dict() for k, v in self.sent.items()},
                          "received": {"setpoint": received.to_dict()}}}

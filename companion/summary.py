@@ -27,7 +27,12 @@ def summary_line(drone_id: str, connection: str, summary: dict[str, Any]) -> str
         received = f"setpoints received {sp['unique']}"
     else:
         received = f"setpoints received {sp['unique']} (lost {lost:.1f} %)"
-    return (f"companion {drone_id}: {received}, rejected {summary['setpoints_rejected']}, "
+    refused = summary.get("link_refused") or {}
+    attack = ""
+    if sum(refused.values()):
+        why = ", ".join(f"{k} {v}" for k, v in sorted(refused.items(), key=lambda kv: -kv[1]) if v)
+        attack = f", sealed samples refused {sum(refused.values())} ({why})"
+    return (f"companion {drone_id}: {received}, rejected {summary['setpoints_rejected']}{attack}, "
             f"final mode {summary['final_mode'] or 'unknown'}")
 
 

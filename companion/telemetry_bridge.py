@@ -133,7 +133,7 @@ class TelemetryBridge:
         self._sent_sensor.record(sent.seq, sent.stamp_ns)
 
     def publish_state(self, failsafe: str, setpoints_rejected: int, offboard_state: str, controller: str,
-                      commands_refused: int) -> None:
+                      commands_refused: int, link_refused: int = 0) -> None:
         """The vehicle as PX4 reports it, with what the companion adds (its lifecycle, its refusals)."""
         link = self._link
         st = link.state
@@ -149,7 +149,7 @@ class TelemetryBridge:
             batt.remaining_pct / 100.0 if batt else math.nan, batt.voltage_v if batt else math.nan,
             failsafe, setpoints_rejected, offboard_state, controller,
             self.sensor_rate_hz(), self.sensor_rate_requested, commands_refused,
-            bool(st.armed or (sys_status is not None and sys_status.armable))))
+            bool(st.armed or (sys_status is not None and sys_status.armable)), link_refused))
         self._sent_state.record(sent.seq, sent.stamp_ns)
 
     # -- what PX4 sends --------------------------------------------------------------

@@ -117,3 +117,45 @@ def _reload(keyring: Keyring) -> None:
         logging.getLogger("drone_contract.link_protection").info("link keys re-read: %r", keyring)
     except KeyringError as exc:
         logging.getLogger("drone_contract.link_protection").warning("link keys not re-read: %s", exc)
+
+
+# What a sealed format counts that is not a refusal: statistics of the normal flow (a duplicate is a
+# repeat's expected copy, docs/security.md).
+_NOT_REFUSALS = frozenset({"opened", "sealed", "duplicate", "epochs_forgotten"})
+
+
+def link_refusals(wire: Any) -> dict[str, int] | None:
+    """Sealed samples and calls this node refused, by reason (forged, replayed, not fresh: ``bad_tag``,
+    ``replayed``, ``restarted``, ``expired``, ...), or None when its link is not sealed."""
+    snapshot = getattr(wire, "snapshot", None)
+    if snapshot is None:
+        return None
+    return {k: v for k, v in snapshot().items() if k not in _NOT_REFUSALS}
+
+
+class RefusalWatch:
+    """Tells the operator when sealed samples start being refused: a drone under attack (or a GCS whose
+    keys are wrong) must show, not only count. :meth:`poll` returns the refusals since the last call that
+    reported, by reason, at most once per ``interval_s``; None while nothing new was refused."""
+
+    def __init__(self, wire: Any, interval_s: float = 5.0) -> None:
+        self._wire = wire
+        self._interval_s = interval_s
+        self._reported: dict[str, int] = link_refusals(wire) or {}
+        self._due = 0.0
+
+    def total(self) -> int:
+        return sum((link_refusals(self._wire) or {}).values())
+
+    def poll(self, now: float) -> dict[str, int] | None:
+        if now < self._due:
+            return None
+        current = link_refusals(self._wire)
+        if not current:
+            return None
+        new = {k: v - self._reported.get(k, 0) for k, v in current.items() if v > self._reported.get(k, 0)}
+        if not new:
+            return None
+        self._reported = current
+        self._due = now + self._interval_s
+        return new

@@ -43,6 +43,7 @@ class VehicleState(Message):
     sensor_rate_requested_hz: float = ros_field("float32", default=float("nan"))  # what the companion asked
     commands_refused: int = 0
     armable: bool = False            # PX4's pre-arm checks pass (SYS_STATUS PREARM_CHECK health bit)
+    link_refused: int = 0            # sealed samples and calls refused (forged, replayed, not fresh): an attack shows
 
     def __post_init__(self) -> None:
         if self.header is None:

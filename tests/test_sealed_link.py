@@ -194,6 +194,11 @@ class System:
             self.rogue.put(key, payload)
             time.sleep(0.02)
 
+    def stamp(self) -> tuple[int, int]:
+        """uav1's boot and clock as a GCS learns them: off the newest captured state (sealed by uav1)."""
+        boot, ms = struct.unpack(">II", self.captured_states[-1][17:25])
+        return boot, ms
+
     def refused(self, node: Node, reason: str, before: int) -> bool:
         return wait_for(lambda: node.wire.snapshot()[reason] > before, 5.0)  # type: ignore[attr-defined]
 
@@ -229,13 +234,14 @@ def system(transport: str, fleet: Path) -> Iterator[System]:
 
 
 def _seal(secret: bytes, key_id: str, key_expr: str, inner: bytes, epoch: bytes | None = None,
-          counter: int = 1) -> bytes:
+          counter: int = 1, stamp: tuple[int, int] = (0, 0)) -> bytes:
     """What a holder of ``secret`` can put on ``key_expr`` (the documented layout, sealed independently:
-    the subkey of the key expression, head + inner as associated data of an empty plaintext)."""
+    the subkey of the key expression, head + inner as associated data of an empty plaintext; ``stamp``:
+    the owner's boot and ms the sample claims to be sealed for, 0 = never heard the owner)."""
     subkey = HKDF(algorithm=hashes.SHA256(), length=32, salt=None,
                   info=b"zenoh-robot sealed sample v1\x00" + key_expr.encode()).derive(secret)
-    head = struct.pack(">B4s8sI", 0x5A, bytes.fromhex(key_id), epoch or os.urandom(8), counter)
-    tag = ChaCha20Poly1305(subkey).encrypt(head[5:], b"", head + inner)
+    head = struct.pack(">B4s8sIII", 0x6A, bytes.fromhex(key_id), epoch or os.urandom(8), counter, *stamp)
+    tag = ChaCha20Poly1305(subkey).encrypt(head[5:17], b"", head + inner)
     return head + inner + tag
 
 
@@ -255,6 +261,13 @@ def _setpoint(client_id: str) -> bytes:
 def _state() -> bytes:
     ts = type_support(VehicleState)
     return envelope.pack(ts.name, ts.hash, 42, 1, time.time_ns(), ts.encode(VehicleState(mode="FORGED")))
+
+
+def _introduced(gcs: Any, drone: Any) -> Any:
+    """``gcs`` (a sealed format) after it opened one of ``drone``'s sealed states, as a GCS does before it
+    flies a drone: it then knows the drone's boot and clock, which what it seals in uav1/ must carry."""
+    gcs.keyed_decoder(type_support(VehicleState), "uav1/state")(drone.sealer("uav1/state")(_state()), None)
+    return gcs
 
 
 def _forged_delivered(s: System) -> bool:
@@ -298,7 +311,7 @@ def test_rogue_tries_are_refused_and_counted_while_the_link_flows(transport: str
         assert s.refused(s.drone, "wrong_key", drone["wrong_key"])
         # 4. A GCS of this fleet (gcs2, uav1's too) claiming gcs1's client id: the key names the sender.
         secret, kid = _key(fleet, "gcs2", "gcs2", "uav1")
-        s.put("uav1/setpoint", _seal(secret, kid, "uav1/setpoint", _setpoint("gcs1")))
+        s.put("uav1/setpoint", _seal(secret, kid, "uav1/setpoint", _setpoint("gcs1"), stamp=s.stamp()))
         assert s.refused(s.drone, "forged_claim", drone["forged_claim"])
         # 5. A node of another fleet (its own keys, same names): unknown.
         secret, kid = _key(other_fleet, "gcs1", "gcs1", "uav1")
@@ -310,7 +323,7 @@ def test_rogue_tries_are_refused_and_counted_while_the_link_flows(transport: str
         # gcs2's honest sample (its own id) opens: the refusals above were for what was forged.
         secret, kid = _key(fleet, "gcs2", "gcs2", "uav1")
         opened = s.drone.wire.snapshot()["opened"]  # type: ignore[attr-defined]
-        s.put("uav1/setpoint", _seal(secret, kid, "uav1/setpoint", _setpoint("gcs2")))
+        s.put("uav1/setpoint", _seal(secret, kid, "uav1/setpoint", _setpoint("gcs2"), stamp=s.stamp()))
         assert wait_for(lambda: any(sp.client_id == "gcs2" for sp in s.setpoints), 5.0)
         assert s.drone.wire.snapshot()["opened"] > opened  # type: ignore[attr-defined]
 
@@ -382,8 +395,8 @@ def test_copies_open_once_whichever_arrives_first_and_forged_counters_do_not_poi
     tag and does not mark it, so the real sample with that counter still opens afterwards."""
     gcs_ring, drone_ring = Keyring(fleet, "gcs1"), Keyring(fleet, "uav1")
     for encrypt in (False, True):
-        seal = sealed(ENVELOPE, gcs_ring, encrypt=encrypt).sealer("uav1/setpoint", repeated=True)
         fmt = sealed(ENVELOPE, drone_ring)
+        seal = _introduced(sealed(ENVELOPE, gcs_ring, encrypt=encrypt), fmt).sealer("uav1/setpoint", repeated=True)
         opened = fmt.keyed_decoder(type_support(DroneSetpoint), "uav1/setpoint")
         samples = [seal(_setpoint("gcs1")) for _ in range(6)]
         assert all(p[0] & REPEATED for p in samples)
@@ -423,7 +436,7 @@ def test_revoked_key_is_refused_within_the_refresh_bound(transport: str, tmp_pat
         secret, kid = _key(fleet, "gcs2", "gcs2", "uav1")
         epoch = os.urandom(8)
         for counter in range(1, 6):
-            s.put("uav1/setpoint", _seal(secret, kid, "uav1/setpoint", _setpoint("gcs2"), epoch, counter), times=1)
+            s.put("uav1/setpoint", _seal(secret, kid, "uav1/setpoint", _setpoint("gcs2"), epoch, counter, s.stamp()), times=1)
         assert wait_for(lambda: any(sp.client_id == "gcs2" for sp in s.setpoints), 5.0)
         assert keys.revoke_link_keys(tmp_path, ["gcs2"]) == [kid]
         revoked_at = time.monotonic()
@@ -432,13 +445,13 @@ def test_revoked_key_is_refused_within_the_refresh_bound(transport: str, tmp_pat
         counter = 5
         while s.drone.wire.snapshot()["revoked"] == before and time.monotonic() - revoked_at < 5:  # type: ignore[attr-defined]
             counter += 1
-            s.put("uav1/setpoint", _seal(secret, kid, "uav1/setpoint", _setpoint("gcs2"), epoch, counter), times=1)
+            s.put("uav1/setpoint", _seal(secret, kid, "uav1/setpoint", _setpoint("gcs2"), epoch, counter, s.stamp()), times=1)
             time.sleep(0.05)
         took = time.monotonic() - revoked_at
         assert s.drone.wire.snapshot()["revoked"] > before, "the revoked key was never refused"  # type: ignore[attr-defined]
         assert took < REFRESH_S + 0.5, f"revocation took {took:.2f} s (bound {REFRESH_S} s + delivery)"
         settled = sum(sp.client_id == "gcs2" for sp in s.setpoints)
-        s.put("uav1/setpoint", _seal(secret, kid, "uav1/setpoint", _setpoint("gcs2"), epoch, counter + 1))
+        s.put("uav1/setpoint", _seal(secret, kid, "uav1/setpoint", _setpoint("gcs2"), epoch, counter + 1, s.stamp()))
         s.still_flowing()
         assert sum(sp.client_id == "gcs2" for sp in s.setpoints) == settled >= delivered
 
@@ -447,8 +460,8 @@ def test_sealing_adds_a_fixed_overhead_and_encrypts_on_request(fleet: Path) -> N
     gcs_ring, drone_ring = Keyring(fleet, "gcs1"), Keyring(fleet, "uav1")
     inner = _setpoint("gcs1")
     for encrypt in (False, True):
-        seal = sealed(ENVELOPE, gcs_ring, encrypt=encrypt).sealer("uav1/setpoint")
         fmt = sealed(ENVELOPE, drone_ring)
+        seal = _introduced(sealed(ENVELOPE, gcs_ring, encrypt=encrypt), fmt).sealer("uav1/setpoint")
         opened = fmt.keyed_decoder(type_support(DroneSetpoint), "uav1/setpoint")
         a, b = seal(inner), seal(inner)
         assert len(a) == len(inner) + OVERHEAD and a != b          # a new nonce per copy
@@ -468,8 +481,8 @@ def test_truncated_garbled_and_foreign_samples_are_refused_and_counted(fleet: Pa
     the legitimate stream opens before and after (no refusal moves the replay window)."""
     gcs_ring, drone_ring = Keyring(fleet, "gcs1"), Keyring(fleet, "uav1")
     for encrypt in (False, True):
-        seal = sealed(ENVELOPE, gcs_ring, encrypt=encrypt).sealer("uav1/setpoint")
         fmt = sealed(ENVELOPE, drone_ring)
+        seal = _introduced(sealed(ENVELOPE, gcs_ring, encrypt=encrypt), fmt).sealer("uav1/setpoint")
         opened = fmt.keyed_decoder(type_support(DroneSetpoint), "uav1/setpoint")
         inner = _setpoint("gcs1")
         assert opened(seal(inner), None)[5][1] == "gcs1"
@@ -482,8 +495,8 @@ def test_truncated_garbled_and_foreign_samples_are_refused_and_counted(fleet: Pa
             (bytes([0x00]) + good[1:], "malformed"),                    # not a seal's flags
             (bytes([good[0] ^ 1]) + good[1:], "bad_tag"),               # authenticate-only <-> encrypted
         ]
-        for i in (1, 7, 15, HEAD_SIZE + 2, len(good) // 2, len(good) - 3):   # one bit flipped: id, epoch, counter,
-            flipped = bytearray(good)                                    # body, tag
+        for i in (1, 7, 15, 18, 22, HEAD_SIZE + 2, len(good) // 2, len(good) - 3):   # one bit flipped: id, epoch,
+            flipped = bytearray(good)                                    # counter, boot, ms, body, tag
             flipped[i] ^= 0x10
             tries.append((bytes(flipped), "unknown_key" if i < 5 else "bad_tag"))
         secret, kid = _key(other_fleet, "gcs1", "gcs1", "uav1")
@@ -525,8 +538,8 @@ def test_replay_window_refuses_old_copies_after_an_epoch_switch(fleet: Path) -> 
     window, replays of either are refused, and a new epoch opens."""
     fmt = sealed(ENVELOPE, Keyring(fleet, "uav1"))
     opened = fmt.keyed_decoder(type_support(DroneSetpoint), "uav1/setpoint")
-    a = sealed(ENVELOPE, Keyring(fleet, "gcs1")).sealer("uav1/setpoint")
-    b = sealed(ENVELOPE, Keyring(fleet, "gcs1")).sealer("uav1/setpoint")
+    a = _introduced(sealed(ENVELOPE, Keyring(fleet, "gcs1")), fmt).sealer("uav1/setpoint")
+    b = _introduced(sealed(ENVELOPE, Keyring(fleet, "gcs1")), fmt).sealer("uav1/setpoint")
     inner = _setpoint("gcs1")
     copies = [(a(inner), b(inner)) for _ in range(50)]
     for x, y in copies:

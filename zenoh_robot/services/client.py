@@ -60,6 +60,7 @@ class _Call:
         self._delays = delays
         self._outstanding = 0       # queries in flight (unicast path)
         self._more = True           # another attempt may still be sent
+        self._resent_stale = False  # sent again once after a `stale` answer (wire/freshness.py)
         self._lock = threading.Lock()
 
     def start(self) -> None:
@@ -107,11 +108,40 @@ class _Call:
     def on_err(self, err: tuple[str, str] | None) -> None:
         if err is not None:
             self.client._answered = True
+        if err is not None and err[0] == "stale":
+            # A sealed server refused the request as sealed for another of its starts (or too old); its
+            # sealed answer has just taught this node the server's clock, so the same request sent again
+            # now is fresh. Once per call: the counted-out queries keep the call open meanwhile.
+            query = not self.client._multicast
+            with self._lock:
+                self.errors.append(err)
+                if self._resent_stale:
+                    return
+                self._resent_stale = True
+                self._outstanding += 1 if query else 0
+            _scheduler.at(time.monotonic(), lambda: self._resend(query))
+            return
         if err is not None and err[0] != "busy":    # final: retrying would get the same answer
             self._finish(exc=ServiceError(err[1], err[0]))
             return
         with self._lock:
             self.errors.append(err)
+
+    def _resend(self, query: bool) -> None:
+        remaining = self.deadline - time.monotonic()
+        if self.future.done() or self.client.context.closed or remaining <= 0.005:
+            if query:
+                self.on_done()
+            return
+        with self._lock:
+            self.attempts += 1
+        try:
+            self.client._transmit(self, remaining, query)
+        except Exception as exc:
+            if query:
+                with self._lock:
+                    self._outstanding -= 1
+            self._finish(exc=ServiceCallError(f"service {self.client.service_name}: cannot send: {exc}"))
 
     def on_reply(self, reply: zenoh.Reply) -> None:
         link = self.client._link

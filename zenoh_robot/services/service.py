@@ -28,7 +28,7 @@ from .._wire import envelope
 from ..context import EntityContext
 from ..message import Message, require_message_type, type_support, validated
 from ..ratelimit import RateLimitedLog
-from ..wire.sealed import service_seal
+from ..wire.sealed import StaleSample, service_seal
 from .errors import _error_payload
 from .idempotency import IdempotencyCache, Responder
 from .keys import DESCRIBE_PARAM, REPLY_CHUNK, REQUEST_CHUNK, service_name_of_key
@@ -79,6 +79,8 @@ class Service(Generic[Req, Resp]):
         self.bad_requests = 0     # refused before the handler: malformed, oversize, a field off its schema
         self.reply_copies = 0     # multicast path: reply puts sent (copies included) ...
         self.reply_bytes = 0      # ... and their payload bytes
+        self.stale_requests = 0   # sealed requests refused as not fresh (wire/freshness.py), answered `stale`
+        self._stale_answers = (0.0, 0)    # (second, answers in it): a replay storm gets a bounded echo
         self._loss = math.nan     # set_loss: this node's loss estimate (sizes reply copies)
         self._recent_replies: OrderedDict[str, float] = OrderedDict()   # reply key -> when copies went out
         self._rlog = RateLimitedLog(log)
@@ -125,9 +127,15 @@ class Service(Generic[Req, Resp]):
                     pass
         payload: zenoh.ZBytes | bytes | None = query.payload
         if self._link is not None:
-            payload = self._opened(query.payload)
+            answered: list[bool] = []
+
+            def answer_stale(_inner: bytes, err: bytes) -> None:
+                answered.append(True)
+                respond(False, err)     # finalises the query
+            payload = self._opened(query.payload, answer_stale)
             if payload is None:
-                query.drop()
+                if not answered:
+                    query.drop()
                 return
         self._on_request(payload, respond)
 
@@ -137,7 +145,7 @@ class Service(Generic[Req, Resp]):
             return
         data: zenoh.ZBytes | bytes | None = sample.payload
         if self._link is not None:
-            data = self._opened(sample.payload)
+            data = self._opened(sample.payload, self._answer_stale_put)
             if data is None:
                 return
         assert data is not None
@@ -214,13 +222,39 @@ class Service(Generic[Req, Resp]):
         if copies > 1:
             self.context.repeater.schedule(put, payload, copies - 1, plans.REPLY_SPACING_S)
 
-    def _opened(self, payload: zenoh.ZBytes | None) -> bytes | None:
-        """A sealed request's envelope, or None: refused (counted as a bad request and on the format)."""
+    _STALE_ANSWERS_PER_S = 20
+
+    def _answer_stale_put(self, inner: bytes, err: bytes) -> None:
+        try:
+            peek = envelope.unpack(inner)
+        except envelope.MalformedSample:
+            return
+        self._put_reply(peek.publisher_id, peek.seq, False, err, 1)
+
+    def _opened(self, payload: zenoh.ZBytes | None, answer_stale: Callable[[bytes, bytes], None]) -> bytes | None:
+        """A sealed request's envelope, or None: refused (counted as a bad request and on the format).
+        An authentic request that is not fresh (sealed for another start of this drone, or too old) is
+        answered ``stale`` through ``answer_stale``, sealed with this node's clock, at a bounded rate:
+        a legitimate caller learns the clock from it and sends again (client.py); a replay learns nothing."""
         assert self._link is not None
-        if payload is None or len(payload) > MAX_REQUEST_BYTES + 64:
-            opened = None
-        else:
-            opened = self._link.open_request(payload.to_bytes())
+        try:
+            if payload is None or len(payload) > MAX_REQUEST_BYTES + 64:
+                opened = None
+            else:
+                opened = self._link.open_request(payload.to_bytes())
+        except StaleSample as exc:
+            now = int(time.monotonic())
+            with self._lock:
+                self.stale_requests += 1
+                second, answers = self._stale_answers
+                answers = answers + 1 if second == now else 1
+                self._stale_answers = (now, answers)
+            self._rlog.warning("stale", "service %s: refused a sealed request (%s)", self.service_name, exc.reason)
+            if answers <= self._STALE_ANSWERS_PER_S:
+                answer_stale(exc.inner, _error_payload(
+                    "stale", f"service {self.service_name}: request refused ({exc.reason}: not sealed for this "
+                    "start of the server, or too old); sent again with the server's clock"))
+            return None
         if opened is None:
             with self._lock:
                 self.bad_requests += 1

@@ -4,12 +4,15 @@ any transport: UDP multicast, unicast, through a router (which forwards the byte
 needs no key). The inner format's bytes, redundancy history and repeat marker included, ride inside
 unchanged.
 
-Payload (33 bytes more than the inner one)::
+Payload (41 bytes more than the inner one)::
 
-    flags (1) | key id (4) | epoch (8) | counter (4) | inner bytes (plain) or ciphertext | tag (16)
+    flags (1) | key id (4) | epoch (8) | counter (4) | boot (4) | ms (4) | inner bytes (plain) or ciphertext | tag (16)
 
-Flags: 0x5A authenticate-only, 0x5B encrypted, either with :data:`REPEATED` (0x04) set when the
-publisher re-sends the very same sealed bytes (a QoS with ``repeat``). The nonce is epoch + counter
+Flags: 0x6A authenticate-only, 0x6B encrypted, either with :data:`REPEATED` (0x04) set when the
+publisher re-sends the very same sealed bytes (a QoS with ``repeat``); the 0x5A/0x5B of the first
+layout (no boot, no ms) are refused as ``malformed``. ``boot`` and ``ms`` say which start of the scope's
+owner the sample was sealed for and when on that owner's clock (``wire/freshness.py``): what makes a
+capture useless after either end restarts, or after ``fresh_s``. The nonce is epoch + counter
 (12 bytes): the epoch is random per sealer (one per publisher, new on every start), the counter
 counts every *sealed sample*; at 2**32 a new epoch is drawn. The Zenoh key expression is bound by
 the key, not by the associated data: each (link key, key expression) pair seals under its own subkey,
@@ -49,6 +52,9 @@ whose tag verified marks its counter accepted. Why this is safe:
   only raise the ``duplicate`` count (which is therefore a statistic, not an alarm).
 - Reordering and loss within the window cost nothing: a counter is refused only if it was accepted.
 - The inner deduplicator still delivers each sample once across redundancy histories.
+- Across restarts (the windows are in memory): after the tag, the stamp is checked (``restarted``,
+  ``unbound``, ``expired``: ``wire/freshness.py``) before the counter is marked, so a capture from
+  before the owner's start, or older than ``fresh_s``, is refused and never enters a window.
 
 Keys (``zenoh_robot.keyring``): chosen by the key expression's first segment (the drone's
 namespace). A sample opens only under a key of that scope whose sender is not this node, and
@@ -77,25 +83,29 @@ import threading
 from collections import OrderedDict
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from pathlib import Path
 from time import monotonic
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 from .._wire.envelope import MalformedSample
 from ..keyring import FLEET
 from .format import Decoder, GraphFormat, Header, SampleEncoder, WireFormat
+from .freshness import FRESH_S, OwnClock, ScopeClocks, own_clock
 
 if TYPE_CHECKING:
     from ..keyring import Keyring, LinkKey
     from ..message import TypeSupport
 
-AUTH_ONLY, ENCRYPTED = 0x5A, 0x5B
+AUTH_ONLY, ENCRYPTED = 0x6A, 0x6B
 REPEATED = 0x04                     # a flag bit: this publisher re-sends these very bytes (its copies)
 SEAL_FLAGS = frozenset((AUTH_ONLY, ENCRYPTED, AUTH_ONLY | REPEATED, ENCRYPTED | REPEATED))
 _ENCRYPTED_BIT = AUTH_ONLY ^ ENCRYPTED
-HEAD = struct.Struct(">B4s8sI")     # flags, key id, epoch, counter
-HEAD_SIZE = HEAD.size               # 17
+HEAD = struct.Struct(">B4s8sIII")   # flags, key id, epoch, counter, the owner's boot and ms (freshness.py)
+HEAD_SIZE = HEAD.size               # 25
+STAMP = struct.Struct(">II")        # boot, ms: the head's last 8 bytes
+STAMP_AT = HEAD_SIZE - STAMP.size
 TAG_SIZE = 16
-OVERHEAD = HEAD_SIZE + TAG_SIZE     # 33 bytes a sample
+OVERHEAD = HEAD_SIZE + TAG_SIZE     # 41 bytes a sample
 WINDOW = 1024                       # a power of two: slot = counter & (WINDOW - 1)
 MAX_EPOCHS_PER_KEY = 64
 MAX_KEYS_CACHED = 256
@@ -117,6 +127,9 @@ class SealCounters:
     replayed: int = 0          # a counter accepted before, of a sample sent once (captured bytes re-put)
     duplicate: int = 0         # a counter accepted before, of a repeated sample: its copies (or a replay of one)
     stale: int = 0             # older than the replay window
+    restarted: int = 0         # sealed for an earlier start of its scope's owner (a capture replayed after a restart)
+    unbound: int = 0           # its sender had not heard this start of the owner (boot 0)
+    expired: int = 0           # older than the freshness bound on the owner's clock (or ahead of it)
     forged_claim: int = 0      # client_id is not the sealing GCS's
     malformed: int = 0         # too short or not sealed at all
     epochs_forgotten: int = 0  # replay windows evicted (LRU)
@@ -160,6 +173,19 @@ class DuplicateSample(MalformedSample):
     counted as ``duplicate`` on the format: not malformed, so a subscription drops it silently."""
 
 
+class StaleSample(MalformedSample):
+    """An authentic sealed sample that is not fresh (``restarted``, ``unbound``, ``expired``): a service
+    answers it with a sealed ``stale`` error, so a legitimate caller learns the owner's clock and retries."""
+
+    def __init__(self, message: str, reason: str, inner: bytes) -> None:
+        super().__init__(message)
+        self.reason = reason
+        self.inner = inner
+
+
+FRESHNESS_REASONS = ("restarted", "unbound", "expired")
+
+
 _DUPLICATE = "sealed sample refused (duplicate)"
 
 
@@ -199,8 +225,9 @@ class _Sealer:
     """Seals payloads on one key expression with the node's current key for it (one publisher)."""
 
     def __init__(self, keyring: Keyring, key_expr: str, encrypt: bool, counters: SealCounters,
-                 repeated: bool = False) -> None:
+                 stamp: Callable[[], tuple[int, int]], repeated: bool = False) -> None:
         self._keyring = keyring
+        self._stamp = stamp
         self._key_expr = key_expr.encode()
         self._scope = scope_of(key_expr)
         self._encrypt = encrypt
@@ -244,7 +271,7 @@ class _Sealer:
         if counter >= _COUNTER_WRAP or state.generation != self._keyring.reloads or monotonic() >= self._due:
             state, counter = self._slow(state, counter)
         nonce = state.epoch + counter.to_bytes(4, "big")
-        head = state.prefix + nonce
+        head = state.prefix + nonce + STAMP.pack(*self._stamp())
         self._counters.sealed += 1     # a statistic: a lost increment between threads is fine
         if not self._encrypt:
             signed = head + inner
@@ -285,6 +312,9 @@ class _Opener:
         self._key_expr = key_expr.encode()
         self._scope = scope_of(key_expr)
         self._claim_index = claim_index
+        self._own = fmt.own if fmt.own is not None and self._scope == fmt.keyring.node else None
+        self._clocks = fmt.clocks
+        self._fresh_s = fmt.fresh_s
         self._windows: dict[bytes, OrderedDict[bytes, ReplayWindow]] = {}
         self._aeads: dict[bytes, tuple[LinkKey, Any]] = {}     # keys that passed the checks, this generation
         self._invalid_tag = _invalid_tag()
@@ -374,14 +404,14 @@ class _Opener:
         assert entry is not None
         key, aead, window = entry
         # Before any AEAD work: the window holds only counters whose tag verified (module doc: why).
-        counter = int.from_bytes(payload[13:HEAD_SIZE], "big")
+        counter = int.from_bytes(payload[13:STAMP_AT], "big")
         verdict = window.verdict(counter)
         if verdict is not None:
             if verdict == "duplicate":
                 self._fmt.counters.duplicate += 1    # a statistic, as opened: the hot path takes no lock
                 raise DuplicateSample(_DUPLICATE)
             raise self._refuse(verdict, f"counter {counter} of epoch {ident[4:].hex()} under key {key.key_id}")
-        nonce = payload[5:HEAD_SIZE]
+        nonce = payload[5:STAMP_AT]
         try:
             # Copies, not memoryviews: for samples of up to a few kB a slice costs less than a view.
             if flags & _ENCRYPTED_BIT:
@@ -391,7 +421,19 @@ class _Opener:
                 inner = payload[HEAD_SIZE:-TAG_SIZE]
         except self._invalid_tag:
             raise self._refuse("bad_tag", f"tag does not verify under key {key.key_id} on this key") from None
-        # After the tag: only an authentic sample may move (or make) a window.
+        # After the tag (the stamp is authentic), before the window: a stale sample marks nothing.
+        boot, stamp_ms = STAMP.unpack_from(payload, STAMP_AT)
+        if self._own is not None:
+            stale = self._own.check(boot, stamp_ms, self._fresh_s)
+        else:
+            stale = self._clocks.check(self._scope, boot, stamp_ms, self._fresh_s)
+            if stale is None and key.sender == self._scope and key.role == "drone":
+                self._clocks.learn(self._scope, boot, stamp_ms)
+        if stale is not None:
+            self._fmt.count(stale)
+            raise StaleSample(f"sealed sample refused ({stale}): stamped boot {boot} at {stamp_ms} ms under key "
+                              f"{key.key_id} ({key.sender})", stale, inner)
+        # Only an authentic, fresh sample may move (or make) a window.
         if not hot:
             self._remember(ident, entry)
         window.accept(counter, bool(flags & REPEATED))
@@ -413,7 +455,8 @@ class SealedWireFormat:
 
     uses_attachment = False
 
-    def __init__(self, inner: WireFormat, keyring: Keyring, encrypt: bool = False) -> None:
+    def __init__(self, inner: WireFormat, keyring: Keyring, encrypt: bool = False, owner: bool | None = None,
+                 fresh_s: float = FRESH_S, boot_path: str | os.PathLike[str] | None = None) -> None:
         if inner.uses_attachment:
             raise ValueError(f"sealed: the {inner.name} wire format uses attachments, which a seal does not cover")
         subkey_aead(bytes(32), b"")    # the secure extra is there, or fail now
@@ -425,6 +468,24 @@ class SealedWireFormat:
         self.graph: GraphFormat = inner.graph
         self.counters = SealCounters()
         self._lock = threading.Lock()
+        if not 0 < fresh_s < 3600:
+            raise ValueError(f"sealed: fresh_s={fresh_s!r} must be a positive number of seconds under an hour")
+        self.fresh_s = float(fresh_s)
+        self.clocks = ScopeClocks()
+        if owner is None:   # a drone's own node owns its namespace; a tool holding its key may say owner=False
+            own_key = keyring.sealing_key(keyring.node)
+            owner = own_key is not None and own_key.role == "drone" and own_key.sender == keyring.node
+        path = Path(boot_path) if boot_path is not None else keyring.directory / f"{keyring.node}.boot"
+        self.own: OwnClock | None = own_clock(path) if owner else None
+
+    def stamp_of(self, scope: str) -> Callable[[], tuple[int, int]]:
+        """What a sealer in ``scope`` stamps: this node's own clock in its own scope, else its estimate."""
+        own = self.own
+        if own is not None and scope == self.keyring.node:
+            boot = own.boot
+            return lambda: (boot, own.now_ms())
+        clocks = self.clocks
+        return lambda: clocks.estimate(scope)
 
     def count(self, reason: str) -> None:
         """One more refusal for ``reason`` (a :class:`SealCounters` field)."""
@@ -446,7 +507,7 @@ class SealedWireFormat:
         ``repeated``: the caller re-sends the sealed bytes as they are (copies count as duplicates)."""
         if "*" in key_expr:
             raise ValueError(f"sealed: {key_expr!r} is not one key (a seal binds the key it travels on)")
-        return _Sealer(self.keyring, key_expr, self.encrypt, self.counters, repeated)
+        return _Sealer(self.keyring, key_expr, self.encrypt, self.counters, self.stamp_of(scope_of(key_expr)), repeated)
 
     def decoder(self, type_support: TypeSupport | None) -> Decoder:
         """A decoder that knows no key expression: it refuses every sample (the seal binds the key;
@@ -468,9 +529,13 @@ class SealedWireFormat:
         return f"sealed({self.inner!r}, {self.keyring!r}{', encrypt=True' if self.encrypt else ''})"
 
 
-def sealed(inner: WireFormat, keyring: Keyring, encrypt: bool = False) -> SealedWireFormat:
-    """``inner``'s samples, sealed with ``keyring``'s link keys (``Node(..., wire=sealed(ENVELOPE, kr))``)."""
-    return SealedWireFormat(inner, keyring, encrypt)
+def sealed(inner: WireFormat, keyring: Keyring, encrypt: bool = False, owner: bool | None = None,
+           fresh_s: float = FRESH_S, boot_path: str | os.PathLike[str] | None = None) -> SealedWireFormat:
+    """``inner``'s samples, sealed with ``keyring``'s link keys (``Node(..., wire=sealed(ENVELOPE, kr))``).
+    ``owner``: this node is its namespace's owner (wire/freshness.py; default: when it holds a drone key of
+    its own name, whose start counter is ``boot_path``, default ``<keyring dir>/<node>.boot``); ``fresh_s``:
+    the freshness bound."""
+    return SealedWireFormat(inner, keyring, encrypt, owner, fresh_s, boot_path)
 
 
 class ServiceSeal:
@@ -502,11 +567,15 @@ class ServiceSeal:
         return self._seal_reply(inner)
 
     def open_request(self, payload: bytes) -> bytes | None:
-        """The request's inner envelope, or None (refused: counted on the format, logged rate-limited)."""
+        """The request's inner envelope, or None (refused: counted on the format, logged rate-limited).
+        Raises :class:`StaleSample` for an authentic request that is not fresh: the service answers it."""
         return self._open(self._requests, payload, claim=True)
 
     def open_reply(self, payload: bytes) -> bytes | None:
-        return self._open(self._replies, payload, claim=False)
+        try:
+            return self._open(self._replies, payload, claim=False)
+        except StaleSample:
+            return None
 
     def _open(self, opener: _Opener, payload: bytes, claim: bool) -> bytes | None:
         try:
@@ -516,6 +585,8 @@ class ServiceSeal:
                     opener.check_claim(opener._inner(inner, None), key)
                 self._fmt.counters.opened += 1
             return inner
+        except StaleSample:
+            raise
         except MalformedSample:
             return None
 
