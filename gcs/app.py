@@ -26,10 +26,9 @@ from __future__ import annotations
 
 import logging
 import math
-import re
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -46,7 +45,7 @@ from drone_contract.messages import (
     GcsPresence,
     VehicleState,
 )
-from drone_contract.streams import DOWN, UP, StreamProfile, message_of, stream_profile, wired
+from drone_contract.streams import DOWN, UP, message_of, wired
 from zenoh_robot import Node
 from zenoh_robot.image_fec import FecAssembler, ImageShare
 from zenoh_robot.image_transport import MAX_SLICES, FrameInfo, ImageSlice
@@ -56,6 +55,7 @@ from zenoh_robot.services import ServiceCallError, command_retry
 from zenoh_robot.tools.stream_metrics import StreamRecorder
 from zenoh_robot.topic_statistics import with_cpu_budget
 
+from .config import GcsConfig
 from .discovery import watch_drones
 from .downlink import DownlinkRates
 from .formation import slot
@@ -75,35 +75,6 @@ STREAM_CPU_BUDGET_PCT = {"sensor": 2.0, "state": 0.5, "image": 2.0}
 # default, never under its 1 s setpoint deadline), so a GCS that no longer streams (waiting for a landing)
 # keeps control where its liveliness token does not reach the drone (UDP multicast carries none).
 PRESENCE_PERIOD_S = 0.5
-
-
-def default_client_id() -> str:
-    import getpass
-    import socket
-    raw = f"{getpass.getuser()}@{socket.gethostname()}"
-    return re.sub(r"[^A-Za-z0-9_.@:+-]", "_", raw)[:64]
-
-
-@dataclass
-class GcsConfig:
-    drones: list[str] = field(default_factory=list)     # empty: discover
-    pattern: str = "thesis"
-    rate_hz: float = 10.0
-    altitude: float = 5.0
-    size: float = 10.0
-    speed: float = 2.0
-    profile: StreamProfile = field(default_factory=lambda: stream_profile("resilient"))
-    save_image: Path | None = None   # write the latest frame here every `save_every` s
-    save_every: float = 5.0
-    client_id: str = field(default_factory=default_client_id)
-    take_control: bool = False       # take control from another GCS at start (explicit takeover)
-    auto_fly: bool = True            # fly the pattern as soon as a drone's session is active (no --mission)
-    formation: str = "none"          # none (each drone from its own anchor), line, grid: see gcs/formation.py
-    spacing: float = 5.0             # m between formation slots
-    patterns: dict[str, str] = field(default_factory=dict)   # drone id -> its own pattern
-    # Downlink rates asked of each drone when it joins (gcs/downlink.py); None: the companion's own.
-    sensor_rate_hz: float | None = None
-    camera_rate_hz: float | None = None
 
 
 @dataclass

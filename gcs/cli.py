@@ -24,7 +24,8 @@ from zenoh_robot.services import command_retry
 from zenoh_robot.session_args import add_session_arguments, session_config_from_args
 from zenoh_robot.wire import ENVELOPE, WireFormat
 
-from .app import Gcs, GcsConfig
+from .app import Gcs
+from .config import GcsConfig
 from .dashboard import RateMeter, plain_lines, render
 from .discovery import discover_drones
 from .formation import FORMATIONS, resolve
@@ -242,7 +243,7 @@ def run(args: argparse.Namespace) -> int:
 def _client_id(args: argparse.Namespace) -> str | None:
     from drone_contract.messages import valid_client_id
 
-    from .app import default_client_id
+    from .config import default_client_id
     cid = args.gcs_id or default_client_id()
     if not valid_client_id(cid):
         print(f"gcs: --gcs-id {cid!r}: letters, digits and _.@:+- only, at most 64", file=sys.stderr)

@@ -283,7 +283,7 @@ CELL_PROBE_ID = "cell-probe"       # the GCS id of cell.py's command probe throu
 def make_cell_link_keys(keys_dir: Path) -> Path:
     """Link keyrings for a cell's apps: uav1, the GCS under its default id (cell.py passes none) and the
     router cell's command probe; returns the directory the apps' ``--link-keys`` takes."""
-    from gcs.app import default_client_id
+    from gcs.config import default_client_id
     from zenoh_robot.tools import keys
     keys.make_link_keys(keys_dir, gcs={default_client_id(): ["uav1"], CELL_PROBE_ID: ["uav1"]})
     return keys_dir / keys.LINK_DIR
