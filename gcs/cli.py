@@ -1,36 +1,49 @@
-"""``zenoh-robot gcs``: stream setpoints, show the dashboard, fly a mission, send commands."""
+"""``zenoh-robot gcs``: stream setpoints, show the dashboard, fly a mission, send commands.
+
+A run checks the flags into a typed ``GcsRun`` (``parse_run``: a user's mistake is one line and
+exit 2, before any session opens), then ``serve`` runs it: the node, the ``Gcs`` and what runs
+beside it (gcs/extras.py), the mission on its own thread, the dashboard until the mission or the
+duration ends, the summary. ``gcs cmd`` goes the same way: ``parse_command``, ``send_command``.
+"""
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import math
 import os
 import sys
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rich.console import Console
 from rich.live import Live
 
 from drone_contract.commands import CLI_COMMANDS, COMMAND_SERVICE, resolve_cli_name
 from drone_contract.link_protection import link_wire, log_startup_line, reaches_network
+from drone_contract.messages import Command, CommandResult, valid_client_id
 from drone_contract.streams import IMAGE_MODES, PROFILES, StreamProfile, stream_profile
 from zenoh_robot import Node, SessionConfig
 from zenoh_robot.parameters import add_param_argument, params_from_args
-from zenoh_robot.services import command_retry
+from zenoh_robot.services import ServiceCallError, command_retry
 from zenoh_robot.session_args import add_session_arguments, session_config_from_args
 from zenoh_robot.wire import ENVELOPE, WireFormat
 
 from .app import Gcs
-from .config import GcsConfig
+from .config import GcsConfig, default_client_id
 from .dashboard import RateMeter, plain_lines, render
 from .discovery import discover_drones
+from .extras import ExtrasOptions, GcsExtras
 from .formation import FORMATIONS, resolve
+from .mavlink_out import parse_udpout
 from .mission import ON_FAILURE, run_mission, run_swarm_mission
 from .patterns import PATTERNS
+from .summary import print_summary, summarize, write_record
+
+if TYPE_CHECKING:
+    from zenoh_robot.keyring import Keyring
 
 log = logging.getLogger("gcs")
 
@@ -133,125 +146,192 @@ def session_config(args: argparse.Namespace, profile: StreamProfile) -> SessionC
     return session_config_from_args(args, from_profile, "gcs")
 
 
+class UsageError(Exception):
+    """A user's mistake in the flags: one line, exit 2, before any session opens."""
+
+
+@dataclass(frozen=True)
+class GcsRun:
+    """One ``gcs`` run, from its validated flags."""
+    gcs: GcsConfig
+    session: SessionConfig
+    wire: WireFormat
+    keyring: Keyring | None
+    link_encrypt: bool
+    params: dict[str, Any]                # -p overrides, the node's parameters
+    extras: ExtrasOptions
+    mission: bool
+    duration: float | None
+    on_failure: str
+    insecure_ok: bool
+    dashboard: bool                       # the live table; else (or not on a terminal) plain lines
+    details: str | None
+    topic_statistics: bool
+    record: Path | None
+
+
 def run(args: argparse.Namespace) -> int:
     if args.gcs_action == "cmd":
         return run_command(args)
+    try:
+        gcs_run = parse_run(args)
+        log_startup_line(log, gcs_run.session, gcs_run.keyring, gcs_run.link_encrypt)
+        refuse_an_open_mission(gcs_run)
+    except UsageError as exc:
+        print(f"gcs: {exc}", file=sys.stderr)
+        return 2
+    return serve(gcs_run)
+
+
+def parse_run(args: argparse.Namespace) -> GcsRun:
+    """The flags checked and typed; UsageError names the first that is wrong."""
     params = params_from_args(args)
     profile = stream_profile(args.profile, params, image_mode=args.image)
-    drones = [d for d in (args.drones or "").split(",") if d]
-    client_id = _client_id(args)
-    if client_id is None:
-        return 2
-    patterns = {}
-    for item in (x for x in args.patterns.split(",") if x):
-        drone, sep, name = item.partition("=")
-        if not sep or name not in PATTERNS:
-            print(f"gcs: --patterns {item!r}: expected ID=PATTERN, PATTERN one of {', '.join(PATTERNS)}",
-                  file=sys.stderr)
-            return 2
-        patterns[drone] = name
-    if len(set(drones)) != len(drones):
-        print(f"gcs: --drones names a drone twice: {args.drones}", file=sys.stderr)
-        return 2
-    if args.spacing <= 0:
-        print("gcs: --spacing must be > 0 m", file=sys.stderr)
-        return 2
-    for flag, v in (("--sensor-rate", args.sensor_rate), ("--camera-rate", args.camera_rate)):
-        if v is not None and not (math.isfinite(v) and v > 0):
-            print(f"gcs: {flag} must be > 0 Hz, got {v!r}", file=sys.stderr)
-            return 2
+    client_id = _client_id(args.gcs_id)
+    patterns = _patterns(args.patterns)
+    drones = _drone_list(args.drones)
+    _check_numbers(args)
+    if args.take_control and not drones:
+        raise UsageError("--take-control needs --drones (which drones to take)")
+    if args.mission and not drones:
+        raise UsageError("--mission needs the drones to fly (--drones uav1,uav2)")
     config = GcsConfig(drones=drones, pattern=args.pattern, rate_hz=args.rate, altitude=args.altitude,
                        size=args.size, speed=args.speed, profile=profile, save_image=args.save_image,
                        save_every=args.save_every, client_id=client_id, take_control=args.take_control,
                        auto_fly=not args.mission, formation=resolve(args.formation, len(drones) or 2),
                        spacing=args.spacing, patterns=patterns, sensor_rate_hz=args.sensor_rate,
                        camera_rate_hz=args.camera_rate)
-    console = Console(stderr=False)
-    if args.save_image and len(drones) != 1:
-        console.print(f"gcs: --save-image: one file per drone, "
-                      f"{args.save_image.with_name(args.save_image.stem + '_<id>' + args.save_image.suffix)} "
-                      "(each name is printed when first written)")
     session = session_config(args, profile)
-    wire: WireFormat = ENVELOPE
-    keyring = None
-    if args.link_keys:   # the keyring of this GCS's id: its key is what "the GCS in control" means
-        try:
-            wire, keyring = link_wire(args.link_keys, client_id, encrypt=args.link_encrypt)
-        except ValueError as exc:
-            print(f"gcs: --link-keys: {exc}", file=sys.stderr)
-            return 2
-    log_startup_line(log, session, keyring, args.link_encrypt)
-    if args.mission and not (session.secure or keyring) and reaches_network(session) and not args.insecure_ok:
-        # One flag must not be all that stands between a field flight and an open link.
-        print("gcs: --mission over a network without --secure: commands would be unauthenticated (a peer can "
-              "claim this GCS's client id); give --secure DIR or --link-keys DIR, or --insecure-ok to fly anyway",
-              file=sys.stderr)
-        return 2
-    with Node("gcs", config=session, parameter_overrides=params, wire=wire,
-              enable_topic_statistics=not args.no_topic_statistics) as node:
+    wire, keyring = _link(args.link_keys, client_id, args.link_encrypt)
+    return GcsRun(gcs=config, session=session, wire=wire, keyring=keyring,
+                  link_encrypt=args.link_encrypt, params=params, extras=_extras(args), mission=args.mission,
+                  duration=args.duration, on_failure=args.on_failure, insecure_ok=args.insecure_ok,
+                  dashboard=not args.no_dashboard, details=args.details,
+                  topic_statistics=not args.no_topic_statistics, record=args.record)
+
+
+def _drone_list(spec: str | None) -> list[str]:
+    drones = [d for d in (spec or "").split(",") if d]
+    if len(set(drones)) != len(drones):
+        raise UsageError(f"--drones names a drone twice: {spec}")
+    return drones
+
+
+def _client_id(gcs_id: str | None) -> str:
+    cid = gcs_id or default_client_id()
+    if not valid_client_id(cid):
+        raise UsageError(f"--gcs-id {cid!r}: letters, digits and _.@:+- only, at most 64")
+    return cid
+
+
+def _patterns(spec: str) -> dict[str, str]:
+    patterns = {}
+    for item in (x for x in spec.split(",") if x):
+        drone, sep, name = item.partition("=")
+        if not sep or name not in PATTERNS:
+            raise UsageError(f"--patterns {item!r}: expected ID=PATTERN, PATTERN one of {', '.join(PATTERNS)}")
+        patterns[drone] = name
+    return patterns
+
+
+def _check_numbers(args: argparse.Namespace) -> None:
+    # Each would fail later, inside the running node (a zero rate is a division by zero there).
+    for flag, v, unit in (("--rate", args.rate, "Hz"), ("--size", args.size, "m"), ("--spacing", args.spacing, "m"),
+                          ("--save-every", args.save_every, "s"), ("--sensor-rate", args.sensor_rate, "Hz"),
+                          ("--camera-rate", args.camera_rate, "Hz")):
+        if v is not None and not (math.isfinite(v) and v > 0):
+            raise UsageError(f"{flag} must be > 0 {unit}, got {v!r}")
+
+
+def _link(keys_dir: str | None, client_id: str, encrypt: bool) -> tuple[WireFormat, Keyring | None]:
+    """The wire format and keyring of ``--link-keys``: this GCS id's key is what "the GCS in control" means."""
+    if not keys_dir:
+        return ENVELOPE, None
+    try:
+        return link_wire(keys_dir, client_id, encrypt=encrypt)
+    except ValueError as exc:
+        raise UsageError(f"--link-keys: {exc}") from None
+
+
+def _extras(args: argparse.Namespace) -> ExtrasOptions:
+    try:
+        mavlink_out = parse_udpout(args.mavlink_out) if args.mavlink_out else None
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    return ExtrasOptions(record=args.record, foxglove_port=args.foxglove, mavlink_out=mavlink_out)
+
+
+def refuse_an_open_mission(gcs_run: GcsRun) -> None:
+    # One flag must not be all that stands between a field flight and an open link.
+    if gcs_run.mission and not (gcs_run.session.secure or gcs_run.keyring) and reaches_network(gcs_run.session) \
+            and not gcs_run.insecure_ok:
+        raise UsageError("--mission over a network without --secure: commands would be unauthenticated (a peer can "
+                         "claim this GCS's client id); give --secure DIR or --link-keys DIR, or --insecure-ok to fly "
+                         "anyway")
+
+
+def serve(gcs_run: GcsRun) -> int:
+    """Opens the node, runs the GCS (and a mission) until it ends, prints and writes the summary."""
+    console = Console(stderr=False)
+    config = gcs_run.gcs
+    if config.save_image and len(config.drones) != 1:
+        path = config.save_image
+        console.print(f"gcs: --save-image: one file per drone, {path.with_name(path.stem + '_<id>' + path.suffix)} "
+                      "(each name is printed when first written)")
+    result: dict[str, Any] = {}
+    with Node("gcs", config=gcs_run.session, parameter_overrides=gcs_run.params, wire=gcs_run.wire,
+              enable_topic_statistics=gcs_run.topic_statistics) as node:
         gcs = Gcs(node, config)
-        from .mavlink_out import GcsExtras
-        extras = GcsExtras(node, args, drones, console.print)
+        extras = GcsExtras(node, gcs_run.extras, config.drones, console.print)
         spinner = threading.Thread(target=node.spin, name="gcs-spin", daemon=True)
         spinner.start()
-        result: dict[str, Any] = {}
-        mission_thread = None
-        if args.take_control:
-            if not drones:
-                console.print("gcs: --take-control needs --drones (which drones to take)")
-                node.shutdown()
-                return 2
+        if config.take_control:
             for d, res in gcs.take_control().items():
                 console.print(f"gcs: take_control {d}: {'ok' if res.success else 'FAILED'} {res.message}")
-        if args.mission:
-            if not drones:
-                console.print("gcs: --mission needs the drones to fly (--drones uav1,uav2)")
-                node.shutdown()
-                return 2
-            say = console.log if console.is_terminal else _say
-
-            def mission() -> None:
-                if len(drones) == 1:
-                    result.update(run_mission(gcs, drones[0], args.duration or 60.0, say))
-                else:
-                    result.update(run_swarm_mission(gcs, drones, args.duration or 60.0, say, args.on_failure))
-            mission_thread = threading.Thread(target=mission, name="mission", daemon=True)
-            mission_thread.start()
-        deadline = None if args.duration is None or args.mission else time.monotonic() + args.duration
+        mission = _start_mission(gcs, gcs_run, console, result) if gcs_run.mission else None
+        deadline = None if gcs_run.duration is None or gcs_run.mission else time.monotonic() + gcs_run.duration
         try:
-            _watch(gcs, console, args, deadline, mission_thread)
+            _watch(gcs, console, gcs_run, deadline, mission)
         except KeyboardInterrupt:
             console.print("gcs: interrupted")
         finally:
             gcs.release_control()
             node.shutdown()
             spinner.join(timeout=2.0)
-        summary = summarize(gcs, profile.name)
-        summary["mission"] = result
-        extras.close(summary)
-        _print_summary(console, summary)
-        if args.record:
-            write_record(summary, args.record)
-            console.print(f"gcs: figures written to {args.record}")
-        if args.mission:
-            console.print(f"gcs: mission {result.get('result') or 'FAILED: did not finish'}")
-    if args.mission and not result.get("ok"):
+        _report(gcs, gcs_run, console, extras, result)
+    if gcs_run.mission and not result.get("ok"):
         return 1
     return 0
 
 
-def _client_id(args: argparse.Namespace) -> str | None:
-    from drone_contract.messages import valid_client_id
+def _start_mission(gcs: Gcs, gcs_run: GcsRun, console: Console, result: dict[str, Any]) -> threading.Thread:
+    """The mission on its own thread, its outcome into ``result``: the dashboard runs meanwhile."""
+    say = console.log if console.is_terminal else _say
+    drones, duration = gcs_run.gcs.drones, gcs_run.duration or 60.0
 
-    from .config import default_client_id
-    cid = args.gcs_id or default_client_id()
-    if not valid_client_id(cid):
-        print(f"gcs: --gcs-id {cid!r}: letters, digits and _.@:+- only, at most 64", file=sys.stderr)
-        return None
-    return cid
+    def mission() -> None:
+        if len(drones) == 1:
+            result.update(run_mission(gcs, drones[0], duration, say))
+        else:
+            result.update(run_swarm_mission(gcs, drones, duration, say, gcs_run.on_failure))
+    thread = threading.Thread(target=mission, name="mission", daemon=True)
+    thread.start()
+    return thread
 
 
-def _watch(gcs: Gcs, console: Console, args: argparse.Namespace, deadline: float | None,
+def _report(gcs: Gcs, gcs_run: GcsRun, console: Console, extras: GcsExtras, result: dict[str, Any]) -> None:
+    summary = summarize(gcs, gcs_run.gcs.profile.name)
+    summary["mission"] = result
+    extras.close(summary)
+    print_summary(console, summary)
+    if gcs_run.record:
+        write_record(summary, gcs_run.record)
+        console.print(f"gcs: figures written to {gcs_run.record}")
+    if gcs_run.mission:
+        console.print(f"gcs: mission {result.get('result') or 'FAILED: did not finish'}")
+
+
+def _watch(gcs: Gcs, console: Console, gcs_run: GcsRun, deadline: float | None,
            mission: threading.Thread | None) -> None:
     def done() -> bool:
         if mission is not None:
@@ -259,7 +339,7 @@ def _watch(gcs: Gcs, console: Console, args: argparse.Namespace, deadline: float
         return deadline is not None and time.monotonic() >= deadline
 
     rates = RateMeter()
-    if args.no_dashboard or not console.is_terminal:
+    if not gcs_run.dashboard or not console.is_terminal:
         # Plain, short, periodic lines: a pipe or a log file gets no padding, no colours, no nan.
         last = time.monotonic()
         while not done():
@@ -274,153 +354,115 @@ def _watch(gcs: Gcs, console: Console, args: argparse.Namespace, deadline: float
                     _say(line)
         return
     # The alternate screen: the view is redrawn whole, so a drone joining leaves no stale header behind.
-    with Live(render(gcs, rates, details=args.details), console=console, refresh_per_second=4, screen=True) as live:
+    with Live(render(gcs, rates, details=gcs_run.details), console=console, refresh_per_second=4,
+              screen=True) as live:
         while not done():
             time.sleep(0.25)
-            live.update(render(gcs, rates, details=args.details))
+            live.update(render(gcs, rates, details=gcs_run.details))
 
 
 def _say(line: str) -> None:
     print(f"{time.strftime('%H:%M:%S')} {line}", flush=True)
 
 
-def summarize(gcs: Gcs, profile: str) -> dict[str, Any]:
-    out: dict[str, Any] = {"profile": profile, "pattern": gcs.config.pattern, "formation": gcs.config.formation,
-                           "drones": {}}
-    # Late copies left together and could be lost together: a starved repeater, not the link.
-    out["repeater"] = gcs.node.repeater_stats()
-    # The rates asked of each drone (None: its own): received rates are judged against these.
-    out["downlink_asked"] = {"sensor_rate_hz": gcs.config.sensor_rate_hz, "camera_rate_hz": gcs.config.camera_rate_hz}
-    for d in gcs.drones.values():
-        streams = {name: rec.summary().as_dict() for name, rec in d.streams.items()}
-        for name in d.streams:
-            streams[name]["lost_pct"] = d.lost_pct(name)
-        out["drones"][d.id] = {
-            "setpoints_sent": d.setpoints_sent, "streams": streams,
-            "frames": d.image.frames, "frames_complete": d.image.complete,
-            "frames_decoded": d.frames.decoded, "decode_cpu_s": d.frames.decode_s,
-            "slot": list(d.slot), "pattern": d.pattern_name,
-            "max_path_error_m": d.plan.max_path_error,
-            # Against the drone's own (slot's) path, from when it joined it (gcs/planner.py, PATH_JOIN_M).
-            "mean_path_error_m": d.plan.mean_path_error, "path_error_samples": d.plan.path_error_samples,
-            "joined_path": d.plan.on_path,
-            "final_state": d.state.to_dict() if d.state else None,
-            "events": [e.to_dict() for e in d.events],
-            "downlink": gcs.downlink.status[d.id].as_dict()
-            if gcs.downlink is not None and d.id in gcs.downlink.status else None,
-            # Raw (seq, stamp, arrival) records for offline analysis (the experiment joins them
-            # with the companion's to get exact delivered % over a time window).
-            "logs": {"sent": {k: v.to_dict() for k, v in d.sent.items()},
-                     "received": {k: v.to_dict() for k, v in d.streams.items()}},
-        }
-    return out
-
-
-def write_record(summary: dict[str, Any], path: Path) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if path.suffix.lower() != ".csv":
-        from zenoh_robot.tools.bag.schemas import jsonable  # strict JSON: NaN -> null
-        if path.suffix.lower() == ".mcap":    # the flight log itself was written live (GcsExtras)
-            path = path.with_suffix(".summary.json")
-        path.write_text(json.dumps(jsonable(summary), indent=2, default=str, allow_nan=False))
-        return
-    import csv
-    with path.open("w", newline="") as f:
-        w = csv.writer(f)
-        fields = ["received", "unique", "lost_pct", "age_avg_ms", "age_p50_ms", "age_p99_ms", "age_max_ms",
-                  "period_avg_ms", "period_max_ms", "longest_gap_ms", "rate_hz"]
-        w.writerow(["profile", "drone", "stream", *fields])
-        for drone, d in summary["drones"].items():
-            for name, s in d["streams"].items():
-                w.writerow([summary["profile"], drone, name, *(s.get(k) for k in fields)])
-
-
-def _print_summary(console: Console, summary: dict[str, Any]) -> None:
-    from rich.table import Table
-    t = Table(title=f"summary ({summary['profile']})")
-    for col in ("drone", "stream", "received", "lost %", "age avg ms", "age p99 ms", "period avg ms"):
-        t.add_column(col)
-    for drone, d in summary["drones"].items():
-        for name, s in d["streams"].items():
-            t.add_row(drone, name, str(s["received"]), f"{s['lost_pct']:.1f}", f"{s['age_avg_ms']:.1f}",
-                      f"{s['age_p99_ms']:.1f}", f"{s['period_avg_ms']:.1f}")
-        console.print(f"{drone}: setpoints sent {d['setpoints_sent']}, frames {d['frames']} "
-                      f"({d['frames_complete']} whole), largest distance from the path "
-                      f"{d['max_path_error_m']:.2f} m (mean {d['mean_path_error_m']:.2f} m, against its own path)")
-        if d.get("downlink"):
-            asked = {k: v for k, v in summary.get("downlink_asked", {}).items() if v is not None}
-            console.print(f"{drone}: downlink asked {asked}: {d['downlink']['status']} {d['downlink']['detail']}")
-    console.print(t)
+@dataclass(frozen=True)
+class CommandRun:
+    """One ``gcs cmd``, from its validated arguments."""
+    name: str
+    value: float
+    text: str
+    force: bool
+    client_id: str
+    drones: list[str]        # empty: 'all' without --drones, every drone heard within ``discover_s``
+    discover_s: float
+    timeout: float
+    session: SessionConfig
+    wire: WireFormat
+    keyring: Keyring | None
 
 
 def run_command(args: argparse.Namespace) -> int:
-    from drone_contract.messages import Command, CommandResult
-    from zenoh_robot.services import ServiceCallError
-    name = str(resolve_cli_name(args.command))
-    value, text = 0.0, ""
-    if name == "takeoff":
-        value = float(args.value) if args.value else 5.0
-    elif name == "set_param":
-        if not args.value or "=" not in args.value:
-            print("gcs cmd: set_param needs NAME=VALUE", file=sys.stderr)
-            return 2
-        text, _, raw = args.value.partition("=")
-        try:
-            value = float(raw)
-        except ValueError:
-            print(f"gcs cmd: parameter value {raw!r} is not a number", file=sys.stderr)
-            return 2
-    elif name in ("hand_over", "release_control"):
-        text = args.value or ""
-        if name == "hand_over" and not text:
-            print("gcs cmd: hand_over needs the GCS id to hand control over to", file=sys.stderr)
-            return 2
-    client_id = _client_id(args)
-    if client_id is None:
+    try:
+        cmd = parse_command(args)
+    except UsageError as exc:
+        print(f"gcs cmd: {exc}", file=sys.stderr)
         return 2
-    config = session_config_from_args(args, name="gcs")
-    wire: WireFormat = ENVELOPE
-    keyring = None
-    if args.link_keys:
-        try:
-            wire, keyring = link_wire(args.link_keys, client_id)
-        except ValueError as exc:
-            print(f"gcs cmd: --link-keys: {exc}", file=sys.stderr)
-            return 2
-    log_startup_line(log, config, keyring)
-    with Node("gcs_cmd", config=config, wire=wire) as node:
-        if args.drone == "all":
-            targets = [d for d in (args.drones or "").split(",") if d] or discover_drones(node, args.discover)
-            if not targets:
-                print(f"gcs cmd: all: no drone heard within {args.discover:g} s (give --drones)", file=sys.stderr)
-                return 1
-        else:
-            targets = [args.drone]
-        results: dict[str, str] = {}
-        failed: list[str] = []
+    log_startup_line(log, cmd.session, cmd.keyring)
+    return send_command(cmd)
 
-        def one(drone: str) -> None:
-            client = node.create_client(f"/{drone}/{COMMAND_SERVICE}", Command, CommandResult,
-                                        retry=command_retry(node))
-            try:
-                res = client.call(Command(name, value, text, args.force, client_id), timeout=args.timeout)
-            except ServiceCallError as exc:
-                failed.append(drone)
-                results[drone] = f"{drone} {name}: FAILED {type(exc).__name__}: {exc}"
-                return
-            if not res.success:
-                failed.append(drone)
-            results[drone] = f"{drone} {name}: {'ok' if res.success else 'FAILED'} {res.message} (mode {res.mode})"
-        # All at once: `gcs cmd all land` must not land ten drones one timeout after another.
-        threads = [threading.Thread(target=one, args=(d,), daemon=True) for d in targets]
-        for th in threads:
-            th.start()
-        for th in threads:
-            th.join()
+
+def parse_command(args: argparse.Namespace) -> CommandRun:
+    name = str(resolve_cli_name(args.command))
+    value, text = _command_argument(name, args.value)
+    client_id = _client_id(args.gcs_id)
+    session = session_config_from_args(args, name="gcs")
+    wire, keyring = _link(args.link_keys, client_id, encrypt=False)
+    drones = [d for d in (args.drones or "").split(",") if d] if args.drone == "all" else [args.drone]
+    return CommandRun(name=name, value=value, text=text, force=args.force, client_id=client_id, drones=drones,
+                      discover_s=args.discover, timeout=args.timeout, session=session, wire=wire, keyring=keyring)
+
+
+def _command_argument(name: str, arg: str | None) -> tuple[float, str]:
+    """The command's (value, text) from its optional argument."""
+    if name == "takeoff":
+        if not arg:
+            return 5.0, ""
+        try:
+            return float(arg), ""
+        except ValueError:
+            raise UsageError(f"takeoff altitude {arg!r} is not a number") from None
+    if name == "set_param":
+        if not arg or "=" not in arg:
+            raise UsageError("set_param needs NAME=VALUE")
+        text, _, raw = arg.partition("=")
+        try:
+            return float(raw), text
+        except ValueError:
+            raise UsageError(f"parameter value {raw!r} is not a number") from None
+    if name in ("hand_over", "release_control"):
+        if name == "hand_over" and not arg:
+            raise UsageError("hand_over needs the GCS id to hand control over to")
+        return 0.0, arg or ""
+    return 0.0, ""
+
+
+def send_command(cmd: CommandRun) -> int:
+    with Node("gcs_cmd", config=cmd.session, wire=cmd.wire) as node:
+        targets = cmd.drones or discover_drones(node, cmd.discover_s)
+        if not targets:
+            print(f"gcs cmd: all: no drone heard within {cmd.discover_s:g} s (give --drones)", file=sys.stderr)
+            return 1
+        results, failed = _send_to_each(node, cmd, targets)
     for drone in targets:
-        print(results.get(drone, f"{drone} {name}: FAILED no answer"))
+        print(results.get(drone, f"{drone} {cmd.name}: FAILED no answer"))
     if len(targets) > 1:
-        print(f"{name}: {len(targets) - len(failed)} of {len(targets)} ok"
+        print(f"{cmd.name}: {len(targets) - len(failed)} of {len(targets)} ok"
               + (f"; FAILED: {', '.join(sorted(failed))}" if failed else ""))
     return 1 if failed else 0
 
+
+def _send_to_each(node: Node, cmd: CommandRun, targets: list[str]) -> tuple[dict[str, str], list[str]]:
+    """Every drone's answer line, and the drones that failed."""
+    results: dict[str, str] = {}
+    failed: list[str] = []
+    name = cmd.name
+
+    def one(drone: str) -> None:
+        client = node.create_client(f"/{drone}/{COMMAND_SERVICE}", Command, CommandResult,
+                                    retry=command_retry(node))
+        try:
+            res = client.call(Command(name, cmd.value, cmd.text, cmd.force, cmd.client_id), timeout=cmd.timeout)
+        except ServiceCallError as exc:
+            failed.append(drone)
+            results[drone] = f"{drone} {name}: FAILED {type(exc).__name__}: {exc}"
+            return
+        if not res.success:
+            failed.append(drone)
+        results[drone] = f"{drone} {name}: {'ok' if res.success else 'FAILED'} {res.message} (mode {res.mode})"
+    # All at once: `gcs cmd all land` must not land ten drones one timeout after another.
+    threads = [threading.Thread(target=one, args=(d,), daemon=True) for d in targets]
+    for th in threads:
+        th.start()
+    for th in threads:
+        th.join()
+    return results, failed
