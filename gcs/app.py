@@ -349,17 +349,7 @@ class Gcs:
 
     def _declare_parameters(self) -> None:
         """What this GCS runs with, for `zenoh-robot param list /gcs` (read-only: set at start)."""
-        c = self.config
-        for name, value, what in (
-                ("rate", c.rate_hz, "setpoint rate, Hz"), ("profile", c.profile.name, "stream QoS profile"),
-                ("pattern", c.pattern, "setpoint pattern"), ("altitude", c.altitude, "m above home"),
-                ("size", c.size, "pattern size, m"), ("speed", c.speed, "pattern speed, m/s"),
-                ("formation", c.formation, "none, line or grid"), ("spacing", c.spacing, "m between slots"),
-                ("drones", ",".join(c.drones), "drones given (empty: discovered)"),
-                ("client_id", c.client_id, "id carried by setpoints and commands"),
-                ("image_mode", c.profile.image_mode, "how images arrive"),
-                ("sensor_rate", c.sensor_rate_hz or 0.0, "sensor rate asked of each drone, Hz (0: not asked)"),
-                ("camera_rate", c.camera_rate_hz or 0.0, "camera rate asked of each drone, fps (0: not asked)")):
+        for name, value, what in self.config.parameters():
             if not self.node.has_parameter(name):
                 self.node.declare_parameter(name, value, what, read_only=True)
 

@@ -1,9 +1,11 @@
-"""The GCS's settings: one dataclass, what the CLI validated (gcs/cli.py) and the app runs with."""
+"""The GCS's settings: one dataclass, what the CLI validated (gcs/cli.py) and the app runs with; the
+node shows them as read-only parameters (``GcsConfig.parameters``)."""
 from __future__ import annotations
 
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from drone_contract.streams import StreamProfile, stream_profile
 
@@ -35,3 +37,15 @@ class GcsConfig:
     # Downlink rates asked of each drone when it joins (gcs/downlink.py); None: the companion's own.
     sensor_rate_hz: float | None = None
     camera_rate_hz: float | None = None
+
+    def parameters(self) -> list[tuple[str, Any, str]]:
+        """(name, value, description) of the read-only node parameters that show these settings."""
+        return [("rate", self.rate_hz, "setpoint rate, Hz"), ("profile", self.profile.name, "stream QoS profile"),
+                ("pattern", self.pattern, "setpoint pattern"), ("altitude", self.altitude, "m above home"),
+                ("size", self.size, "pattern size, m"), ("speed", self.speed, "pattern speed, m/s"),
+                ("formation", self.formation, "none, line or grid"), ("spacing", self.spacing, "m between slots"),
+                ("drones", ",".join(self.drones), "drones given (empty: discovered)"),
+                ("client_id", self.client_id, "id carried by setpoints and commands"),
+                ("image_mode", self.profile.image_mode, "how images arrive"),
+                ("sensor_rate", self.sensor_rate_hz or 0.0, "sensor rate asked of each drone, Hz (0: not asked)"),
+                ("camera_rate", self.camera_rate_hz or 0.0, "camera rate asked of each drone, fps (0: not asked)")]

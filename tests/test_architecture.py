@@ -282,3 +282,52 @@ def test_import_zenoh_robot_loads_no_tool() -> None:
 def test_parameters_package_keeps_every_name(name: str) -> None:
     import zenoh_robot.parameters as params
     assert hasattr(params, name)
+
+
+# The GCS is built like the companion (docs/architecture.md): app.py wires the node and keeps each
+# drone's state; planning, discovery, the mission's steps and the CLI's checks are parts of their own.
+GCS_APP_MAX_LINES = 450      # it was 551 with the planning inside (companion/app.py: ~230)
+GCS_FUNCTION_MAX_LINES = 60  # the mission's flight and the CLI's run were one 95- and one 105-line function
+
+
+def test_gcs_planning_loads_no_session() -> None:
+    """gcs/planner.py is what its tests drive without Zenoh: importing it loads neither Zenoh nor the library."""
+    code = "import json, sys; import gcs.planner; print(json.dumps(sorted(sys.modules)))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=60,
+                         check=True)
+    loaded = json.loads(out.stdout)
+    assert "gcs.planner" in loaded and "gcs.formation" in loaded   # the check sees what was loaded
+    assert [m for m in loaded if m.split(".")[0] in ("zenoh", "zenoh_robot", "numpy")] == []
+
+
+def test_drone_discovery_is_written_once() -> None:
+    """The GCS app and `gcs cmd all` find drones through gcs/discovery.py: no other GCS module listens on the
+    raw session or spells a drone id's pattern."""
+    from gcs.discovery import DRONE_ID
+    found = {name: path.read_text() for name, path in MODULES.items() if name.split(".")[0] == "gcs"}
+    assert "declare_subscriber(" in found["gcs.discovery"] and DRONE_ID.pattern in found["gcs.discovery"]
+    assert [n for n, text in found.items() if n != "gcs.discovery"
+            and ("declare_subscriber(" in text or DRONE_ID.pattern in text)] == []
+
+
+def test_the_gcs_app_is_wiring() -> None:
+    text = MODULES["gcs.app"].read_text()
+    assert len(text.splitlines()) <= GCS_APP_MAX_LINES
+    # Target maths stay in the planner: the app only feeds it the drone's position.
+    names = {n.id for n in ast.walk(ast.parse(text)) if isinstance(n, ast.Name)}
+    assert names & {"lead", "path_distance", "MAX_LEAD_M", "MAX_TARGET_SPEED", "PATH_JOIN_M"} == set()
+
+
+def test_no_gcs_function_grows_long() -> None:
+    """A mission, a CLI run or a target grows by a named step, not inside one long function; the CLI's
+    argument lists are exempt."""
+    long = []
+    for name, path in MODULES.items():
+        if name.split(".")[0] != "gcs":
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.FunctionDef) and node.name not in ("register", "add_common"):
+                lines = (node.end_lineno or node.lineno) - node.lineno + 1
+                if lines > GCS_FUNCTION_MAX_LINES:
+                    long.append(f"{name}.{node.name}: {lines} lines")
+    assert long == []
