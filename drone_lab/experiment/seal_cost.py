@@ -241,6 +241,11 @@ def stack(copies: int, samples: int, rounds: int, keys_dir: Path) -> dict[str, f
     pack = ENVELOPE.encoder(ts, 7).pack
     unpack = ENVELOPE.decoder(ts)
     gcs_wire, drone_wire = sealed(ENVELOPE, Keyring(keys_dir, GCS_ID)), sealed(ENVELOPE, Keyring(keys_dir, DRONE_ID))
+    if hasattr(drone_wire, "own"):    # the GCS hears the drone once, as before it flies it (wire/freshness.py)
+        from zenoh_robot.msgs import SensorCombined
+        sensor, sensor_key = type_support(SensorCombined), f"{DRONE_ID}/sensor"
+        heard = drone_wire.sealer(sensor_key)(ENVELOPE.encoder(sensor, 8).pack(1, 1, sensor.encode(SensorCombined())))
+        gcs_wire.keyed_decoder(sensor, sensor_key)(heard, None)
 
     def plain(n: int) -> None:
         for seq in range(1, n + 1):
