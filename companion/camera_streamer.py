@@ -1,9 +1,8 @@
 """The drone's camera on ``<id>/image``, as the stream profile's image mode carries it.
 
-raw: one rgb8 ``Image`` per frame; jpeg: one JPEG ``Image``; sliced: JPEG strips
-(image_transport.ImagePublisher); fec: one JPEG in shares plus parity (image_fec). Frames are
-numbered as a camera driver numbers them (``header.seq``), and every frame (and strip) sent is
-recorded for the experiment's fresh-frame figures.
+The mode's sender comes from the library's registry (``zenoh_robot.image``: raw, jpeg, sliced,
+fec). Frames are numbered as a camera driver numbers them (``header.seq``), and every frame (and
+strip) sent is recorded, as the sender numbers it, for the experiment's fresh-frame figures.
 
 Threads: its own ``camera`` thread reads, encodes and publishes (never the executor that serves
 setpoints); ``start`` and ``close`` are called by the owner. The rate follows a live `param set`.
@@ -16,9 +15,8 @@ from collections.abc import Callable
 from typing import Any
 
 from zenoh_robot import Node
-from zenoh_robot.image_fec import FecImagePublisher
-from zenoh_robot.image_transport import MAX_SLICES, ImagePublisher, encode_strip
-from zenoh_robot.msgs import Header, Image
+from zenoh_robot.image import image_publisher
+from zenoh_robot.msgs import Header
 from zenoh_robot.qos import QoSProfile
 from zenoh_robot.tools.stream_metrics import StreamRecorder
 
@@ -34,13 +32,7 @@ class CameraStreamer:
         self._config = config             # live: a `param set` replaces the config
         self._sent_frames, self._sent_strips = sent_frames, sent_strips
         profile = config().profile
-        self.publisher: Any
-        if profile.image_mode == "sliced":
-            self.publisher = ImagePublisher(node, topic, qos, quality=profile.jpeg_quality)
-        elif profile.image_mode == "fec":
-            self.publisher = FecImagePublisher(node, topic, qos, quality=profile.jpeg_quality)
-        else:
-            self.publisher = node.create_publisher(Image, topic, qos)
+        self.publisher = image_publisher(profile.image_mode, node, topic, qos, quality=profile.jpeg_quality)
         self._seq = 0   # the frame's header.seq
         # Called with each frame after it went out on the contract's stream (the ROS 2 topics: ros2_streams.py)
         self.frame_listeners: list[Callable[[Any], None]] = []
@@ -49,7 +41,7 @@ class CameraStreamer:
 
     def set_loss(self) -> Callable[[float], None] | None:
         """Where the measured loss goes (FEC parity follows it), or None when nothing adapts."""
-        return self.publisher.set_loss if isinstance(self.publisher, FecImagePublisher) else None
+        return self.publisher.set_loss if self.publisher.follows_loss else None
 
     def start(self) -> None:
         self._thread = threading.Thread(target=self._loop, name="camera", daemon=True)
@@ -87,23 +79,7 @@ class CameraStreamer:
     def publish_frame(self, frame: Any) -> None:
         head = Header.now(frame_id="camera", seq=self._seq)
         self._seq += 1
-        if isinstance(self.publisher, ImagePublisher):
-            self.publisher.publish(frame, head)
-            n = self.publisher.frames - 1
-            self._sent_frames.record(n, head.stamp)   # slices carry the frame number
-            for i in range(self.publisher.last_count):
-                self._sent_strips.record(n * MAX_SLICES + i, head.stamp)
-            return
-        if isinstance(self.publisher, FecImagePublisher):
-            n = self.publisher.publish(frame, head)
-            self._sent_frames.record(n, head.stamp)
-            self._sent_strips.record(n * MAX_SLICES, head.stamp)
-            return
-        profile = self._config().profile
-        if profile.image_mode == "jpeg":
-            h, w = frame.shape[:2]
-            img = Image(head, h, w, "jpeg", 0, 0, encode_strip(frame, profile.jpeg_quality))
-        else:
-            img = Image.from_array(frame, header=head)
-        sent = self.publisher.publish(img)
-        self._sent_frames.record(sent.seq, sent.stamp_ns)
+        sent = self.publisher.send(frame, head)
+        self._sent_frames.record(sent.frame, sent.stamp_ns)
+        for piece in sent.pieces:
+            self._sent_strips.record(piece, sent.stamp_ns)

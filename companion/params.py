@@ -29,7 +29,7 @@ from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Protocol
 
 from drone_contract.messages import valid_client_id
-from drone_contract.streams import STREAMS
+from drone_contract.streams import IMAGE_MODES, STREAMS
 from zenoh_robot.parameters import (
     InvalidParameterValueError,
     Parameter,
@@ -90,7 +90,7 @@ class Spec:
 SPECS: tuple[Spec, ...] = (
     Spec("drone_id", "drone id, the namespace of the topics", flag="--id"),
     Spec("profile", "stream profile (QoS per stream, image path, transport)", flag="--profile"),
-    Spec("image_mode", "how images travel: raw, jpeg, sliced", flag="--image"),
+    Spec("image_mode", f"how images travel: {', '.join(IMAGE_MODES)}", flag="--image"),
     Spec("jpeg_quality", "JPEG quality of jpeg/sliced images", flag="--jpeg-quality"),
     Spec("setpoint_deadline", "setpoint QoS deadline before the failsafe HOLD, s (the subscription's)",
          _range(0.05, 60.0, "s")),

@@ -36,6 +36,7 @@ from px4_link.telemetry import Attitude, Battery, GlobalPosition, Imu, LocalPosi
 from px4_link.vehicle import VehicleLink
 from zenoh_robot import Node, SessionConfig
 from zenoh_robot.frames import enu_quaternion, frd_to_flu, ned_to_enu
+from zenoh_robot.jpeg import encode_jpeg
 from zenoh_robot.publisher import PublisherClosed
 from zenoh_robot.qos import QoSProfile
 
@@ -179,10 +180,8 @@ class Ros2Streams:
         self._image_next += self._image_period
         if self._image_next < now:      # the first frame, or the camera fell behind: from now on
             self._image_next = now + self._image_period
-        from zenoh_robot.image_transport import encode_strip
-
         try:
-            data = encode_strip(frame, JPEG_QUALITY)
+            data = encode_jpeg(frame, JPEG_QUALITY)
         except Exception as exc:   # never the camera thread's end: the contract's stream goes on
             self.image_errors += 1
             if self.image_errors & (self.image_errors - 1) == 0:    # logged at 1, 2, 4, 8...

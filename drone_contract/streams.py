@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+from zenoh_robot.image import ImageMode
 from zenoh_robot.message import Message
 from zenoh_robot.msgs import SensorCombined
 from zenoh_robot.qos import RESILIENT, HistoryPolicy, Priority, QoSError, QoSProfile, ReliabilityPolicy
@@ -31,7 +32,7 @@ DOWN = "down"     # drone -> GCS
 @dataclass(frozen=True)
 class StreamSpec:
     """One stream of the contract: ``<drone id>/<name>``, published by the drone (down) or the GCS (up).
-    ``message`` is None where the type follows the profile's image mode (image_transport, image_fec)."""
+    ``message`` is None where the type follows the profile's image mode (``zenoh_robot.image``)."""
     name: str
     direction: str
     message: type[Message] | None
@@ -63,7 +64,7 @@ def message_of(spec: StreamSpec) -> type[Message]:
     if spec.message is None:
         raise ValueError(f"stream {spec.name}: its message type follows the profile's image mode")
     return spec.message
-IMAGE_MODES = ("raw", "jpeg", "sliced", "fec")
+IMAGE_MODES = tuple(mode.value for mode in ImageMode)   # the library's modes, as CLI choices
 SETPOINT_REPEAT_CEILING = 64
 TRANSPORT_KINDS = ("unicast", "multicast", "auto")
 
@@ -73,8 +74,8 @@ class StreamProfile:
     name: str
     description: str
     qos: dict[str, QoSProfile]
-    image_mode: str = "raw"                 # raw (rgb8 Image), jpeg (one JPEG Image), sliced (ImagePublisher),
-                                            # fec (one JPEG in shares + parity: zenoh_robot.image_fec)
+    image_mode: str = "raw"                 # an ImageMode: raw (rgb8 Image), jpeg (one JPEG Image), sliced
+                                            # (JPEG strips), fec (one JPEG in shares + parity): zenoh_robot.image
     jpeg_quality: int = 70
     # Each end measures the loss it sees and tells the other (_wire/feedback.LossMonitor): setpoint
     # copies and image parity follow it instead of being sized for the worst case.
@@ -182,9 +183,11 @@ def stream_profile(name: str, params: dict[str, Any] | None = None, *, image_mod
     except KeyError:
         raise QoSError(f"unknown stream profile {name!r}; choose one of {', '.join(PROFILES)}") from None
     if image_mode is not None:
-        if image_mode not in IMAGE_MODES:
-            raise QoSError(f"unknown image mode {image_mode!r}; choose one of {', '.join(IMAGE_MODES)}")
-        profile = replace(profile, image_mode=image_mode)
+        try:
+            mode = ImageMode(image_mode)
+        except ValueError as exc:   # names the valid modes
+            raise QoSError(str(exc)) from None
+        profile = replace(profile, image_mode=mode.value)
     if jpeg_quality is not None:
         if not 1 <= jpeg_quality <= 95:
             raise QoSError(f"JPEG quality {jpeg_quality}: must be 1..95")

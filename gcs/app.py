@@ -19,8 +19,9 @@ with the drone's reported position). Swarms (gcs/formation.py): with a formation
 taken in join order, and all fly the ``Gcs``'s one formation clock. A drone may fly its own
 pattern (``GcsConfig.patterns``).
 
-Receive path: telemetry callbacks only record; image slices are filed, not decoded, on
-the executor (gcs/frames.py), so many camera streams cannot starve setpoints and sensors.
+Receive path: telemetry callbacks only record; image pieces are filed, not decoded, on the
+executor (the library's image receiver, ``zenoh_robot.image``), so many camera streams cannot
+starve setpoints and sensors.
 """
 from __future__ import annotations
 
@@ -47,10 +48,9 @@ from drone_contract.messages import (
 )
 from drone_contract.streams import DOWN, UP, message_of, wired
 from zenoh_robot import Node
-from zenoh_robot.image_fec import FecAssembler, ImageShare
-from zenoh_robot.image_transport import MAX_SLICES, FrameInfo, ImageSlice
+from zenoh_robot.image import FrameRecords, image_receiver
 from zenoh_robot.loss_feedback import LossMonitor, apply_repeat_plan
-from zenoh_robot.msgs import Header, Image, SensorCombined
+from zenoh_robot.msgs import Header, SensorCombined
 from zenoh_robot.services import ServiceCallError, command_retry
 from zenoh_robot.tools.stream_metrics import StreamRecorder
 from zenoh_robot.topic_statistics import with_cpu_budget
@@ -59,7 +59,6 @@ from .config import GcsConfig
 from .discovery import watch_drones
 from .downlink import DownlinkRates
 from .formation import slot
-from .frames import FrameKeeper
 from .patterns import PathPoint, make_pattern
 from .planner import FormationClock, Position, TargetPlanner
 
@@ -109,10 +108,7 @@ class DroneView:
         # image: frames shown (sliced: begun, possibly with stale strips); image_whole: frames whose every
         # strip is fresh; image_strip: fresh strips (FEC: whole frames), as frame * MAX_SLICES + index.
         self.streams = {name: StreamRecorder() for name in ("sensor", "state", "image", "image_whole", "image_strip")}
-        self.fec = FecAssembler()
         self.sent = {"setpoint": StreamRecorder()}
-        self.image = ImageStats()
-        self.frames = FrameKeeper()
         ns = f"/{drone_id}"
         # Names and types from the contract's stream table (drone_contract.streams): the companion
         # wires the other end from the same rows, and tests/test_contract.py checks both are there.
@@ -126,19 +122,12 @@ class DroneView:
                                  topic_statistics=budget["state"])
         node.create_subscription(message_of(events), f"{ns}/{events.name}", self._on_event, q[events.name])
         image = wired("image", DOWN)
-        image_key, image_qos = f"{ns}/{image.name}", q[image.name]
-        if cfg.profile.image_mode == "sliced":
-            # A frame's slices come in a burst: the queue holds a frame's worth (as ImageSubscription's).
-            node.create_subscription(ImageSlice, image_key, self._on_slice,
-                                     image_qos.replace(depth=max(image_qos.depth, 256)),
-                                     topic_statistics=budget["image"])
-        elif cfg.profile.image_mode == "fec":   # shares + parity: rebuilt JPEG filed, decoded on demand
-            node.create_subscription(ImageShare, image_key, self._on_share,
-                                     image_qos.replace(depth=max(image_qos.depth, 512)),
-                                     topic_statistics=budget["image"])
-        else:   # raw rgb8 or one JPEG per Image message
-            node.create_subscription(Image, image_key, self._on_raw_image, image_qos,
-                                     topic_statistics=budget["image"])
+        # Filed on the executor, decoded only when a frame is looked at (latest_frame); the records
+        # number what arrived as the companion numbers what it sent (the experiment pairs them).
+        records = FrameRecords(frame=self.streams["image"].record, whole=self.streams["image_whole"].record,
+                               piece=self.streams["image_strip"].record)
+        self.frames = image_receiver(cfg.profile.image_mode, node, f"{ns}/{image.name}", q[image.name],
+                                     records=records, topic_statistics=budget["image"])
         # Retried with one request id until the deadline; the companion runs each call once (services.py).
         self.commands = node.create_client(f"{ns}/{COMMAND_SERVICE}", Command, CommandResult, retry=command_retry(node))
         presence = wired("presence", UP)
@@ -160,7 +149,7 @@ class DroneView:
     def lost_pct(self, stream: str) -> float:
         """Share of ``stream`` that never arrived (NaN before there is anything to say). Strips are numbered
         frame * MAX_SLICES + index (FEC: one per frame), so their sequence numbers leave gaps no strip fills:
-        theirs is the frame keeper's count of strips expected against strips that arrived."""
+        theirs is the image receiver's count of strips expected against strips that arrived."""
         if stream == "image_strip":
             k = self.frames
             return 100.0 * (1 - k.strips_fresh / k.strips_expected) if k.strips_expected else float("nan")
@@ -195,42 +184,11 @@ class DroneView:
         else:
             log.warning("%s: %s (%s) -> %s", self.id, msg.kind, msg.detail, msg.action or "no action")
 
-    def _on_slice(self, s: ImageSlice, info: Any) -> None:
-        # Executor: file the slice, never decode it here (see gcs/frames.py).
-        complete = self.frames.complete
-        if self.frames.add(s, info):
-            self.streams["image"].record(s.frame, s.header.stamp, info.received_stamp_ns)
-            self.image.last_age_ms = info.age_ms
-        if 0 <= s.index < MAX_SLICES:
-            self.streams["image_strip"].record(s.frame * MAX_SLICES + s.index, s.header.stamp,
-                                               info.received_stamp_ns)
-        if self.frames.complete > complete:
-            self.streams["image_whole"].record(s.frame, s.header.stamp, info.received_stamp_ns)
-        self.image.frames, self.image.complete = self.frames.frames, self.frames.complete
-
-    def _on_share(self, s: ImageShare, info: Any) -> None:
-        # Executor: file the share; a rebuilt frame is kept as JPEG and decoded only when looked at.
-        got = self.fec.add(s, info.received_stamp_ns, info)
-        if got is None:
-            return
-        frame, now = got.info.frame, info.received_stamp_ns
-        # A rebuilt FEC frame is whole and fresh: one "strip" per frame, numbered as the companion
-        # numbers what it sent (frame * MAX_SLICES).
-        for name in ("image", "image_whole"):
-            self.streams[name].record(frame, got.stamp, now)
-        self.streams["image_strip"].record(frame * MAX_SLICES, got.stamp, now)
-        img = Image(got.header, got.height, got.width, "jpeg", 0, 0, got.jpeg)
-        self.frames.add_image(img, got.info)
-        self.image.frames, self.image.complete = self.frames.frames, self.frames.complete
-        self.image.last_age_ms = got.info.age_ms
-
-    def _on_raw_image(self, img: Image, info: Any) -> None:
-        self.streams["image"].record(info.seq, info.source_stamp_ns, info.received_stamp_ns)
-        self.frames.add_image(img, FrameInfo(info.publisher_id, img.header.seq, info.source_stamp_ns,
-                                             info.received_stamp_ns, info.type_name, frame=info.seq,
-                                             slices_received=1, slice_count=1))
-        self.image.frames, self.image.complete = self.frames.frames, self.frames.complete
-        self.image.last_age_ms = info.age_ms
+    @property
+    def image(self) -> ImageStats:
+        """The image figures the dashboard and the summary show (the receiver's counters; nothing decoded)."""
+        k = self.frames
+        return ImageStats(k.frames, k.complete, k.last_age_ms)
 
     @property
     def latest_frame(self) -> np.ndarray | None:

@@ -9,7 +9,7 @@ Images are shown as honestly as the picture is: frames shown per second, whole f
 frames per second (every strip of the frame arrived), the percentage of strips that arrived
 (frames skipped entirely included; FEC and whole-image modes count frames) and the age of
 the oldest strip in the latest picture (a patched strip is as old as the frame it came from).
-All from ``gcs/frames.FrameKeeper``'s counters: nothing is decoded to show them.
+All from the image receiver's counters (``zenoh_robot.image``): nothing is decoded to show them.
 """
 from __future__ import annotations
 

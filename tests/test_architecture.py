@@ -202,6 +202,40 @@ def test_the_contract_imports_only_the_library() -> None:
                                          "zenoh_robot.tools")) == []
 
 
+def test_no_message_imports_an_image_transport() -> None:
+    # Image's JPEG decode comes from the codec the image modes use too (zenoh_robot.jpeg):
+    # transports depend on messages, never the other way.
+    assert _offenders("zenoh_robot.msgs", ("zenoh_robot.image",)) == []
+
+
+def _image_mode_switches(prefix: str) -> list[str]:
+    """``... image_mode == "sliced"`` and the like: a comparison of an image mode with a string."""
+    found = []
+    for name, path in MODULES.items():
+        if name != prefix and not name.startswith(prefix + "."):
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if not isinstance(node, ast.Compare):
+                continue
+            sides = [node.left, *node.comparators]
+            names_mode = any(isinstance(s, (ast.Name, ast.Attribute)) and "image_mode" in ast.unparse(s) for s in sides)
+            strings = any(isinstance(c, ast.Constant) and isinstance(c.value, str) for s in sides for c in ast.walk(s))
+            if names_mode and strings:
+                found.append(f"{name}:{node.lineno}: {ast.unparse(node)}")
+    return found
+
+
+def test_the_apps_get_image_modes_from_the_registry() -> None:
+    """The companion and the GCS ask zenoh_robot.image for a mode's sender and receiver: they import
+    no mode's own module and compare no image mode with a string."""
+    assert _image_mode_switches("drone_lab"), "the scan sees a switch (the lab reports by mode)"
+    modes = tuple(f"zenoh_robot.image.{m}" for m in ("base", "whole", "sliced", "fec"))
+    for app in ("companion", "gcs"):
+        assert any("zenoh_robot.image" in names for names in _all_imports(app).values()), app
+        assert _offenders(app, modes) == []
+        assert _image_mode_switches(app) == []
+
+
 def test_nothing_outside_the_library_imports_its_private_modules() -> None:
     bad = []
     for prefix in ("zenoh_robot.tools", *DRONE_WING):

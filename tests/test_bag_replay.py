@@ -20,7 +20,7 @@ from test_bag import CLI, _cfg_session, talker  # noqa: E402,F401  (talker: the 
 from drone_contract.messages import VehicleState  # noqa: E402
 from zenoh_robot import Node, msgs, qos  # noqa: E402
 from zenoh_robot.graph import EndpointType, decode_qos  # noqa: E402
-from zenoh_robot.image_transport import ImagePublisher  # noqa: E402
+from zenoh_robot.image.sliced import ImagePublisher  # noqa: E402
 from zenoh_robot.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from zenoh_robot.tools.bag.info import Record, iter_records  # noqa: E402
 from zenoh_robot.tools.bag.play import BagPlayer  # noqa: E402
@@ -238,7 +238,7 @@ def test_bytes_that_are_no_envelope_are_counted_and_the_recording_goes_on(ns, tm
 def test_fec_image_shares_become_whole_jpeg_frames_in_the_log(ns, tmp_path):
     import zfec  # noqa: F401  (a dev dependency: missing is a failure)
 
-    from zenoh_robot.image_fec import FecImagePublisher
+    from zenoh_robot.image.fec import FecImagePublisher
 
     listen, connect = linked_configs()
     path = tmp_path / "fec.mcap"

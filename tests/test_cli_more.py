@@ -104,7 +104,7 @@ IMAGES = r"""
 import sys, time
 import numpy as np
 from zenoh_robot import Node
-from zenoh_robot.image_transport import ImagePublisher
+from zenoh_robot.image.sliced import ImagePublisher
 with Node("camera", namespace=sys.argv[1]) as n:
     cam = ImagePublisher(n, "image", slice_rows=16)
     rng = np.random.default_rng(1)

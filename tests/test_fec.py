@@ -8,7 +8,7 @@ import pytest
 from conftest import linked_configs  # noqa: E402
 
 from zenoh_robot import Node  # noqa: E402
-from zenoh_robot.image_fec import (  # noqa: E402
+from zenoh_robot.image.fec import (  # noqa: E402
     FecAssembler,
     FecImagePublisher,
     FecImageSubscription,

@@ -19,7 +19,7 @@ from foxglove_client import watch
 
 from drone_contract.messages import VehicleState  # noqa: E402
 from zenoh_robot import Node, msgs, qos  # noqa: E402
-from zenoh_robot.image_transport import ImagePublisher  # noqa: E402
+from zenoh_robot.image.sliced import ImagePublisher  # noqa: E402
 
 
 def _publish(node: Node, stop: threading.Event) -> None:

@@ -278,7 +278,8 @@ def test_validation_error_names_the_path() -> None:
 def test_the_image_viewer_survives_hostile_slices_and_a_forged_frame_number(ns: str) -> None:
     from dataclasses import replace
 
-    from zenoh_robot.image_transport import ImagePublisher, ImageSlice, ImageSubscription, encode_strip
+    from zenoh_robot.image.sliced import ImagePublisher, ImageSlice, ImageSubscription
+    from zenoh_robot.jpeg import encode_jpeg as encode_strip
     from zenoh_robot.qos import IMAGE
     with linked_nodes(ns) as (a, b):
         frames: list = []

@@ -9,7 +9,8 @@ import pytest
 from conftest import linked_configs
 
 from zenoh_robot import Node
-from zenoh_robot.image_transport import FrameInfo, ImagePublisher, ImageSlice, ImageSubscription
+from zenoh_robot.image import FrameInfo
+from zenoh_robot.image.sliced import ImagePublisher, ImageSlice, ImageSubscription
 from zenoh_robot.msgs import Header, Image
 from zenoh_robot.qos import IMAGE
 from zenoh_robot.subscription import MessageInfo
@@ -81,7 +82,7 @@ def test_a_lost_slice_costs_a_strip_and_old_frames_are_dropped(ns: str) -> None:
 
 
 def test_a_whole_frame_as_one_jpeg_image_decodes() -> None:
-    from zenoh_robot.image_transport import encode_strip
+    from zenoh_robot.jpeg import encode_jpeg as encode_strip
     from zenoh_robot.msgs import Image
     frame = _frame(3)
     img = Image(height=240, width=320, encoding="jpeg", data=encode_strip(frame, 80))
@@ -138,7 +139,7 @@ class _Info:
 
 def test_gcs_frame_keeper_shows_newest_strips_and_honest_figures() -> None:
     """The GCS's FrameKeeper (decode off the executor): patched strips, fresh-strip share, oldest age."""
-    from gcs.frames import FrameKeeper
+    from zenoh_robot.image.sliced import SliceReceiver as FrameKeeper
     keeper = FrameKeeper()
     s0, s1, s3 = _slices(0), _slices(1), _slices(3)
     count = len(s0)
@@ -187,7 +188,7 @@ def test_dashboard_shows_whole_fresh_frames_fresh_strips_and_the_oldest_strip() 
 
     from gcs.app import ImageStats
     from gcs.dashboard import RateMeter, image_figures, stream_table
-    from gcs.frames import FrameKeeper
+    from zenoh_robot.image.sliced import SliceReceiver as FrameKeeper
     keeper = FrameKeeper()
     drone = SimpleNamespace(id="uav1", frames=keeper, image=ImageStats(), streams={}, setpoints_sent=0)
     rates = RateMeter()

@@ -34,7 +34,7 @@ TOPICS = ("setpoint", "sensor", "image")
 FIELDS = ("delivered_pct", "age_avg_ms", "age_p50_ms", "age_p99_ms", "age_max_ms", "period_avg_ms",
           "period_max_ms", "longest_gap_ms", "gap_p99_ms", "gaps_over_500ms", "rate_hz", "sent", "unique")
 PROFILE_ORDER = ("reliable", "best_effort", "resilient")
-MAX_SLICES = 4096      # image_strip records number strips frame * MAX_SLICES + index (image_transport.MAX_SLICES)
+MAX_SLICES = 4096      # image_strip records number strips frame * MAX_SLICES + index (zenoh_robot.image.MAX_SLICES)
 
 # The reference (ROS 2 Foxy + Fast DDS over Wi-Fi with netem), setpoint mean age by loss.
 THESIS_SETPOINT = {

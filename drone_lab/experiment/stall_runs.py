@@ -61,7 +61,7 @@ def peer(role: str, iface: str, seconds: float) -> None:
 
     from drone_contract.streams import stream_profile
     from zenoh_robot import Node
-    from zenoh_robot.image_fec import FecImagePublisher, FecImageSubscription
+    from zenoh_robot.image.fec import FecImagePublisher, FecImageSubscription
     from zenoh_robot.loss_feedback import LossMonitor, apply_repeat_plan
     from zenoh_robot.msgs import Header, Setpoint
     from zenoh_robot.qos_mapping import declare_publisher

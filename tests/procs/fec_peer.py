@@ -9,7 +9,7 @@ import time
 import numpy as np
 
 from zenoh_robot import Node, SessionConfig
-from zenoh_robot.image_fec import FecImagePublisher, FecImageSubscription
+from zenoh_robot.image.fec import FecImagePublisher, FecImageSubscription
 from zenoh_robot.qos import IMAGE
 
 p = argparse.ArgumentParser()

@@ -5,6 +5,7 @@ import time
 
 import numpy as np
 
+from ..jpeg import decode_jpeg
 from ..message import Message, array, message, ros_field
 
 __all__ = [
@@ -95,8 +96,7 @@ class Image(Message):
     def to_array(self) -> np.ndarray:
         """A read-only numpy view over ``data`` (no copy); decodes JPEG when encoding is jpeg."""
         if self.encoding == "jpeg":
-            from ..image_transport import decode_strip  # lazy: Pillow only when JPEG is used
-            return decode_strip(self.data)
+            return decode_jpeg(self.data)
         channels = self._CHANNELS.get(self.encoding)
         if channels is None:
             raise ValueError(f"Image.to_array: unsupported encoding {self.encoding!r}")

@@ -11,10 +11,10 @@ layer never imports the drone packages:
 - ``zenoh_robot/Setpoint``, ``zenoh_robot/DroneSetpoint`` (any ``*Setpoint`` with x, y, z) positions:
   ``<topic>/pose`` PoseInFrame;
 - ``sensor_msgs/Image``: ``<topic>/image`` RawImage (CompressedImage when it holds a JPEG);
-- ``zenoh_robot/ImageSlice`` (the resilient JPEG slices): frames reassembled by the
-  library's ImageSubscription logic, re-encoded once as ``<topic>/image`` CompressedImage;
-- ``zenoh_robot/ImageShare`` (FEC images, ``image_fec``): each frame's JPEG rebuilt from its
-  shares by the library's FecAssembler, as it was sent, as ``<topic>/image`` CompressedImage.
+- ``zenoh_robot/ImageSlice`` (the sliced image mode's JPEG strips): frames reassembled by the
+  library's receiver (``zenoh_robot.image.sliced``), re-encoded once as ``<topic>/image`` CompressedImage;
+- ``zenoh_robot/ImageShare`` (the fec image mode, ``zenoh_robot.image.fec``): each frame's JPEG rebuilt
+  from its shares by the library's FecAssembler, as it was sent, as ``<topic>/image`` CompressedImage.
 
 The views are protobuf messages from foxglove-sdk (schema and encoder in one), used
 both by the MCAP recorder and by the live WebSocket bridge.
@@ -88,7 +88,7 @@ def jsonable(value: Any) -> Any:
 
 def local_type(type_name: str, type_hash: str) -> Any | None:
     """The registered class for this name and hash, or None (unknown here, or another version)."""
-    from zenoh_robot import image_fec, msgs  # noqa: F401  registers the standard types (and FEC shares)
+    from zenoh_robot import image, msgs  # noqa: F401  registers the standard types (and image pieces)
     try:
         cls = lookup(type_name)
     except KeyError:
@@ -196,21 +196,14 @@ def image_views(topic: str, msg: Any, stamp_ns: int) -> list[View]:
                                             data=bytes(msg.data)))]
 
 
-class _NodeShim:
-    """Just enough of a Node for ImageSubscription to be fed slices by hand."""
-
-    def create_subscription(self, *args: Any, **kwargs: Any) -> None:
-        return None
-
-
 class SliceFrames:
     """ImageSlice samples -> whole frames as one JPEG each (the library's reassembly, reused)."""
 
     def __init__(self, quality: int = 80) -> None:
-        from zenoh_robot.image_transport import ImageSubscription
+        from zenoh_robot.image.sliced import SliceReceiver
         self.quality = quality
         self.frames: list[tuple[int, bytes]] = []
-        self._assembler = ImageSubscription(_NodeShim(), "", self._on_frame)
+        self._assembler = SliceReceiver(callback=self._on_frame)   # no node: fed by hand
 
     def _on_frame(self, img: Any, info: Any) -> None:
         from PIL import Image as PILImage
@@ -219,7 +212,7 @@ class SliceFrames:
         self.frames.append((img.header.stamp, buf.getvalue()))
 
     def add(self, msg: Any) -> list[tuple[int, bytes]]:
-        self._assembler._on_slice(msg)
+        self._assembler.add(msg)
         out, self.frames = self.frames, []
         return out
 
@@ -231,7 +224,7 @@ class ViewMaker:
 
     def __init__(self) -> None:
         self._slices: dict[str, SliceFrames] = {}
-        self._shares: dict[str, Any] = {}     # topic -> image_fec.FecAssembler
+        self._shares: dict[str, Any] = {}     # topic -> zenoh_robot.image.fec.FecAssembler
 
     def views(self, topic: str, type_name: str, decoded: Decoded, stamp_ns: int) -> list[View]:
         data = decoded.data
@@ -272,7 +265,7 @@ BULK_TYPES = frozenset({"zenoh_robot/ImageSlice", "zenoh_robot/ImageShare"})
 def _share_views_of(assemblers: dict[str, Any], limit: int, topic: str, msg: Any) -> list[View]:
     from foxglove.messages import CompressedImage
 
-    from zenoh_robot.image_fec import FecAssembler
+    from zenoh_robot.image.fec import FecAssembler
     assembler = assemblers.get(topic)
     if assembler is None:
         if len(assemblers) >= limit:

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from zenoh_robot.image_transport import encode_strip
+from zenoh_robot.jpeg import encode_jpeg
 from zenoh_robot.message import Message
 from zenoh_robot.msgs import Header, Image, SensorCombined, Setpoint
 
@@ -21,5 +21,5 @@ def make(name: str) -> Message:
     if name == "image":
         return Image.from_array(frame)
     if name == "jpeg":
-        return Image(Header(), 240, 320, "jpeg", 0, 0, encode_strip(frame, 80))
+        return Image(Header(), 240, 320, "jpeg", 0, 0, encode_jpeg(frame, 80))
     raise ValueError(f"unknown payload {name!r}; payloads: {', '.join(PAYLOADS)}")

@@ -1,6 +1,6 @@
-"""Images that arrive whole or not at all: one JPEG per frame, cut into shares plus parity.
+"""The fec mode: images that arrive whole or not at all, one JPEG per frame in shares plus parity.
 
-Cutting a frame into independent JPEG strips (``image_transport``) turns one lost packet
+Cutting a frame into independent JPEG strips (the sliced mode) turns one lost packet
 into one stale strip, but a frame then depends on ~8 packets and is whole only if all of
 them arrive: at 30 % loss ~1 % of frames are. Here a frame is one JPEG (smaller than the
 strips' sum: every strip repeats the JPEG headers), split into ``k`` MTU-sized shares,
@@ -18,12 +18,14 @@ Usage::
     pub = FecImagePublisher(node, "image", qos.IMAGE, loss=0.1)
     pub.publish(frame)                                   # HxW or HxWx3 uint8
     pub.get_subscription_count()                         # pub.publisher: the underlying Publisher
-    FecImageSubscription(node, "image", on_image)        # on_image(Image, FecFrameInfo)
+    view = FecReceiver(node, "image")                    # view.latest() -> (ndarray, FecFrameInfo)
+    FecImageSubscription(node, "image", on_image)        # or on_image(Image, FecFrameInfo), every frame
 
-As ``image_transport``: the user's ``Image.header`` arrives unchanged, the frame counter travels
+As the sliced mode: the user's ``Image.header`` arrives unchanged, the frame counter travels
 in ``ImageShare.frame``, and ``FecFrameInfo`` is a ``FrameInfo`` (so a ``MessageInfo``: seq is the
 user's header.seq) with ``shares_received``/``shares_needed``/``shares_sent``; a FEC frame is
-whole or not shown, so ``complete`` always, ``patched`` never, ``fresh_fraction`` 1.
+whole or not shown, so ``complete`` always, ``patched`` never, ``fresh_fraction`` 1. The shares
+are filed and a frame's JPEG rebuilt on the executor (no pixels); it is decoded when looked at.
 """
 from __future__ import annotations
 
@@ -36,17 +38,31 @@ from typing import Any
 
 import numpy as np
 
-from .image_transport import IMAGE_TYPE, FrameInfo, encode_strip, frame_array, publish_paced
-from .message import Message, message, ros_field
-from .msgs import Header, Image
-from .qos import IMAGE, QoSProfile
+from ..jpeg import decode_jpeg, encode_jpeg
+from ..message import Message, message, ros_field
+from ..msgs import Header, Image
+from ..qos import IMAGE, QoSProfile
+from .base import (
+    IMAGE_TYPE,
+    MAX_SLICES,
+    FrameInfo,
+    FrameRecords,
+    ImageReceiver,
+    ImageSender,
+    LatestFrame,
+    SentFrame,
+    check_quality,
+    frame_array,
+    frames_skipped,
+    publish_paced,
+    sample_stamps,
+)
 
 DEFAULT_SHARE_BYTES = 1100    # one UDP datagram with Zenoh's headers at a 1500-byte MTU
 MAX_SHARES = 256              # zfec's limit on n
 MAX_SHARE_BYTES = 64 << 10    # receive-side bound, checked before anything is stored
 MAX_JPEG_BYTES = 16 << 20
 MAX_SIDE = 16384
-STALE_FRAMES_TO_RESTART = 2   # as image_transport: older frames that keep coming are a restarted stream
 LOSS_WINDOW_FRAMES = 60       # frames over which the receiver measures share loss
 
 
@@ -131,18 +147,15 @@ def join(k: int, n: int, size: int, shares: dict[int, bytes]) -> bytes:
     return blob[:size]
 
 
-def encode_jpeg(arr: np.ndarray, quality: int) -> bytes:
-    return encode_strip(arr, quality)
-
-
-class FecImagePublisher:
+class FecImagePublisher(ImageSender):
     """Publishes frames as one JPEG each, in k shares + parity sized from the loss."""
+
+    follows_loss = True   # parity is sized from set_loss's figure
 
     def __init__(self, node: Any, topic: str, qos: QoSProfile = IMAGE, *, quality: int = 70,
                  share_bytes: int = DEFAULT_SHARE_BYTES, loss: float = 0.1, target: float = 0.99,
                  max_expansion: float = 3.0, pace_s: float = 0.0015) -> None:
-        if not 1 <= quality <= 95:
-            raise ValueError(f"JPEG quality must be 1..95, got {quality}")
+        check_quality(quality)
         if not 64 <= share_bytes <= MAX_SHARE_BYTES:
             raise ValueError(f"share_bytes must be 64..{MAX_SHARE_BYTES}")
         self.quality = quality
@@ -160,21 +173,18 @@ class FecImagePublisher:
         self.last_n = 0
         self.shares_sent = 0
 
-    def set_loss(self, loss: float) -> None:
-        """The packet loss to size parity for (0..1): a configured value or the receiver's feedback."""
-        self.loss = min(max(float(loss), 0.0), 0.99)
-
-    def get_subscription_count(self) -> int:
-        """Subscriptions matched to the share publisher (as rclpy's Publisher.get_subscription_count)."""
-        return int(self.publisher.get_subscription_count())
-
     def publish(self, frame: Image | np.ndarray, header: Header | None = None) -> int:
         """Send one frame; returns its frame number (the shares' ``frame``)."""
+        return self.send(frame, header).frame
+
+    def send(self, frame: Image | np.ndarray, header: Header | None = None) -> SentFrame:
         shares = self.encode(frame, header)
         publish_paced(self.publisher, shares, self.pace_s)
         self.shares_sent += len(shares)
         self.frames += 1
-        return shares[0].frame
+        n = shares[0].frame
+        # A frame is whole or absent: one piece a frame, numbered as a sliced frame's first strip.
+        return SentFrame(n, shares[0].header.stamp, (n * MAX_SLICES,))
 
     def encode(self, frame: Image | np.ndarray, header: Header | None = None) -> list[ImageShare]:
         arr, header = frame_array(frame, header, "FecImagePublisher")
@@ -208,7 +218,6 @@ class FecAssembler:
     """
 
     def __init__(self) -> None:
-        self._frame = -1
         self._shares: dict[int, bytes] = {}
         self._first: ImageShare | None = None
         self._source_ns = 0               # the current frame's first share: its publication stamp
@@ -216,8 +225,7 @@ class FecAssembler:
         self._done = True
         self._seen = 0                    # shares of the current frame seen, rebuilt or not
         self._window: deque[tuple[int, int]] = deque(maxlen=LOSS_WINDOW_FRAMES)   # (seen, sent)
-        self._stale_run = 0
-        self._stale_last = -1
+        self._order = LatestFrame()
         self.frames_rebuilt = 0
         self.frames_seen = 0              # frames of which at least one share arrived
         self.frames_missed = 0            # frame numbers skipped entirely
@@ -252,19 +260,15 @@ class FecAssembler:
             self.bad_shares += 1
             return None
         frame = s.frame
-        if frame < self._frame:
-            if frame > self._stale_last:
-                self._stale_run += 1
-                self._stale_last = frame
-            if self._stale_run < STALE_FRAMES_TO_RESTART:
-                self.stale_shares += 1
-                return None
-        if frame != self._frame:
+        if self._order.is_stale(frame):
+            self.stale_shares += 1
+            return None
+        if frame != self._order.frame:
             self._close(frame)
-            self._frame, self._first, self._shares, self._done, self._seen = frame, s, {}, False, 0
-            self._source_ns = int(getattr(info, "source_stamp_ns", 0)) or s.header.stamp
-            self._publisher_id = int(getattr(info, "publisher_id", 0))
-            self._stale_run, self._stale_last = 0, -1
+            self._order.begin(frame)
+            self._first, self._shares, self._done, self._seen = s, {}, False, 0
+            publisher_id, source, _ = sample_stamps(info)
+            self._source_ns, self._publisher_id = source or s.header.stamp, publisher_id
             self.frames_seen += 1
         first = self._first
         assert first is not None
@@ -301,34 +305,59 @@ class FecAssembler:
         if self._first is not None:
             n = self._first.n
             self._window.append((self._seen, n))
-            skipped = next_frame - self._frame - 1
+            skipped = next_frame - self._order.frame - 1
             if 0 < skipped <= LOSS_WINDOW_FRAMES:   # a forged jump must not flood the window
                 self.frames_missed += skipped
                 self._window.extend([(0, n)] * skipped)
 
 
-class FecImageSubscription:
-    """Rebuilds frames from shares; ``callback(Image, FecFrameInfo)`` with each whole frame (decoded)."""
+class FecReceiver(ImageReceiver):
+    """Shares in; shows the newest frame rebuilt (its JPEG, as sent), decoded when looked at."""
+
+    message_type = ImageShare
+    burst = 512     # a frame's shares and parity come in a burst: the queue holds a frame's worth
+
+    def __init__(self, node: Any = None, topic: str = "", qos: QoSProfile = IMAGE, *,
+                 records: FrameRecords | None = None,
+                 callback: Callable[[Image, FrameInfo], None] | None = None,
+                 topic_statistics: Any = None) -> None:
+        self.assembler = FecAssembler()
+        self._last_shown = -1
+        super().__init__(node, topic, qos, records=records, callback=callback, topic_statistics=topic_statistics)
+
+    def _file(self, s: ImageShare, info: Any) -> None:
+        _, _, received = sample_stamps(info)
+        got = self.assembler.add(s, received, info)   # the assembler applies the stale rule
+        if got is None:
+            return
+        frame = got.info.frame
+        # A rebuilt frame is whole and fresh: one "strip" a frame; the frames between the last one
+        # shown and this one, seen or not, were never shown.
+        self.strips_expected += frames_skipped(self._last_shown, frame) + 1
+        self.strips_fresh += 1
+        self.complete += 1
+        self._last_shown = frame
+        self._begin(frame, got.stamp, received, got.info.age_ms)
+        self.records.whole(frame, got.stamp, received)
+        self.records.piece(frame * MAX_SLICES, got.stamp, received)
+        self._show(got, got.info, got.header)
+
+    def _decode(self, got: RebuiltFrame) -> np.ndarray | None:
+        try:
+            arr = decode_jpeg(got.jpeg, max_width=got.width, max_height=got.height)
+            if arr.shape[:2] != (got.height, got.width) or (arr.ndim == 2) != (got.encoding == "mono8"):
+                raise ValueError(f"JPEG of {arr.shape} in a {got.width}x{got.height} {got.encoding} frame")
+        except Exception:   # a damaged or hostile JPEG: counted, never raised into the viewer
+            self.assembler.decode_errors += 1
+            return None
+        return arr
+
+
+class FecImageSubscription(FecReceiver):
+    """``callback(Image, FecFrameInfo)`` with every frame rebuilt, decoded on the executor (as an
+    rclpy subscription); a viewer that shows the newest frame wants :class:`FecReceiver` instead."""
 
     def __init__(self, node: Any, topic: str, callback: Callable[[Image, FecFrameInfo], None],
                  qos: QoSProfile = IMAGE) -> None:
-        self.callback = callback
-        self.assembler = FecAssembler()
-        # Two required arguments: the subscription passes each share's MessageInfo (publisher, stamps).
-        self.sub = node.create_subscription(ImageShare, topic, lambda s, info: self._on_share(s, info),
-                                            qos.replace(depth=max(qos.depth, 512)))
-
-    def _on_share(self, s: ImageShare, info: Any = None) -> None:
-        got = self.assembler.add(s, info=info)
-        if got is None:
-            return
-        try:
-            img = Image(got.header, got.height, got.width, "jpeg", 0, 0, got.jpeg)
-            arr = img.to_array()
-            if arr.shape[:2] != (got.height, got.width):
-                raise ValueError(f"JPEG of {arr.shape} in a {got.width}x{got.height} frame")
-        except Exception:
-            self.assembler.decode_errors += 1
-            return
-        got.info.received_stamp_ns = time.time_ns()    # delivered now, after the decode
-        self.callback(Image.from_array(arr, header=got.header), got.info)
+        # The info a FecReceiver gives is always a FecFrameInfo.
+        super().__init__(node, topic, qos, callback=callback)   # type: ignore[arg-type]
