@@ -74,6 +74,7 @@ STREAM_CPU_BUDGET_PCT = {"sensor": 2.0, "state": 0.5, "image": 2.0}
 # default, never under its 1 s setpoint deadline), so a GCS that no longer streams (waiting for a landing)
 # keeps control where its liveliness token does not reach the drone (UDP multicast carries none).
 PRESENCE_PERIOD_S = 0.5
+ATTACK_SHOWN_S = 30.0   # a drone's rising refusal count keeps it marked under attack this long
 
 
 @dataclass
@@ -102,6 +103,7 @@ class DroneView:
         self.setpoints_sent = 0
         self.state: VehicleState | None = None
         self.state_at = 0.0
+        self.refusals_at = -math.inf
         self.events: list[FailsafeEvent] = []
         self.failures: list[str] = []     # failsafes and refusals addressed to this GCS (bounded)
         self.events_seen = 0
@@ -140,6 +142,8 @@ class DroneView:
     def _on_state(self, msg: VehicleState, info: Any) -> None:
         self.streams["state"].record(info.seq, info.source_stamp_ns, info.received_stamp_ns)
         previous_at = self.state_at
+        if self.state is not None and msg.link_refused > self.state.link_refused:
+            self.refusals_at = time.monotonic()     # the drone is refusing sealed samples now: shown (dashboard)
         self.state, self.state_at = msg, time.monotonic()
         if self.gcs.downlink is not None:   # a join (or rejoin): ask for this GCS's downlink rates
             self.gcs.downlink.on_state(self.id, previous_at, self.state_at, float(msg.sensor_rate_requested_hz),
@@ -154,6 +158,12 @@ class DroneView:
             k = self.frames
             return 100.0 * (1 - k.strips_fresh / k.strips_expected) if k.strips_expected else float("nan")
         return self.streams[stream].lost_pct()
+
+    @property
+    def under_attack(self) -> bool:
+        """The drone refused sealed samples or calls (forged, replayed, recorded before a restart) within
+        the last ``ATTACK_SHOWN_S``: what its state's ``link_refused`` total says, as it rises."""
+        return time.monotonic() - self.refusals_at < ATTACK_SHOWN_S
 
     @property
     def in_control(self) -> bool:

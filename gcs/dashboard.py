@@ -127,6 +127,8 @@ def _drone_row(table: Table, d: DroneView, f: dict[str, float]) -> None:
     pos = ",".join(f"{v:5.1f}" for v in s.position)
     batt = "-" if math.isnan(s.battery_remaining) else f"{s.battery_remaining * 100:3.0f}%"
     link = ("ok" if d.link_age < 2.0 else f"silent {d.link_age:.0f}s") if s.connected else "PX4 DOWN"
+    if d.under_attack:      # the drone refuses forged or replayed sealed samples: someone is trying
+        link = f"ATTACK ({s.link_refused} refused)"
     control = "this GCS" if d.in_control else (s.controller or "none")
     table.add_row(d.id, s.mode, "yes" if s.armed else "no", pos, batt, link, s.offboard_state, control[:16],
                   _hz(f["setpoint"]), _hz(f["state"]), sensor_rate(s, f["sensor"]), _hz(f["frames"]),
@@ -165,5 +167,7 @@ def plain_lines(gcs: Gcs, rates: RateMeter) -> list[str]:
             parts.append(img)
         if s is not None and s.failsafe:
             parts.append(f"FAILSAFE {s.failsafe}")
+        if s is not None and d.under_attack:
+            parts.append(f"UNDER ATTACK: {s.link_refused} sealed samples refused (see its link_refused events)")
         lines.append(", ".join(parts))
     return lines

@@ -8,6 +8,8 @@ from typing import Any
 
 from rich.console import Console
 
+from drone_contract.link_protection import link_refusals
+
 from .app import Gcs
 
 
@@ -16,6 +18,8 @@ def summarize(gcs: Gcs, profile: str) -> dict[str, Any]:
                            "drones": {}}
     # Late copies left together and could be lost together: a starved repeater, not the link.
     out["repeater"] = gcs.node.repeater_stats()
+    # Sealed telemetry this GCS refused (forged, replayed, an earlier start of its drone): None unsealed.
+    out["link_refused"] = link_refusals(gcs.node.wire)
     # The rates asked of each drone (None: its own): received rates are judged against these.
     out["downlink_asked"] = {"sensor_rate_hz": gcs.config.sensor_rate_hz, "camera_rate_hz": gcs.config.camera_rate_hz}
     for d in gcs.drones.values():
