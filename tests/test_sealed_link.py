@@ -436,7 +436,8 @@ def test_revoked_key_is_refused_within_the_refresh_bound(transport: str, tmp_pat
         secret, kid = _key(fleet, "gcs2", "gcs2", "uav1")
         epoch = os.urandom(8)
         for counter in range(1, 6):
-            s.put("uav1/setpoint", _seal(secret, kid, "uav1/setpoint", _setpoint("gcs2"), epoch, counter, s.stamp()), times=1)
+            s.put("uav1/setpoint", _seal(secret, kid, "uav1/setpoint", _setpoint("gcs2"), epoch, counter, s.stamp()),
+                  times=1)
         assert wait_for(lambda: any(sp.client_id == "gcs2" for sp in s.setpoints), 5.0)
         assert keys.revoke_link_keys(tmp_path, ["gcs2"]) == [kid]
         revoked_at = time.monotonic()
@@ -445,7 +446,8 @@ def test_revoked_key_is_refused_within_the_refresh_bound(transport: str, tmp_pat
         counter = 5
         while s.drone.wire.snapshot()["revoked"] == before and time.monotonic() - revoked_at < 5:  # type: ignore[attr-defined]
             counter += 1
-            s.put("uav1/setpoint", _seal(secret, kid, "uav1/setpoint", _setpoint("gcs2"), epoch, counter, s.stamp()), times=1)
+            s.put("uav1/setpoint", _seal(secret, kid, "uav1/setpoint", _setpoint("gcs2"), epoch, counter, s.stamp()),
+                  times=1)
             time.sleep(0.05)
         took = time.monotonic() - revoked_at
         assert s.drone.wire.snapshot()["revoked"] > before, "the revoked key was never refused"  # type: ignore[attr-defined]
