@@ -41,6 +41,76 @@ def out(**kw):   # subscribers call it from their own threads: one whole line at
 """
 
 
+# -- rmw_zenoh's reading of a token (rmw_zenoh_cpp/src/detail/liveliness_utils.cpp, parse_token) ------------
+# Written from rmw_zenoh's source, not from zenoh_robot's reader: fields split on '/', each demangled by
+# replacing every '%' with '/' and nothing else. No leading slash is added (zenoh-ros2-sdk's demangle_name
+# adds one; rmw_zenoh does not), so a token that drops it names another service, as it would in ROS 2.
+RMW_FIELDS = ("admin_space", "domain_id", "zid", "nid", "id", "entity", "enclave", "namespace", "node_name",
+              "name", "type", "type_hash", "qos")
+
+
+def rmw_demangle(text: str) -> str:
+    return text.replace("%", "/")
+
+
+def rmw_zenoh_entity(key: str) -> dict[str, str] | None:
+    """A token as rmw_zenoh's graph cache records it; None for what rmw_zenoh would refuse."""
+    parts = key.split("/")
+    if parts[0] != "@ros2_lv" or len(parts) < 9:
+        return None
+    if parts[5] == "NN":
+        if len(parts) != 9:
+            return None
+    elif parts[5] not in ("MP", "MS", "SS", "SC") or len(parts) != 13:
+        return None
+    entity = dict(zip(RMW_FIELDS, parts, strict=False))   # a node token has no name, type, hash or QoS
+    for field in ("enclave", "namespace", "node_name", "name", "type", "type_hash"):
+        if field in entity:
+            entity[field] = rmw_demangle(entity[field])
+    return entity
+
+
+def rmw_zenoh_service_available(keys: Iterable[str], fqn: str, dds_type: str, type_hash: str) -> bool:
+    """rmw_service_server_is_available as rmw_zenoh's graph answers it: an SS token whose demangled name
+    is the client's fully qualified name (rcl always asks with one), of the same type and hash."""
+    for key in keys:
+        e = rmw_zenoh_entity(key)
+        if e and e["entity"] == "SS" and e["name"] == fqn and e["type"] == dds_type and e["type_hash"] == type_hash:
+            return True
+    return False
+
+
+class RmwZenohGraph:
+    """rmw_zenoh's graph cache in miniature, on a plain Zenoh session: a liveliness subscriber with history
+    on ``@ros2_lv/<domain>/**`` (rmw_zenoh: an initial liveliness get, then the subscriber), each token
+    kept as :func:`rmw_zenoh_entity` reads it."""
+
+    def __init__(self, session: zenoh.Session, domain: int) -> None:
+        self._lock = threading.Lock()
+        self._entities: dict[str, dict[str, str]] = {}
+        self._sub = session.liveliness().declare_subscriber(f"@ros2_lv/{domain}/**", self._on_token, history=True)
+
+    def _on_token(self, sample: Any) -> None:
+        key = str(sample.key_expr)
+        entity = rmw_zenoh_entity(key)
+        with self._lock:
+            if sample.kind == zenoh.SampleKind.DELETE:
+                self._entities.pop(key, None)
+            elif entity is not None:
+                self._entities[key] = entity
+
+    def keys(self) -> list[str]:
+        with self._lock:
+            return list(self._entities)
+
+    def entities(self, *kinds: str) -> list[dict[str, str]]:
+        with self._lock:
+            return [e for e in self._entities.values() if not kinds or e["entity"] in kinds]
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+
 class Peer:
     """The zenoh-ros2-sdk child: commands on stdin, JSON lines on stdout."""
 

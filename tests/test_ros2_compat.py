@@ -47,7 +47,7 @@ def test_a_humble_peer_is_counted_named_once_and_shown_by_topic_info(ros2_node, 
     try:
         zid = str(session.zid())
         # rmw_zenoh Humble's publisher token: the Jazzy layout, no RIHS01 hash.
-        key = (f"@ros2_lv/{domain}/{zid}/0/11/MP/%/%/humble_talker/chatter/std_msgs::msg::dds_::String_/"
+        key = (f"@ros2_lv/{domain}/{zid}/0/11/MP/%/%/humble_talker/%chatter/std_msgs::msg::dds_::String_/"
                f"{compat.HUMBLE_TYPE_HASH}/1:2:1,10:,:,:,,")
         token = session.liveliness().declare_token(key)
         node_token = session.liveliness().declare_token(f"@ros2_lv/{domain}/{zid}/0/0/NN/%/%/humble_talker")

@@ -128,7 +128,7 @@ def test_attachment_layout_and_legacy_detected():
 
 
 def test_humble_service_token_is_named():
-    key = ("@ros2_lv/0/aabbccdd/0/11/SS/%/%/humble_node/add_two_ints/"
+    key = ("@ros2_lv/0/aabbccdd/0/11/SS/%/%/humble_node/%add_two_ints/"
            "example_interfaces::srv::dds_::AddTwoInts_/TypeHashNotSupported/::,10:,:,:,,")
     info = parse_service_token(key)
     assert info.humble and info.service_name == "/add_two_ints" and info.service_type == ADD

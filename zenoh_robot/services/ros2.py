@@ -12,7 +12,8 @@ serves and calls, so rmw_zenoh nodes (and zenoh-ros2-sdk) call our services and 
   carries the same sequence and GID (the request id) and the server's stamp.
 - A request without that attachment is answered with ``reply_err``; one in the labelled format of
   rmw_zenoh Jazzy <= 0.2.3 is named as such, in the reply and in one warning per peer.
-- Graph: ``SS`` / ``SC`` liveliness tokens written by the node's ROS 2 graph format (wire/ros2.py), with
+- Graph: ``SS`` / ``SC`` liveliness tokens written by the node's ROS 2 graph format (wire/ros2.py), naming the
+  fully qualified service (``%zr%set_flag``, what rmw_zenoh's graph matches a client's name against), with
   the services' QoS (reliable, volatile, keep last 10) written out; an entity's GID (the client's, in
   its requests) is XXH3-128 of its token, as rmw_zenoh's.
 

@@ -248,8 +248,9 @@ def parse_any_token(key: str) -> Ros2Token:
         type_name = ros_type_name(raw_type)
     except ValueError:
         type_name = ""
-    return Ros2Token(kind, *head, "/" + unmangle(name).strip("/"), type_name, type_hash, decode_ros2_qos(qos),
-                     raw_type)
+    # Demangled verbatim, as rmw_zenoh's graph cache does: a name written without its leading '%'
+    # is not the fully qualified name any ROS 2 client asks for, and must not be read as if it were.
+    return Ros2Token(kind, *head, unmangle(name), type_name, type_hash, decode_ros2_qos(qos), raw_type)
 
 
 class Ros2Graph:
@@ -275,8 +276,11 @@ class Ros2Graph:
         a token read back by :meth:`parse_token` gives that id again."""
         eid = (ident ^ _zid_salt(zid)) & _MASK63
         raw_type = dds_type_name(type_name) if type_name else "%"
+        # rmw_zenoh writes the fully qualified name ("/zr/set_flag" -> "%zr%set_flag"): its graph matches
+        # a client's wait_for_service() and `ros2 service list` against that exact string.
+        qualified = "/" + name.lstrip("/")
         key = "/".join([ADMIN_SPACE, str(self.domain_id), zid, str(node_id(namespace, node)), str(eid), kind, "%",
-                        mangle(namespace), mangle(node), mangle(name), raw_type,
+                        mangle(namespace), mangle(node), mangle(qualified), raw_type,
                         type_hash if type_hash != ANY_TYPE_HASH and type_hash else "%", encode_ros2_qos(qos)])
         self.gids.put(token_gid(key), ident)
         return key
@@ -300,6 +304,8 @@ class Ros2Graph:
             return NodeInfo(token.node, token.namespace, token.zid)
         if token.kind not in (PUBLISHER, SUBSCRIPTION):
             raise ValueError(f"a service token ({token.kind}), not a topic endpoint: {key!r}")
+        if not token.name.startswith("/"):
+            raise ValueError(f"topic {token.name!r} is not fully qualified (rmw_zenoh writes '%topic'): {key!r}")
         ident = self.endpoint_id(token)
         self.gids.put(token_gid(key), ident)
         type_hash = ANY_TYPE_HASH if token.type_hash == "%" else token.type_hash
