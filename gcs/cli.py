@@ -14,6 +14,7 @@ import os
 import sys
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -288,32 +289,65 @@ def serve(gcs_run: GcsRun) -> int:
         if config.take_control:
             for d, res in gcs.take_control().items():
                 console.print(f"gcs: take_control {d}: {'ok' if res.success else 'FAILED'} {res.message}")
-        mission = _start_mission(gcs, gcs_run, console, result) if gcs_run.mission else None
+        progress: deque[str] = deque(maxlen=20)     # the mission's steps, shown under the dashboard
+        abort = threading.Event()
+        mission = _start_mission(gcs, gcs_run, console, result, progress, abort) if gcs_run.mission else None
         deadline = None if gcs_run.duration is None or gcs_run.mission else time.monotonic() + gcs_run.duration
+        interrupted = False
         try:
-            _watch(gcs, console, gcs_run, deadline, mission)
+            _watch(gcs, console, gcs_run, deadline, mission, progress)
         except KeyboardInterrupt:
-            console.print("gcs: interrupted")
+            interrupted = True
+            abort.set()     # the mission stops as it is: the drone holds where it is (mission.py)
+            if mission is not None:
+                mission.join(timeout=5.0)
         finally:
             gcs.release_control()
             node.shutdown()
             spinner.join(timeout=2.0)
+        if interrupted:
+            result["result"] = interrupted_line(gcs) if gcs_run.mission else ""
+            console.print(f"gcs: interrupted{': ' + result['result'] if result['result'] else ''}")
         _report(gcs, gcs_run, console, extras, result)
+    if interrupted:
+        return 130
     if gcs_run.mission and not result.get("ok"):
         return 1
     return 0
 
 
-def _start_mission(gcs: Gcs, gcs_run: GcsRun, console: Console, result: dict[str, Any]) -> threading.Thread:
-    """The mission on its own thread, its outcome into ``result``: the dashboard runs meanwhile."""
-    say = console.log if console.is_terminal else _say
+def interrupted_line(gcs: Gcs) -> str:
+    """What each drone is doing when the operator stopped the mission, and the command that lands it."""
+    parts = []
+    for d in sorted(gcs.drones.values(), key=lambda v: v.id):
+        s = d.state
+        if s is None:
+            parts.append(f"{d.id}: never heard")
+        elif s.armed and not s.landed:
+            parts.append(f"{d.id} holding at {-s.position[2]:.1f} m, armed ({s.mode}); land it with "
+                         f"`zenoh-robot gcs cmd {d.id} land`")
+        else:
+            parts.append(f"{d.id} on the ground, {'armed' if s.armed else 'disarmed'} ({s.mode})")
+    return "interrupted by the operator: " + "; ".join(parts or ["no drone heard"])
+
+
+def _start_mission(gcs: Gcs, gcs_run: GcsRun, console: Console, result: dict[str, Any], progress: deque[str],
+                   abort: threading.Event) -> threading.Thread:
+    """The mission on its own thread, its outcome into ``result``: the dashboard runs meanwhile and shows
+    its steps (``progress``); without the dashboard they are printed as they come."""
+    live = gcs_run.dashboard and console.is_terminal
     drones, duration = gcs_run.gcs.drones, gcs_run.duration or 60.0
+
+    def say(line: str) -> None:
+        progress.append(f"{time.strftime('%H:%M:%S')} {line}")
+        if not live:
+            _say(line)
 
     def mission() -> None:
         if len(drones) == 1:
-            result.update(run_mission(gcs, drones[0], duration, say))
+            result.update(run_mission(gcs, drones[0], duration, say, abort, lambda: "interrupted by the operator"))
         else:
-            result.update(run_swarm_mission(gcs, drones, duration, say, gcs_run.on_failure))
+            result.update(run_swarm_mission(gcs, drones, duration, say, gcs_run.on_failure, abort))
     thread = threading.Thread(target=mission, name="mission", daemon=True)
     thread.start()
     return thread
@@ -332,7 +366,7 @@ def _report(gcs: Gcs, gcs_run: GcsRun, console: Console, extras: GcsExtras, resu
 
 
 def _watch(gcs: Gcs, console: Console, gcs_run: GcsRun, deadline: float | None,
-           mission: threading.Thread | None) -> None:
+           mission: threading.Thread | None, progress: deque[str]) -> None:
     def done() -> bool:
         if mission is not None:
             return not mission.is_alive()
@@ -354,11 +388,14 @@ def _watch(gcs: Gcs, console: Console, gcs_run: GcsRun, deadline: float | None,
                     _say(line)
         return
     # The alternate screen: the view is redrawn whole, so a drone joining leaves no stale header behind.
-    with Live(render(gcs, rates, details=gcs_run.details), console=console, refresh_per_second=4,
-              screen=True) as live:
+    def view() -> Any:   # as wide as the terminal is now (it may be resized)
+        return render(gcs, rates, details=gcs_run.details, width=console.size.width, progress=list(progress))
+    with Live(view(), console=console, refresh_per_second=4, screen=True) as live:
         while not done():
             time.sleep(0.25)
-            live.update(render(gcs, rates, details=gcs_run.details))
+            live.update(view())
+    for line in progress:       # the alternate screen is gone: the steps stay in the terminal
+        console.print(line, highlight=False)
 
 
 def _say(line: str) -> None:

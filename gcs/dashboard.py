@@ -19,6 +19,7 @@ from collections import deque
 
 from rich.console import Group
 from rich.table import Table
+from rich.text import Text
 
 from drone_contract.messages import VehicleState
 
@@ -75,25 +76,64 @@ def _pct(v: float) -> str:
     return "-" if math.isnan(v) else f"{v:5.1f}"
 
 
-def render(gcs: Gcs, rates: RateMeter, title: str = "zenoh-robot GCS", details: str | None = None) -> Group:
-    """One table, one title: a row per drone; ``details`` adds that drone's stream table."""
+# The drone table's columns, most needed for flying first: at 80 columns the first seven fit (the
+# drone, its mode, armed, altitude, link, the setpoints this GCS sends, battery); wider terminals add
+# the rest in this order, and the table always shows them in ``_ORDER``.
+_PRIORITY = ("drone", "mode", "arm", "alt m", "link", "sp Hz", "batt", "offboard", "control", "failsafe",
+             "state Hz", "sensor Hz (PX4)", "position (NED m)", "img fps", "whole fps", "fresh %", "oldest ms")
+_ORDER = ("drone", "mode", "arm", "alt m", "position (NED m)", "batt", "link", "offboard", "control", "sp Hz",
+          "state Hz", "sensor Hz (PX4)", "img fps", "whole fps", "fresh %", "oldest ms", "failsafe")
+_RIGHT = ("Hz", "fps", "%", "ms", "alt m", "batt")
+EVENT_LINES = 3          # the latest events and mission steps shown under the table
+
+
+def render(gcs: Gcs, rates: RateMeter, title: str = "zenoh-robot GCS", details: str | None = None,
+           width: int = 200, progress: list[str] | None = None) -> Group:
+    """One table, one title: a row per drone, with as many columns as ``width`` holds (most needed
+    first, ``_PRIORITY``); the mission's progress and the latest events under it; ``details`` adds that
+    drone's stream table."""
+    views = sorted(gcs.drones.values(), key=lambda d: d.id)
+    rows = [_drone_cells(d, drone_figures(d, rates)) for d in views]
+    columns = fit_columns(rows, width)
     drones = Table(title=f"{title}: {len(gcs.drones)} drone(s)", expand=False, pad_edge=False)
-    for col in ("drone", "mode", "arm", "position (NED m)", "batt", "link", "offboard", "control",
-                "sp Hz", "state Hz", "sensor Hz (PX4)", "img fps", "whole fps", "fresh %", "oldest ms", "failsafe"):
-        drones.add_column(col, no_wrap=True, justify="right" if any(u in col for u in ("Hz", "fps", "%", "ms"))
-                          else "left")
-    shown = None
-    for d in sorted(gcs.drones.values(), key=lambda d: d.id):
-        f = drone_figures(d, rates)
-        _drone_row(drones, d, f)
-        if d.id == details:
-            shown = d
-    parts: list[Table] = [drones]
+    for col in columns:
+        drones.add_column(col, no_wrap=True, overflow="ellipsis",
+                          justify="right" if any(u in col for u in _RIGHT) else "left")
+    for cells in rows:
+        drones.add_row(*(cells.get(col, "") for col in columns))
+    shown = next((d for d in views if d.id == details), None)
+    parts: list[Table | Text] = [drones]
+    # Both kinds of line begin with their HH:MM:SS: one time order, newest last.
+    lines = sorted([*(progress or [])[-EVENT_LINES:], *latest_events(views, EVENT_LINES)], key=lambda ln: ln[:8])
+    for line in lines[-EVENT_LINES * 2:]:
+        parts.append(Text(line[:max(20, width - 1)], no_wrap=True, overflow="ellipsis"))
     if shown is not None:
         parts.append(stream_table(shown, rates))
     elif details:
         drones.caption = f"--details {details}: no such drone yet"
     return Group(*parts)
+
+
+def fit_columns(rows: list[dict[str, str]], width: int) -> list[str]:
+    """The columns that fit in ``width`` characters, most needed first, shown in ``_ORDER``: a column
+    takes its widest cell (or header) plus its border and padding (3 characters)."""
+    taken, used = set(), 1
+    for col in _PRIORITY:
+        need = max([len(col), *(len(r.get(col, "")) for r in rows)]) + 3
+        if col == "drone" or used + need <= width:
+            taken.add(col)
+            used += need
+        elif col in _PRIORITY[:3]:     # drone, mode, armed: never dropped, cut to fit instead
+            taken.add(col)
+    return [c for c in _ORDER if c in taken]
+
+
+def latest_events(views: list[DroneView], n: int) -> list[str]:
+    """The ``n`` newest events the drones reported, newest last: ``uav1 lifecycle: ...``."""
+    events = [(e.header.stamp if e.header is not None else 0, d.id, e) for d in views for e in d.events[-n:]]
+    events.sort(key=lambda t: t[0])
+    return [f"{time.strftime('%H:%M:%S', time.localtime(ts / 1e9)) if ts else '--:--:--'} {did} {e.kind}: "
+            f"{e.detail}" for ts, did, e in events[-n:]]
 
 
 def stream_table(d: DroneView, rates: RateMeter) -> Table:
@@ -119,21 +159,24 @@ def stream_table(d: DroneView, rates: RateMeter) -> Table:
     return t
 
 
-def _drone_row(table: Table, d: DroneView, f: dict[str, float]) -> None:
+def _drone_cells(d: DroneView, f: dict[str, float]) -> dict[str, str]:
     s = d.state
     if s is None:
-        table.add_row(d.id, "?", "", "", "", "waiting", "", "", _hz(f["setpoint"]), "", "", "", "", "", "", "")
-        return
-    pos = ",".join(f"{v:5.1f}" for v in s.position)
-    batt = "-" if math.isnan(s.battery_remaining) else f"{s.battery_remaining * 100:3.0f}%"
+        return {"drone": d.id, "mode": "?", "link": "waiting", "sp Hz": _hz(f["setpoint"])}
     link = ("ok" if d.link_age < 2.0 else f"silent {d.link_age:.0f}s") if s.connected else "PX4 DOWN"
     if d.under_attack:      # the drone refuses forged or replayed sealed samples: someone is trying
         link = f"ATTACK ({s.link_refused} refused)"
-    control = "this GCS" if d.in_control else (s.controller or "none")
-    table.add_row(d.id, s.mode, "yes" if s.armed else "no", pos, batt, link, s.offboard_state, control[:16],
-                  _hz(f["setpoint"]), _hz(f["state"]), sensor_rate(s, f["sensor"]), _hz(f["frames"]),
-                  _hz(f["whole_fps"]), _pct(f["fresh_pct"]), _ms(f["oldest_ms"]),
-                  (s.failsafe or (d.failures[-1] if d.failures else ""))[:30])
+    alt = -s.position[2]
+    return {"drone": d.id, "mode": s.mode, "arm": "yes" if s.armed else "no",
+            "alt m": "-" if math.isnan(alt) else f"{alt:5.1f}",
+            "position (NED m)": ",".join(f"{v:5.1f}" for v in s.position),
+            "batt": "-" if math.isnan(s.battery_remaining) else f"{s.battery_remaining * 100:3.0f}%",
+            "link": link, "offboard": s.offboard_state,
+            "control": ("this GCS" if d.in_control else (s.controller or "none"))[:16],
+            "sp Hz": _hz(f["setpoint"]), "state Hz": _hz(f["state"]), "sensor Hz (PX4)": sensor_rate(s, f["sensor"]),
+            "img fps": _hz(f["frames"]), "whole fps": _hz(f["whole_fps"]), "fresh %": _pct(f["fresh_pct"]),
+            "oldest ms": _ms(f["oldest_ms"]).strip(),
+            "failsafe": (s.failsafe or (d.failures[-1] if d.failures else ""))[:30]}
 
 
 def sensor_rate(s: VehicleState, here: float = math.nan) -> str:

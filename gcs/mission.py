@@ -208,13 +208,14 @@ def run_mission(gcs: Gcs, drone_id: str, duration: float, log: Callable[..., Non
 
 
 def run_swarm_mission(gcs: Gcs, drone_ids: list[str], duration: float, log: Callable[..., None],
-                      on_failure: str = "continue") -> dict[str, Any]:
-    """Every drone's mission at once; ``on_failure``: the others ``continue`` or ``hold``."""
+                      on_failure: str = "continue", abort: threading.Event | None = None) -> dict[str, Any]:
+    """Every drone's mission at once; ``on_failure``: the others ``continue`` or ``hold``; ``abort`` (the
+    operator's Ctrl-C) holds them all."""
     if on_failure not in ON_FAILURE:
         raise ValueError(f"on_failure must be one of {ON_FAILURE}, got {on_failure!r}")
     if len(set(drone_ids)) != len(drone_ids) or not drone_ids:
         raise ValueError(f"a swarm mission needs distinct drones, got {drone_ids}")
-    abort = threading.Event()
+    abort = abort or threading.Event()
     first_failure: list[str] = []
     lock = threading.Lock()
     results: dict[str, dict[str, Any]] = {}
