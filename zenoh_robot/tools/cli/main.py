@@ -122,9 +122,10 @@ def quiet_zenoh_log(verbose: bool) -> None:
 
 def user_error(exc: BaseException) -> str | None:
     """One line for the exceptions a user's input causes; None for anything else (a bug)."""
+    from zenoh_robot.graph import DuplicateNodeError
     from zenoh_robot.session_config import SessionConfigError
 
-    if isinstance(exc, CliError):
+    if isinstance(exc, (CliError, DuplicateNodeError)):   # a second `companion --id uav1`: the message says it all
         return str(exc)
     if isinstance(exc, SessionConfigError):
         return f"Zenoh config: {exc}"
