@@ -75,6 +75,7 @@ STREAM_CPU_BUDGET_PCT = {"sensor": 2.0, "state": 0.5, "image": 2.0}
 # keeps control where its liveliness token does not reach the drone (UDP multicast carries none).
 PRESENCE_PERIOD_S = 0.5
 ATTACK_SHOWN_S = 30.0   # a drone's rising refusal count keeps it marked under attack this long
+MAX_SEEN = 1000         # drone ids remembered as heard (bounded: a peer chooses them)
 
 
 @dataclass
@@ -281,8 +282,9 @@ class Gcs:
         self._token = node.declare_liveliness_token(f"{CONTROL_TOKEN_PREFIX}/{config.client_id}")
         for d in config.drones:
             self.add_drone(d)
-        if not config.drones:
-            self._discovery = watch_drones(node, self._on_drone_heard)
+        # Every drone heard, asked for or not: a mission for a drone that is not there names the ones that are.
+        self.seen: set[str] = set()
+        self._discovery = watch_drones(node, self._on_drone_heard)
         node.create_timer(1.0 / config.rate_hz, self._stream)
         node.create_timer(PRESENCE_PERIOD_S, self._presence)
         # Loss feedback (loss_feedback.py): setpoint copies follow the loss the drones measure.
@@ -322,7 +324,9 @@ class Gcs:
                 self.node.declare_parameter(name, value, what, read_only=True)
 
     def _on_drone_heard(self, drone_id: str) -> None:   # Zenoh thread: hand over to the executor
-        if drone_id not in self.drones:
+        if drone_id not in self.seen and len(self.seen) < MAX_SEEN:
+            self.seen.add(drone_id)
+        if drone_id not in self.drones and not self.config.drones:
             def add() -> None:
                 self.add_drone(drone_id)
             self.node.executor.call_soon(add)

@@ -189,6 +189,8 @@ def sensor_rate(s: VehicleState, here: float = math.nan) -> str:
 
 def plain_lines(gcs: Gcs, rates: RateMeter) -> list[str]:
     """One short line per drone, for a pipe or a log file."""
+    if not gcs.drones:
+        return ["no drone heard yet: waiting for <id>/state (is a companion running, in this domain?)"]
     lines = []
     for d in sorted(gcs.drones.values(), key=lambda d: d.id):
         f = drone_figures(d, rates)

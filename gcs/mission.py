@@ -98,9 +98,15 @@ class Mission:
                                 30.0)
         # Setpoints go only to a drone nobody else controls (gcs/app.py): say so rather than time out mutely.
         self._step("drone connected", connected,
-                   "" if connected else "no state from the drone" if drone.state is None else
+                   "" if connected else self._not_heard() if drone.state is None else
                    f"{drone.state.controller} is in control of {drone.id}: no setpoints sent (take over with "
                    "--take-control)" if not drone.may_stream else "")
+
+    def _not_heard(self) -> str:
+        others = sorted(self.gcs.seen - {self.drone.id})
+        return f"no state from {self.drone.id}; " + (f"seen on the network: {', '.join(others[:10])}" if others else
+                                                     "no drone seen on the network (is its companion running, in "
+                                                     "this domain, reachable with these Zenoh flags?)")
 
     def start_offboard(self) -> None:
         # Refused for want of our setpoints, asked again while they stream (a lossy link at start-up

@@ -39,3 +39,31 @@ def test_the_gcs_and_gcs_cmd_all_find_the_same_drones(ns: str) -> None:
         finally:
             stop.set()
             th.join()
+
+
+def test_a_mission_for_a_missing_drone_names_the_drones_that_are_there(ns: str) -> None:
+    from gcs.dashboard import RateMeter, plain_lines
+    from gcs.mission import Mission
+
+    with spinning_nodes(ns) as (drone_side, ground):
+        gcs = Gcs(ground, GcsConfig(drones=[f"{ns}d2"], profile=stream_profile("resilient"), client_id="op",
+                                    pattern="hover"))
+        lonely = Gcs(ground, GcsConfig(profile=stream_profile("resilient"), client_id="op2", pattern="hover"))
+        assert "no drone heard yet" in plain_lines(lonely, RateMeter())[0]
+        missing = Mission(gcs, gcs.drones[f"{ns}d2"], 1.0, lambda *_: None)
+        assert "no drone seen on the network" in missing._not_heard()
+        pub = drone_side.create_publisher(VehicleState, f"/{ns}d1/state", 10)
+        stop = threading.Event()
+
+        def publish() -> None:
+            while not stop.wait(0.05):
+                pub.publish(VehicleState())
+        th = threading.Thread(target=publish, daemon=True)
+        th.start()
+        try:
+            assert wait_for(lambda: f"{ns}d1" in gcs.seen, 5.0)
+            assert list(gcs.drones) == [f"{ns}d2"]          # asked for d2 only: d1 is seen, not flown
+            assert missing._not_heard() == f"no state from {ns}d2; seen on the network: {ns}d1"
+        finally:
+            stop.set()
+            th.join()
