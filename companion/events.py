@@ -14,6 +14,9 @@ from zenoh_robot.publisher import PublisherClosed
 from zenoh_robot.ratelimit import RateLimiter
 
 log = logging.getLogger("companion")   # the app's logger: event lines keep the name they always had
+# Kinds that every flight sends on its way (the lifecycle's steps, setpoints before offboard_start, what PX4's
+# sensor rate is): logged at INFO, still published to the GCS like every event.
+ROUTINE = frozenset({"lifecycle", "setpoint_ignored", "sensor_rate_low"})
 
 
 class EventReporter:
@@ -25,7 +28,9 @@ class EventReporter:
         self.limiter = RateLimiter(interval=report_interval_s)
 
     def event(self, kind: str, detail: str, action: str = "", client_id: str = "", count: int = 0) -> None:
-        log.warning("%s%s: %s -> %s", kind, f" [{client_id}]" if client_id else "", detail, action or "no action")
+        # Expected steps of a normal flight are information; what the operator must look at is a warning.
+        level = logging.INFO if kind in ROUTINE else logging.WARNING
+        log.log(level, "%s%s: %s -> %s", kind, f" [{client_id}]" if client_id else "", detail, action or "no action")
         self.sent.append(kind)
         del self.sent[:-self.KEPT]
         try:
