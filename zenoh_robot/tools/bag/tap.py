@@ -227,7 +227,7 @@ class Tap:
             if late is not None:
                 self.node.destroy_subscription(late)
             return
-        log.info("listening to %s", topic)
+        log.debug("listening to %s", topic)   # one per topic: the summary counts them
 
     def _on_raw(self, topic: str, raw: "RawMessage", info: "MessageInfo") -> None:
         # The executor: queue and return. One envelope that brings several fresh samples (a
