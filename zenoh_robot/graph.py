@@ -38,6 +38,8 @@ GRAPH_PREFIX = "@zr/lv"
 NODE, PUBLISHER, SUBSCRIPTION = "NN", "MP", "MS"
 # The type hash a raw subscription of any type announces: it matches every publisher's type.
 ANY_TYPE_HASH = "any"
+# Tokens kept that are no node or topic endpoint (services, clients): bounded against a flood of junk keys.
+MAX_OTHER_TOKENS = 65536
 
 
 class EndpointType(enum.Enum):
@@ -165,6 +167,9 @@ class GraphCache:
         self._format = graph_format
         self._lock = threading.Lock()
         self._entries: dict[str, NodeInfo | TopicEndpointInfo] = {}
+        # Live tokens of the selector that are not nodes or topic endpoints (a ROS 2 graph's SS/SC): kept so a
+        # listing can read them from this subscriber, and counted as changes so "settled" covers them too.
+        self._others: set[str] = set()
         self.listeners: list[GraphListener] = []
         self.changes = 0
         self._changed = threading.Condition(self._lock)
@@ -179,7 +184,8 @@ class GraphCache:
         try:
             info = self._format.parse_token(key)
         except (ValueError, KeyError) as exc:
-            log.debug("ignoring graph token %r: %s", key, exc)
+            log.debug("graph token %r is no node or topic endpoint: %s", key, exc)
+            self._apply_other(key, appeared)
             return
         with self._lock:
             known = key in self._entries
@@ -198,6 +204,17 @@ class GraphCache:
                     listener(appeared, info)
                 except Exception:
                     log.exception("graph listener failed")
+
+    def _apply_other(self, key: str, appeared: bool) -> None:
+        with self._lock:
+            if appeared == (key in self._others) or (appeared and len(self._others) >= MAX_OTHER_TOKENS):
+                return
+            if appeared:
+                self._others.add(key)
+            else:
+                self._others.discard(key)
+            self.changes += 1
+            self._changed.notify_all()
 
     def refresh(self, timeout: float = 1.0) -> None:
         """Ask the network for every live token now (a late start need not wait for history)."""
@@ -218,6 +235,11 @@ class GraphCache:
         with self._lock:
             return [e for e in self._entries.values() if isinstance(e, TopicEndpointInfo)
                     and (key is None or e.key == key) and (kind is None or e.endpoint_type is kind)]
+
+    def other_tokens(self) -> list[str]:
+        """The live tokens that are not nodes or topic endpoints (on the ROS 2 wire: services and clients)."""
+        with self._lock:
+            return sorted(self._others)
 
     def close(self) -> None:
         try:

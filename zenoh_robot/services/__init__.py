@@ -87,7 +87,15 @@ from .retry import (
     RetryPolicy,
     command_retry,
 )
-from .ros2 import Ros2Client, Ros2Service, Ros2ServiceInfo, parse_service_token, ros2_services, service_data_key
+from .ros2 import (
+    Ros2Client,
+    Ros2Service,
+    Ros2ServiceInfo,
+    parse_service_token,
+    ros2_services,
+    service_data_key,
+    service_infos,
+)
 from .service import MAX_REQUEST_BYTES, Service
 
 __all__ = [
@@ -125,6 +133,7 @@ __all__ = [
     "describe_services",
     "parse_service_token",
     "ros2_services",
+    "service_infos",
     "service_data_key",
     "service_key",
     "service_name_of_key",

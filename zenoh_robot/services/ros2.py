@@ -28,6 +28,7 @@ import logging
 import secrets
 import threading
 import time
+from collections.abc import Iterable
 from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeout
 from typing import TYPE_CHECKING, Any, Generic, TypeVar
@@ -97,17 +98,57 @@ def parse_service_token(key: str) -> Ros2ServiceInfo:
                            token.type_name or token.raw_type, token.type_hash)
 
 
-def ros2_services(session: zenoh.Session, domain_id: int, timeout: float = 1.0) -> list[Ros2ServiceInfo]:
-    """Every service server and client on the ROS 2 graph of ``domain_id`` (a liveliness query)."""
+def service_infos(keys: Iterable[str]) -> list[Ros2ServiceInfo]:
+    """The servers and clients among ``keys`` (liveliness token keys), sorted; other keys are skipped."""
     found: list[Ros2ServiceInfo] = []
-    for reply in session.liveliness().get(f"{ADMIN_SPACE}/{domain_id}/**", timeout=timeout):
-        if reply.ok is None:
-            continue
+    for key in keys:
         try:
-            found.append(parse_service_token(str(reply.ok.key_expr)))
+            found.append(parse_service_token(key))
         except ValueError:
             continue
     return sorted(found, key=lambda i: (i.service_name, i.kind, i.node_namespace, i.node_name))
+
+
+def ros2_services(session: zenoh.Session, domain_id: int, timeout: float = 1.0,
+                  quiet: float = 0.3) -> list[Ros2ServiceInfo]:
+    """Every service server and client on the ROS 2 graph of ``domain_id``.
+
+    One liveliness query right after a session opens answers with the tokens Zenoh has delivered so
+    far, which may be part of them: a subscriber with history collects them instead, until none has
+    come for ``quiet`` seconds (at most ``timeout``).
+    """
+    keys: set[str] = set()
+    changed = threading.Condition()
+    arrivals = [0]
+
+    def on_token(sample: Any) -> None:
+        with changed:
+            if sample.kind == zenoh.SampleKind.PUT:
+                keys.add(str(sample.key_expr))
+            else:
+                keys.discard(str(sample.key_expr))
+            arrivals[0] += 1
+            changed.notify_all()
+
+    sub = session.liveliness().declare_subscriber(f"{ADMIN_SPACE}/{domain_id}/**", on_token, history=True)
+    try:
+        end = time.monotonic() + timeout
+        with changed:
+            while True:
+                seen = arrivals[0]
+                left = end - time.monotonic()
+                if left <= 0:
+                    break
+                changed.wait(min(quiet, left))
+                if arrivals[0] == seen:     # a quiet spell: what the network had has arrived
+                    break
+            now = list(keys)
+    finally:
+        try:
+            sub.undeclare()
+        except Exception:
+            pass   # the session closed under us: what was collected stands
+    return service_infos(now)
 
 
 def _declare_token(context: EntityContext, kind: str, service_name: str, srv: Ros2ServiceType) -> tuple[Any, bytes]:

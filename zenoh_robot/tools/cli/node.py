@@ -89,7 +89,7 @@ def _info(node: "Node", args: argparse.Namespace) -> int:
     if is_ros2(node):      # ROS 2 nodes announce servers and clients (SS/SC tokens), not parameters here
         from .ros2_service import node_services
 
-        servers, clients = node_services(node, target, args.timeout)
+        servers, clients = node_services(node, target)
         _section("Service Servers", servers)
         _section("Service Clients", clients)
         return 0

@@ -8,12 +8,12 @@ call needs the ``.srv`` (``--srv FILE``) unless the type is a standard one known
 from __future__ import annotations
 
 import argparse
-import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from .common import did_you_mean
 from .main import CliError
+from .topic import discover_graph
 from .values import build_message, parse_values, render_data
 
 if TYPE_CHECKING:
@@ -21,28 +21,29 @@ if TYPE_CHECKING:
     from zenoh_robot.services import Ros2ServiceInfo
 
 
-def servers(node: "Node", timeout: float) -> list["Ros2ServiceInfo"]:
-    from zenoh_robot.services import ros2_services
+def graph_services(node: "Node") -> list["Ros2ServiceInfo"]:
+    """The servers and clients the node's graph subscriber has seen (it keeps SS/SC tokens too)."""
+    from zenoh_robot.services import service_infos
 
-    # A fresh session learns the network over a moment (longer on a loaded host): ask again until
-    # a server answers or the time is up.
-    domain = int(getattr(node.wire, "domain_id", 0))
-    end = time.monotonic() + timeout
-    time.sleep(0.3)
-    while True:
-        found = [i for i in ros2_services(node.session, domain, min(timeout, 1.0)) if i.kind == "SS"]
-        if found or time.monotonic() >= end:
-            return found
-        time.sleep(0.2)
+    return service_infos(node.graph.other_tokens())
 
 
-def node_services(node: "Node", target: str, timeout: float) -> tuple[list[str], list[str]]:
-    """``service: type`` lines of the servers and the clients of the node ``target`` (its full name)."""
-    from zenoh_robot.services import ros2_services
+def servers(node: "Node", timeout: float, name: str | None = None) -> list["Ros2ServiceInfo"]:
+    """The ROS 2 service servers once discovery settles: until a server (of ``name``, if given) is
+    known and no token has come for a quiet spell, at most ``timeout``. One early query may hold only
+    part of the tokens; the graph's subscriber keeps taking them as they arrive."""
+    def found() -> bool:
+        return any(i.kind == "SS" and (name is None or i.service_name == name) for i in graph_services(node))
 
-    domain = int(getattr(node.wire, "domain_id", 0))
+    discover_graph(node, timeout, found)
+    return [i for i in graph_services(node) if i.kind == "SS"]
+
+
+def node_services(node: "Node", target: str) -> tuple[list[str], list[str]]:
+    """``service: type`` lines of the servers and the clients of the node ``target`` (its full name), from
+    the graph as discovered (call after ``discover_graph``)."""
     out: dict[str, list[str]] = {"SS": [], "SC": []}
-    for info in ros2_services(node.session, domain, min(timeout, 1.5)):
+    for info in graph_services(node):
         if f"{info.node_namespace.rstrip('/')}/{info.node_name}" == target:
             out[info.kind].append(f"{info.service_name}: {info.service_type}")
     return out["SS"], out["SC"]
@@ -61,7 +62,7 @@ def _list(node: "Node", args: argparse.Namespace) -> int:
 
 
 def _of(node: "Node", name: str, timeout: float) -> list["Ros2ServiceInfo"]:
-    infos = servers(node, timeout)
+    infos = servers(node, timeout, name)
     mine = [i for i in infos if i.service_name == name]
     if not mine:
         raise CliError(f"service {name} not found: no ROS 2 server announces it"

@@ -15,6 +15,7 @@ from zenoh_robot.session_args import add_session_arguments
 
 from .common import did_you_mean, lookup_type, session_config, wire_of
 from .main import CliError
+from .topic import GRAPH_QUIET, discover_graph
 from .values import build_message, parse_values, render_data
 
 
@@ -53,16 +54,13 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _list(node: Any, args: argparse.Namespace) -> int:
-    time.sleep(0.3)   # let a fresh session learn the network before asking it
     pattern = f"{SERVICE_PREFIX}/**"
     if args.prefix.strip("/"):
         try:
             pattern = service_key("/" + args.prefix.strip("/")) + "/**"
         except ValueError as exc:
             raise CliError(str(exc)) from None
-    own = node.fully_qualified_name
-    infos = [i for i in describe_services(node.session, pattern, args.timeout) if i.get("node") != own]
-    for info in infos:
+    for info in _others(node, pattern, args.timeout):
         if args.show_types:
             print(f"{info['service']} [{info['request']} -> {info['response']}]")
         else:
@@ -79,9 +77,22 @@ def service_type(info: dict[str, Any]) -> str:
 
 
 def _others(node: Any, pattern: str, timeout: float) -> list[dict[str, Any]]:
-    time.sleep(0.3)   # let a fresh session learn the network before asking it
+    """The servers under ``pattern`` but this tool's own, once two answers spaced by a quiet spell agree
+    (at most ``timeout``): a fresh session learns the servers over a moment, so one early query may
+    reach only some of them."""
     own = node.fully_qualified_name
-    return [i for i in describe_services(node.session, pattern, timeout) if i.get("node") != own]
+    end = time.monotonic() + timeout
+    discover_graph(node, timeout)
+    last: frozenset[tuple[str, str]] | None = None
+    while True:
+        left = end - time.monotonic()
+        infos = [i for i in describe_services(node.session, pattern, max(0.2, min(1.0, left)))
+                 if i.get("node") != own]
+        seen = frozenset((str(i.get("service")), str(i.get("node"))) for i in infos)
+        if seen == last or left <= GRAPH_QUIET:
+            return infos
+        last = seen
+        time.sleep(GRAPH_QUIET)
 
 
 def _type(node: Any, args: argparse.Namespace) -> int:
