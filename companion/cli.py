@@ -6,6 +6,7 @@ import contextlib
 import logging
 import os
 import signal
+import sys
 import threading
 from collections.abc import Iterator
 from dataclasses import replace
@@ -15,6 +16,7 @@ from typing import Any
 from drone_contract.link_protection import link_wire, log_startup_line
 from drone_contract.streams import IMAGE_MODES, PROFILES, STREAMS, StreamProfile, stream_profile
 from px4_link import CommandError, Px4Link
+from px4_link.connection_url import DEFAULT_BAUD, Px4UrlError, check_serial_device, forms_line, parse_px4_url
 from px4_link.targets import DEFAULT_FENCE_CEILING_M, DEFAULT_FENCE_FLOOR_M, DEFAULT_FENCE_RADIUS_M, Geofence
 from px4_link.vehicle import VehicleLink
 from zenoh_robot import Node
@@ -40,7 +42,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("companion", help="drone side: PX4 <-> Zenoh, camera, commands, link-loss failsafe")
     p.add_argument("--id", default="uav1", help="drone id, the namespace of its topics (default uav1)")
     p.add_argument("--px4", default=DEFAULT_PX4,
-                   help=f"PX4 MAVLink connection (default {DEFAULT_PX4}, where PX4 SITL sends); "
+                   help=f"PX4 MAVLink connection (default {DEFAULT_PX4}, where PX4 SITL sends): a serial or USB "
+                        "device with an optional baud, /dev/ttyAMA0:921600, /dev/ttyACM0, /dev/serial/by-id/... "
+                        f"(default {DEFAULT_BAUD}: PX4's TELEM2 default, SER_TEL2_BAUD; USB ignores it; MAVSDK's "
+                        "57600 is the radio port's); MAVSDK's URLs serial:///dev/ttyACM0:57600, udp://:14540, "
+                        "udpin://0.0.0.0:14540, udpout://HOST:PORT, tcp://HOST:PORT; pymavlink's udpin:HOST:PORT; "
                         "'sim' starts the built-in simulator; PX4's own Zenoh module (no MAVLink): 'zenoh' "
                         "(an embedded router on tcp/127.0.0.1:7447, PX4 SITL's default, that PX4 joins), "
                         "'zenoh:<endpoint>' (a client of the router there), 'zenoh-sim' (the built-in simulator "
@@ -167,12 +173,30 @@ def _free_udp_port() -> int:
         return port
 
 
+def check_px4(spec: str) -> str | None:
+    """What is wrong with ``--px4``, in one line (None: nothing), before anything is opened: a serial
+    device that is missing or not ours to open is a start-up mistake, as a misspelt form is."""
+    if spec in ("sim", "zenoh", "zenoh-sim") or spec.startswith("zenoh:"):
+        return None
+    try:
+        check_serial_device(parse_px4_url(spec))
+    except Px4UrlError as exc:
+        if exc.unknown_form:
+            return f"{spec!r} is not a PX4 connection; {forms_line()}; or sim, zenoh, zenoh:ENDPOINT, zenoh-sim"
+        return str(exc)
+    return None
+
+
 def run(args: argparse.Namespace) -> int:
     from zenoh_robot.tools.cli.main import CliError
     try:
         validate_node_name(args.id)
     except ValueError as exc:
         raise CliError(f"--id: {exc}") from None
+    px4_problem = check_px4(args.px4)
+    if px4_problem is not None:   # a usage mistake, as argparse's: one line and exit 2
+        print(f"companion: --px4: {px4_problem}", file=sys.stderr)
+        return 2
     params = params_from_args(args)
     try:
         profile = load_profile(args, params)

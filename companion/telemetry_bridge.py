@@ -209,7 +209,13 @@ class TelemetryBridge:
                                f"sensor rate{' and streams' if streams else ''} asked again",
                                f"HIGHRES_IMU {self.sensor_rate_requested:g} Hz{streams}")
         elif name == "disconnected":
-            self._events.event("px4_disconnected", f"no PX4 heartbeat for {details.get('silent_s', 0):.1f} s", "")
+            why = details.get("why") or f"no PX4 heartbeat for {details.get('silent_s', 0):.1f} s"
+            self._events.event("px4_disconnected", str(why), "PX4 commands refused until it is back")
+        elif name == "link_up":
+            self._events.event("px4_link_up", f"{details.get('connection', 'PX4')}: bytes from PX4 again, "
+                               "waiting for its heartbeat", "")
+        elif name == "baud_mismatch":
+            self._events.event("px4_baud_mismatch", str(details.get("why", "")), "")
 
     def summary(self) -> dict[str, Any]:
         return {"in_force": self.px4_streams, "asked_hz": self.streams_asked, "refused": self.streams_refused,

@@ -16,6 +16,11 @@ would have to deliver). A callback that raises is logged (rate-limited) and coun
 
 Everything received is untrusted: see ``peer.py`` for the address lock; non-finite
 telemetry never reaches listeners; an ACK only answers the command we are waiting for.
+
+A transport that loses its wire (a serial device unplugged, PX4 rebooting on USB) says why in
+``down_reason``: the receive thread turns that into ``link_down`` and ``disconnected`` at once (the
+heartbeat watchdog would take ``heartbeat_timeout``), then ``link_up`` when bytes flow again; a
+command meanwhile fails with that reason. On a serial port a ``BaudCheck`` names a wrong rate.
 """
 from __future__ import annotations
 
@@ -28,6 +33,7 @@ from .modes import decode_custom_mode
 from .peer import PeerLock
 from .plugin import MessageHandler
 from .rates import BootWatch
+from .serial_port import BaudCheck, SerialTransport
 from .stats import LinkStats
 from .telemetry import DECODERS, ExtendedSysState, is_finite_sample
 from .transport import Address, Transport, open_transport
@@ -63,6 +69,8 @@ class LinkCore(VehicleCore):
         self._handlers: dict[str, list[MessageHandler]] = {}
 
         self._transport: Transport | None = None
+        self._baud_check: BaudCheck | None = None
+        self._down_reason: str | None = None   # the transport's, as last seen by the receive thread
         self._encoder: Encoder | None = None
         self._next_heartbeat = 0.0
         self._parser = Parser()
@@ -83,6 +91,8 @@ class LinkCore(VehicleCore):
     # ----------------------------------------------------------------- lifecycle
     def _open(self) -> None:
         self._transport = open_transport(self.connection, self._baud)
+        t = self._transport
+        self._baud_check = BaudCheck(t.url.device, t.baud) if isinstance(t, SerialTransport) else None
         self._encoder = Encoder(self._write, self.source_system, self.source_component)
         if self._signing_key is not None:
             setup_signing(self._encoder.mav, self._signing_key)
@@ -116,6 +126,9 @@ class LinkCore(VehicleCore):
                  garbage_bytes=p.bad_bytes, bad_frames=p.bad_frames, crc_errors=p.crc_errors,
                  unknown_messages=p.unknown_messages, bad_signatures=p.bad_signatures,
                  commands_sent=self._commands.sent, command_retries=self._commands.retried)
+        t = self._transport
+        if isinstance(t, SerialTransport):
+            s.update(link_losses=t.losses, bytes_dropped_tx=t.tx_dropped)
         return LinkStats(**s)
 
     # ----------------------------------------------------------------- sending
@@ -169,6 +182,8 @@ class LinkCore(VehicleCore):
                 self.rlog.exception("recv", "px4_link receive error")
                 self._stop.wait(0.1)
                 continue
+            if t.down_reason != self._down_reason:
+                self._link_changed(t.down_reason)
             if got is None:
                 continue
             data, addr = got
@@ -177,8 +192,37 @@ class LinkCore(VehicleCore):
                     self._accept(m, addr)
                 if addr is not None and addr == self._peer.address:
                     t.set_peer(addr)   # answer the locked vehicle address only
+                if self._baud_check is not None:
+                    self._check_baud(self._baud_check)
             except Exception:
                 self.rlog.exception("handle", "px4_link error handling received data")
+
+    def _link_changed(self, why: str | None) -> None:
+        """Receive thread: the transport lost its wire (``why``) or has it back (None)."""
+        was, self._down_reason = self._down_reason, why
+        if why is None:
+            self.emit("link_up", {"connection": self.connection})
+            return
+        if was is None:   # a new loss, not a failed reopen: its reason is what the GCS is told
+            self._log.warning("px4_link: %s", why)
+        self.emit("link_down", {"why": why})
+        self._disconnect(time.monotonic(), why=why)
+
+    def _check_baud(self, check: BaudCheck) -> None:
+        verdict = check.update(self._parser.bytes_received, self._parser.messages)
+        if verdict is not None:
+            self.count("baud_mismatches")
+            self._log.warning("px4_link: %s", verdict)
+            self.emit("baud_mismatch", {"why": verdict})
+
+    def not_connected_reason(self) -> str:
+        """Why no vehicle is connected, for a refused command: the wire's state first."""
+        if self._down_reason is not None:
+            return self._down_reason
+        check = self._baud_check
+        if check is not None and check.suspect is not None:
+            return check.suspect
+        return super().not_connected_reason()
 
     # ----------------------------------------------------------------- receiving
     def _accept(self, m: Any, addr: Address | None) -> None:

@@ -37,11 +37,13 @@ class Px4Link(VehicleLinkBase[LinkCore]):
 
     The default listens on loopback only (PX4 SITL / a local autopilot bridge). For a
     companion talking to a flight controller over the network use e.g.
-    ``udpin:0.0.0.0:14540`` and consider ``signing_key_file``.
+    ``udpin:0.0.0.0:14540`` and consider ``signing_key_file``; on a serial port or USB,
+    ``/dev/ttyAMA0:921600`` or ``serial:///dev/ttyACM0`` (every form: ``connection_url``).
 
     Events delivered to ``on_event(name, details)``: connected, disconnected, rebooted,
     mode_changed, armed_changed, landed_changed, offboard_lost, setpoint_rejected, setpoint_clamped,
-    setpoint_expired (offboard.py), statustext.
+    setpoint_expired (offboard.py), statustext; on a serial port also link_down (the device vanished:
+    ``why``), link_up (bytes through it again) and baud_mismatch (``why``: bytes but no frame).
     Callbacks run on the link's threads: keep them short (see core.py).
     """
 

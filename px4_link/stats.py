@@ -34,3 +34,6 @@ class LinkStats:
     vehicle_commands_ignored: int = 0  # COMMAND_LONGs PX4 sends to other components
     reboots: int = 0               # boot clock went backwards
     interval_rerequests: int = 0   # message intervals asked again after reconnect/reboot
+    link_losses: int = 0           # serial: the device vanished (unplugged, PX4 rebooted on USB)
+    baud_mismatches: int = 0       # serial: episodes of bytes without one MAVLink frame (wrong rate)
+    bytes_dropped_tx: int = 0      # serial: bytes the driver could not take (never waited for)

@@ -13,11 +13,14 @@ import select
 import socket
 from typing import Any, Protocol
 
+from .connection_url import DEFAULT_BAUD, parse_px4_url
+
 Address = tuple[str, int]
 
 
 class Transport(Protocol):
     datagram: bool
+    down_reason: str | None   # why the transport cannot carry bytes now (a vanished device); None: it can
 
     def recv(self, timeout: float) -> tuple[bytes, Address | None] | None: ...
     def write(self, data: bytes) -> None: ...
@@ -31,6 +34,7 @@ class UdpServerTransport:
     """Bound UDP socket; answers the peer chosen with set_peer (the vehicle)."""
 
     datagram = True
+    down_reason: str | None = None
 
     def __init__(self, host: str, port: int) -> None:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -81,6 +85,8 @@ class UdpServerTransport:
 class MavutilTransport:
     """Any other pymavlink connection string, using mavutil only for its byte I/O."""
 
+    down_reason: str | None = None
+
     def __init__(self, connection: str, baud: int) -> None:
         from pymavlink import mavutil  # imported lazily: only needed for these transports
 
@@ -124,11 +130,14 @@ class MavutilTransport:
             pass
 
 
-def open_transport(connection: str, baud: int = 921600) -> Transport:
-    for prefix in ("udpin:", "udp:"):
-        if connection.startswith(prefix):
-            host, _, port = connection[len(prefix):].rpartition(":")
-            if not host or not port.isdigit():
-                raise ValueError(f"expected {prefix}HOST:PORT, got {connection!r}")
-            return UdpServerTransport(host, int(port))
-    return MavutilTransport(connection, baud)
+def open_transport(connection: str, baud: int = DEFAULT_BAUD) -> Transport:
+    """``connection`` in any form ``connection_url`` reads (``baud``: when a serial one names none).
+    Raises ``Px4UrlError`` (a ValueError) for a form it does not know, ConnectionError for a device
+    that will not open."""
+    url = parse_px4_url(connection, default_baud=baud)
+    if url.kind == "udpin":
+        return UdpServerTransport(url.host, url.port)
+    if url.is_serial:
+        from .serial_port import SerialTransport
+        return SerialTransport(url)
+    return MavutilTransport(url.pymavlink(), baud)

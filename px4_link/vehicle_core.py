@@ -224,8 +224,12 @@ class VehicleCore:
     def send_command(self, command: int, *params: float, timeout: float | None = None,
                      retries: int | None = None) -> CommandAck:
         if not self._state.connected:
-            raise NotConnected(command, None, f"{command_name(command)}: no vehicle connected")
+            raise NotConnected(command, None, f"{command_name(command)}: {self.not_connected_reason()}")
         return self._commands.run(command, params, timeout=timeout, retries=retries)
+
+    def not_connected_reason(self) -> str:
+        """The text a command refused for want of a vehicle carries; a backend that knows more says so."""
+        return "no vehicle connected"
 
     def cancel_command(self, owner: int, why: str) -> bool:
         """Withdraw the command thread ``owner`` is waiting on (commands.CommandSender.cancel)."""
