@@ -20,7 +20,6 @@ from typing import TYPE_CHECKING, Any
 from zenoh_robot.session_args import add_session_arguments
 
 from .common import (
-    HIDDEN_PREFIX,
     CallbackOutput,
     add_duration_arg,
     cli_node,
@@ -111,7 +110,7 @@ def _op_parser(ops: argparse._SubParsersAction[argparse.ArgumentParser], name: s
 
 def _graph_args(o: argparse.ArgumentParser) -> None:
     o.add_argument("-v", "--verbose", dest="detail", action="store_true", help="more detail")
-    o.add_argument("-a", "--all", action="store_true", help="include the CLI tools' own endpoints (_zr_ nodes)")
+    o.add_argument("-a", "--all", action="store_true", help="include this command's own endpoints")
     o.add_argument("--timeout", type=float, default=3.0,
                    help="at most this many seconds to learn the graph (default 3)")
 
@@ -131,8 +130,12 @@ def run(args: argparse.Namespace) -> int:
 
 # -- list / info ------------------------------------------------------------------------------
 def _endpoints(node: "Node", topic: str, show_all: bool) -> tuple[list["TopicEndpointInfo"], list["TopicEndpointInfo"]]:
+    # Only this listing's own node is left out: another CLI process's endpoints (a `topic pub`'s publisher,
+    # an `echo`'s subscription) are real ones, listed as ROS 2 lists `ros2 topic pub`'s.
+    own = (node.get_namespace(), node.get_name())
+
     def visible(infos: list["TopicEndpointInfo"]) -> list["TopicEndpointInfo"]:
-        return sorted((e for e in infos if show_all or not e.node_name.startswith(HIDDEN_PREFIX)),
+        return sorted((e for e in infos if show_all or (e.node_namespace, e.node_name) != own),
                       key=lambda e: (e.node_namespace, e.node_name, e.endpoint_gid))
     return visible(node.get_publishers_info_by_topic(topic)), visible(node.get_subscriptions_info_by_topic(topic))
 
