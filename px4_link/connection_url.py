@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import re
+import stat
 from dataclasses import dataclass
 from typing import Literal
 
@@ -141,3 +142,5 @@ def check_serial_device(url: Px4Url) -> None:
     if not os.access(path, os.R_OK | os.W_OK):
         raise Px4UrlError(f"permission denied on {path}: add the user to the dialout group "
                           "(sudo usermod -aG dialout $USER, then log in again)")
+    if not stat.S_ISCHR(os.stat(path).st_mode):
+        raise Px4UrlError(f"{path} is not a serial device (a tty such as /dev/ttyACM0 or /dev/ttyAMA0)")

@@ -55,6 +55,7 @@ class Observer:
     ("foo", "'foo' is not a PX4 connection; expected one of: /dev/ttyACM0[:BAUD]"),
     ("/dev/ttyUSB0", "no serial device /dev/ttyUSB0: is the flight controller plugged in"),
     ("/dev/ttyAMA0:1234", "1234 is not a serial baud rate"),
+    ("/etc/hostname", "/etc/hostname is not a serial device"),
     ("serial://ttyACM0", "a serial URL names a device"),
     ("udp://:70000", "port 0..65535"),
 ])

@@ -89,6 +89,14 @@ def test_a_device_we_may_not_open_names_the_dialout_group(tmp_path: Path, monkey
         check_serial_device(parse_px4_url(str(device)))
 
 
+def test_a_file_that_is_no_tty_is_not_a_serial_device(tmp_path: Path) -> None:
+    (tmp_path / "notes").touch()
+    for path in (tmp_path / "notes", tmp_path):
+        with pytest.raises(Px4UrlError, match="is not a serial device"):
+            check_serial_device(parse_px4_url(str(path)))
+    check_serial_device(parse_px4_url("/dev/null"))   # a character device: opening it is the port's business
+
+
 def test_open_errors_name_the_fix() -> None:
     assert "dialout" in open_error("/dev/ttyACM0", OSError(errno.EACCES, "Permission denied"))
     assert "no serial device" in open_error("/dev/ttyACM0", OSError(errno.ENOENT, "No such file"))
