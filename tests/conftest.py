@@ -21,10 +21,12 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from cli_helpers import CLI, ROOT  # noqa: F401  (CLI re-exported: older imports of conftest.CLI)
 
 from drone_lab.experiment.stall_runs import wait_ready  # noqa: F401  (one READY protocol: tests and the stall runs)
 
-ROOT = Path(__file__).resolve().parents[1]
+# Fixtures defined beside the helpers they go with, visible to every test module.
+pytest_plugins = ["bag_helpers"]
 
 # Files whose tests run alone (`-m serial`): what they assert depends on the machine's load.
 SERIAL_FILES = frozenset({
@@ -47,6 +49,8 @@ SERIAL_TESTS = frozenset({
 
 def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line("markers", "serial: runs alone, after the parallel pass (see SERIAL_FILES)")
+    config.addinivalue_line("markers", "fast: starts no process and opens no socket beyond in-process loopback "
+                                       "Zenoh sessions; `make test-fast` runs these (docs/testing.md)")
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
@@ -73,6 +77,25 @@ def no_simulator_internal_error() -> Iterator[None]:
 def ns() -> str:
     """A namespace no other test (or earlier run) uses."""
     return f"t{secrets.token_hex(4)}"
+
+
+def fresh_domain() -> int:
+    """A random Zenoh domain (ZR_DOMAIN, 1..232) that no test running at the same time on another
+    pytest-xdist worker can draw: worker k of n draws only domains d with d % n == k."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0")
+    n = max(1, int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")))
+    k = int(worker.removeprefix("gw") or 0) % n
+    return secrets.choice([d for d in range(1, 233) if d % n == k])
+
+
+@pytest.fixture
+def own_domain(monkeypatch: pytest.MonkeyPatch) -> int:
+    """The test's processes in a domain of their own (ZR_DOMAIN): another module's ``gcs`` or
+    ``companion`` running beside them would otherwise make one refuse to start (a second /gcs),
+    and listings would show other tests' nodes."""
+    domain = fresh_domain()
+    monkeypatch.setenv("ZR_DOMAIN", str(domain))
+    return domain
 
 
 def skip_unless_required(reason: str) -> None:
@@ -210,7 +233,7 @@ def talker(request: pytest.FixtureRequest) -> Iterator[str]:
     tests assert on whole listings and on "did you mean" suggestions, which a neighbour would change."""
     ns = f"t{secrets.token_hex(4)}"
     env = pytest.MonkeyPatch()
-    env.setenv("ZR_DOMAIN", str(100 + secrets.randbelow(120)))
+    env.setenv("ZR_DOMAIN", str(fresh_domain()))
     proc = python_proc("-c", request.module.TALKER, ns)
     try:
         out = Lines(proc)
@@ -239,9 +262,6 @@ def bare_loss_monitor(monkeypatch: pytest.MonkeyPatch) -> tuple[Any, list[float]
     m._peers, m._lock = OrderedDict(), threading.Lock()
     m.probes_received = m.bad_probes = 0
     return m, clock
-
-
-CLI = [sys.executable, "-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())"]
 
 
 def record_ros2_talker(out: Path, domain: int, duration: float) -> subprocess.CompletedProcess[str]:

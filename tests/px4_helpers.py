@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import os
+import socket
+import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -77,6 +79,32 @@ def sim_process(sysid: int, target_port: int, *extra: str):
     """``python -m px4_link.sim`` as a real child process."""
     return python_proc("-m", "px4_link.sim", "--sysid", str(sysid), "--port", "0",
                        "--target-port", str(target_port), *extra)
+
+
+# ---------------------------------------------------------------- a ground station
+@contextmanager
+def gcs_heartbeats(port: int, mav_type: int | None = None) -> Iterator[threading.Event]:
+    """A QGC-like peer: HEARTBEAT at 1 Hz to the simulator until the yielded event is set."""
+    from pymavlink.dialects.v20 import common as mavlink2
+    if mav_type is None:
+        mav_type = mavlink2.MAV_TYPE_GCS
+    stop = threading.Event()
+    mav = mavlink2.MAVLink(None, srcSystem=255, srcComponent=190)
+    hb = mav.heartbeat_encode(mav_type, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, 4).pack(mav)
+
+    def run() -> None:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            while not stop.is_set():
+                s.sendto(hb, ("127.0.0.1", port))
+                stop.wait(1.0)
+
+    t = threading.Thread(target=run, daemon=True)
+    t.start()
+    try:
+        yield stop
+    finally:
+        stop.set()
+        t.join(2)
 
 
 # ---------------------------------------------------------------- PX4's own failsafes

@@ -9,14 +9,14 @@ import json
 import subprocess
 import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from conftest import CLI, ROOT, linked_configs, wait_for
+from bag_helpers import cfg_session
+from cli_helpers import CLI, ROOT
+from conftest import wait_for
 from mcap.reader import make_reader  # noqa: E402
 
-from drone_contract.messages import VehicleState  # noqa: E402
 from zenoh_robot import Node, msgs, qos  # noqa: E402
 from zenoh_robot.tools.bag.encodings import PROTOBUF, RAW_ENVELOPE_SCHEMA  # noqa: E402
 from zenoh_robot.tools.bag.info import Record, iter_records, read_info  # noqa: E402
@@ -25,44 +25,8 @@ from zenoh_robot.tools.bag.record import BagRecorder  # noqa: E402
 from zenoh_robot.wire import ENVELOPE  # noqa: E402
 
 
-class Talker:
-    """Setpoints (position targets) and VehicleStates at ~50 Hz on a thread, until stopped."""
-
-    def __init__(self, node: Node) -> None:
-        # RESILIENT: each sample sent 4 times and carried again by the next ones; the JSON keeps it once
-        self.sp = node.create_publisher(msgs.Setpoint, "setpoint", qos.RESILIENT)
-        self.st = node.create_publisher(VehicleState, "state")
-        self.stop = threading.Event()
-        self.thread = threading.Thread(target=self._run, daemon=True)
-
-    def _run(self) -> None:
-        i = 0
-        while not self.stop.is_set():
-            self.sp.publish(msgs.Setpoint(msgs.Header.now(seq=i), x=float(i), y=1.0, z=-2.0))
-            self.st.publish(VehicleState(msgs.Header.now(), mode="OFFBOARD", armed=True,
-                                         position=[float(i) * 0.1, 0.5, -3.0]))
-            i += 1
-            time.sleep(0.02)
-
-
-@pytest.fixture
-def talker(ns: str, tmp_path: Path) -> Iterator[tuple[Node, Talker, Path]]:
-    """A publishing talker node and a session config file (JSON5) that reaches it."""
-    listen, connect = linked_configs()
-    cfg = tmp_path / "connect.json5"
-    cfg.write_text(json.dumps(connect.to_json5()))
-    with Node("talker", namespace=ns, config=listen) as node:
-        t = Talker(node)
-        t.thread.start()
-        try:
-            yield node, t, cfg
-        finally:
-            t.stop.set()
-            t.thread.join()
-
-
-def test_record_cli_writes_mcap_that_reads_back(talker, ns, tmp_path):
-    _node, _t, cfg = talker
+def test_record_cli_writes_mcap_that_reads_back(bag_talker, ns, tmp_path):
+    _node, _t, cfg = bag_talker
     out = tmp_path / "flight.mcap"
     r = subprocess.run([*CLI, "bag", "record", "--zenoh", str(cfg), "-a", "--duration", "3", "-o", str(out)],
                        cwd=ROOT, capture_output=True, text=True, timeout=60)
@@ -111,10 +75,10 @@ def record_in_process(node: Node, path: Path, seconds: float, **kw) -> BagRecord
     return rec
 
 
-def test_a_file_cut_short_still_reads_to_its_last_chunk(talker, tmp_path):
-    _node, _t, cfg = talker
+def test_a_file_cut_short_still_reads_to_its_last_chunk(bag_talker, tmp_path):
+    _node, _t, cfg = bag_talker
     path = tmp_path / "full.mcap"
-    with Node("rec", config=_cfg_session(cfg)) as rnode:
+    with Node("rec", config=cfg_session(cfg)) as rnode:
         rec = record_in_process(rnode, path, 3.0, flush_period=0.2, compression="zstd")
     full = [r for r in iter_records(path) if isinstance(r, Record)]
     assert rec.counters.written > 40 and len(full) == (rec.counters.written + rec.counters.raw_written
@@ -136,15 +100,10 @@ def test_a_file_cut_short_still_reads_to_its_last_chunk(talker, tmp_path):
     assert r.returncode == 0 and "cut short" in r.stdout, r.stdout + r.stderr
 
 
-def _cfg_session(cfg: Path):
-    from zenoh_robot import SessionConfig
-    return SessionConfig.from_file(cfg)
-
-
-def test_info_lists_topics_counts_and_rates(talker, ns, tmp_path):
-    _node, _t, cfg = talker
+def test_info_lists_topics_counts_and_rates(bag_talker, ns, tmp_path):
+    _node, _t, cfg = bag_talker
     path = tmp_path / "f.mcap"
-    with Node("rec", config=_cfg_session(cfg)) as rnode:
+    with Node("rec", config=cfg_session(cfg)) as rnode:
         rec = record_in_process(rnode, path, 2.0)
     r = subprocess.run([*CLI, "bag", "info", "--json", str(path)], cwd=ROOT, capture_output=True, text=True,
                        timeout=30)
@@ -159,10 +118,10 @@ def test_info_lists_topics_counts_and_rates(talker, ns, tmp_path):
     assert f"/{ns}/state" in text and "zenoh_robot/VehicleState" in text and "Duration:" in text
 
 
-def test_play_republishes_bit_exact_into_a_live_subscriber(talker, ns, tmp_path):
-    node, t, cfg = talker
+def test_play_republishes_bit_exact_into_a_live_subscriber(bag_talker, ns, tmp_path):
+    node, t, cfg = bag_talker
     path = tmp_path / "f.mcap"
-    with Node("rec", config=_cfg_session(cfg)) as rnode:
+    with Node("rec", config=cfg_session(cfg)) as rnode:
         record_in_process(rnode, path, 2.0)
     t.stop.set()
     t.thread.join()
@@ -176,7 +135,7 @@ def test_play_republishes_bit_exact_into_a_live_subscriber(talker, ns, tmp_path)
                              qos.SETPOINT.replace(depth=1000))
     spinner = threading.Thread(target=node.spin_until, args=(lambda: len(got) >= len(recorded), 30.0), daemon=True)
     spinner.start()
-    with Node("player", config=_cfg_session(cfg)) as pnode:
+    with Node("player", config=cfg_session(cfg)) as pnode:
         player = BagPlayer(pnode, path, [f"/{ns}/setpoint"], rate=4.0)
         t0 = time.monotonic()
         c = player.play()

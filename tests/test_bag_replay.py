@@ -13,9 +13,10 @@ import time
 from pathlib import Path
 
 import numpy as np
-from conftest import ROOT, free_port, linked_configs, wait_for
+from bag_helpers import cfg_session
+from cli_helpers import CLI, ROOT
+from conftest import free_port, linked_configs, wait_for
 from mcap.reader import make_reader  # noqa: E402
-from test_bag import CLI, _cfg_session, talker  # noqa: E402,F401  (talker: the fixture)
 
 from drone_contract.messages import VehicleState  # noqa: E402
 from zenoh_robot import Node, msgs, qos  # noqa: E402
@@ -53,10 +54,10 @@ def _summary_topics(path: Path) -> dict[str, list]:
     return out
 
 
-def test_recorder_is_a_subscriber_in_topic_info(talker, ns, tmp_path):  # noqa: F811
-    _node, _t, cfg = talker
+def test_recorder_is_a_subscriber_in_topic_info(bag_talker, ns, tmp_path):
+    _node, _t, cfg = bag_talker
     # Peers linked to the talker only do not see each other: the CLI links to the recorder too.
-    base = _cfg_session(cfg)
+    base = cfg_session(cfg)
     rec_endpoint = f"tcp/127.0.0.1:{free_port()}"
     cli_cfg = tmp_path / "cli.json5"
     cli_cfg.write_text(json.dumps(dataclasses.replace(base, connect=[*base.connect, rec_endpoint]).to_json5()))
@@ -78,10 +79,10 @@ def test_recorder_is_a_subscriber_in_topic_info(talker, ns, tmp_path):  # noqa: 
     assert verdicts and all(line.endswith(": compatible") for line in verdicts), r.stdout
 
 
-def test_looped_play_delivers_every_pass_to_a_live_subscription(talker, ns, tmp_path):  # noqa: F811
-    node, t, cfg = talker
+def test_looped_play_delivers_every_pass_to_a_live_subscription(bag_talker, ns, tmp_path):
+    node, t, cfg = bag_talker
     path = tmp_path / "f.mcap"
-    with Node("rec", config=_cfg_session(cfg)) as rnode:
+    with Node("rec", config=cfg_session(cfg)) as rnode:
         rec = BagRecorder(rnode, path, [f"/{ns}/setpoint"]).start()
         rnode.spin_until(lambda: rec.counters.written >= 30, 20.0)
         rec.close()
@@ -94,7 +95,7 @@ def test_looped_play_delivers_every_pass_to_a_live_subscription(talker, ns, tmp_
     got: list[tuple[int, int]] = []
     node.create_subscription(msgs.Setpoint, "setpoint", lambda m, info: got.append((info.publisher_id, m.header.seq)),
                              qos.SETPOINT.replace(depth=1000))
-    with Spinning(node), Node("player", config=_cfg_session(cfg)) as pnode:
+    with Spinning(node), Node("player", config=cfg_session(cfg)) as pnode:
         player = BagPlayer(pnode, path, [f"/{ns}/setpoint"], rate=4.0, loop=True, passes=2)
         c = player.play()
         wait_for(lambda: len(got) >= 2 * n, 5.0)
@@ -153,10 +154,10 @@ def test_publishers_of_one_topic_replay_each_with_its_own_qos(ns, tmp_path):
             player.close()
 
 
-def test_record_exclude_and_domain(talker, ns, tmp_path):  # noqa: F811
-    _node, _t, talker_cfg = talker
+def test_record_exclude_and_domain(bag_talker, ns, tmp_path):
+    _node, _t, talker_cfg = bag_talker
     # Another system on the same network, in domain 7; the recorders link to both systems.
-    base = _cfg_session(talker_cfg)
+    base = cfg_session(talker_cfg)
     other_endpoint = f"tcp/127.0.0.1:{free_port()}"
     cfg = tmp_path / "both.json5"
     cfg.write_text(json.dumps(dataclasses.replace(base, connect=[*base.connect, other_endpoint]).to_json5()))

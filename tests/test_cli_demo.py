@@ -7,9 +7,9 @@ import signal
 import subprocess
 import time
 
-from conftest import ROOT, Lines
+from cli_helpers import INTERACTIVE_CLI, ROOT
+from conftest import Lines
 from conftest import kill_process as _stop
-from test_cli_topic import INTERACTIVE_CLI
 
 
 def test_ctrl_c_stops_the_demo_in_order_and_prints_the_summary():

@@ -2,18 +2,11 @@
 the terminal stays clean (no Zenoh log lines); usage errors name the subcommand."""
 from __future__ import annotations
 
-import os
 import socket
 import subprocess
 
 import pytest
-from conftest import CLI, ROOT
-
-
-def cli(*args: str, timeout: float = 60.0, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
-    full = {k: v for k, v in os.environ.items() if k not in ("RUST_LOG", "NO_COLOR")}
-    return subprocess.run([*CLI, *args], cwd=ROOT, capture_output=True, text=True, timeout=timeout,
-                          env={**full, **(env or {})})
+from cli_helpers import ROOT, cli
 
 
 def one_line_error(r: subprocess.CompletedProcess, *needles: str) -> None:

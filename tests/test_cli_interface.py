@@ -1,13 +1,7 @@
 """`zenoh-robot interface list|show`: the library's, the drone's (entry points) and .msg files' types."""
 from __future__ import annotations
 
-import subprocess
-
-from conftest import CLI, ROOT
-
-
-def cli(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([*CLI, *args], cwd=ROOT, capture_output=True, text=True, timeout=30)
+from cli_helpers import ROOT, cli
 
 
 def test_list_has_standard_drone_and_service_types():

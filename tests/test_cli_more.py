@@ -10,12 +10,14 @@ import secrets
 import subprocess
 import time
 
+from cli_helpers import CLI, TOPIC_TALKER, cli
 from conftest import ROOT, Lines, python_proc, wait_for
 from conftest import kill_process as _stop
-from test_cli_topic import CLI, TALKER, cli  # noqa: F401  (TALKER: the script of conftest's talker fixture)
 
 from zenoh_robot import Node, ReliabilityPolicy, msgs, qos
 from zenoh_robot.topic_statistics import default_statistics_key
+
+TALKER = TOPIC_TALKER   # conftest's talker fixture runs it (test_cli_topic's talker)
 
 
 def test_echo_field_prints_one_value_per_message(talker):

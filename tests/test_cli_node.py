@@ -9,7 +9,7 @@ from __future__ import annotations
 import subprocess
 import threading
 
-from conftest import CLI, ROOT
+from cli_helpers import cli
 
 from zenoh_robot import Node
 from zenoh_robot.parameters import ParameterClient, ParameterType, SetParametersResult
@@ -41,10 +41,6 @@ with Node("talker", namespace=ns) as n:
         chatter.publish(msgs.String("x"))
         n.spin(0.1)
 """
-
-
-def cli(*args: str, timeout: float = 30.0) -> subprocess.CompletedProcess:
-    return subprocess.run([*CLI, *args], cwd=ROOT, capture_output=True, text=True, timeout=timeout)
 
 
 def _one_error(out: subprocess.CompletedProcess) -> str:

@@ -11,11 +11,11 @@ from __future__ import annotations
 import re
 import signal
 import subprocess
-import sys
 import time
 
 import pytest
-from conftest import CLI, ROOT, Lines, kill_process
+from cli_helpers import INTERACTIVE_CLI, ROOT, TOPIC_TALKER, cli, cli_seeing
+from conftest import Lines, kill_process
 
 from zenoh_robot import (
     DurabilityPolicy,
@@ -29,59 +29,7 @@ from zenoh_robot import (
 )
 from zenoh_robot.tools.cli.topic import adapted_qos
 
-# As from a terminal: a test run started in the background (`pytest &`) passes an ignored
-# SIGINT on to its children, and Python then never turns Ctrl-C into KeyboardInterrupt.
-INTERACTIVE_CLI = [sys.executable, "-c", "import signal, sys; "
-                   "signal.signal(signal.SIGINT, signal.default_int_handler); "
-                   "from zenoh_robot.tools.cli.main import main; sys.exit(main())"]
-
-TALKER = r"""
-import sys
-from zenoh_robot import Message, Node, message, msgs, qos
-from zenoh_robot.qos import QoSProfile
-
-@message(name="test_msgs/Secret")   # registered only in this process
-class Secret(Message):
-    code: int = 0
-
-ns = sys.argv[1]
-with Node("talker", namespace=ns) as n:
-    chatter = n.create_publisher(msgs.String, "chatter", qos.SENSOR)          # BEST_EFFORT
-    n.create_subscription(msgs.String, "chatter", lambda m: None, QoSProfile(reliability="reliable"))
-    setpoint = n.create_publisher(msgs.Setpoint, "setpoint", qos.SETPOINT)
-    secret = n.create_publisher(Secret, "secret")
-    stats = n.create_publisher(msgs.TopicStatistics, f"/{ns}/statistics/chatter")
-    latched = n.create_publisher(msgs.String, "latched", qos.CONFIGURATION)   # TRANSIENT_LOCAL
-    latched.publish(msgs.String("kept for late joiners"))
-    print("ready", flush=True)
-    i = 0
-    while True:
-        chatter.publish(msgs.String(f"hello {i}"))
-        setpoint.publish(msgs.Setpoint(msgs.Header.now(), x=1.5, y=float(i)))
-        secret.publish(Secret(42))
-        if i % 5 == 0:
-            stats.publish(msgs.TopicStatistics(
-                topic=f"/{ns}/chatter", node=f"/{ns}/listener", received=i, lost=2, dropped=1,
-                message_age_ms=msgs.StatisticsEntry(1.5, 0.5, 3.0, 0.4, 20),
-                message_period_ms=msgs.StatisticsEntry(50.0, 48.0, 52.0, 1.0, 20)))
-        i += 1
-        n.spin(0.05)   # ~20 Hz
-"""
-
-
-def cli(*args: str, timeout: float = 30.0) -> subprocess.CompletedProcess:
-    return subprocess.run([*CLI, *args], cwd=ROOT, capture_output=True, text=True, timeout=timeout)
-
-
-def cli_seeing(ns: str, *args: str, tries: int = 3) -> subprocess.CompletedProcess:
-    """``cli(*args)`` again (at most ``tries`` times) until its output names the talker's namespace. `topic list`
-    ends once the graph is quiet for 0.5 s, and a fresh session on a loaded machine can find the talker's
-    domain quiet before its entities arrive: what is tested here is what a listing shows, not that race."""
-    for _ in range(tries - 1):
-        out = cli(*args)
-        if out.returncode != 0 or f"/{ns}/" in out.stdout:
-            return out
-    return cli(*args)
+TALKER = TOPIC_TALKER   # conftest's talker fixture runs it
 
 
 def test_list_shows_topics_and_types(talker):

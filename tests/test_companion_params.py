@@ -3,7 +3,6 @@ over Zenoh on loopback; and its end-of-run summary when PX4 never answers."""
 from __future__ import annotations
 
 import json
-import os
 import secrets
 import subprocess
 import threading
@@ -12,7 +11,8 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from conftest import CLI, ROOT, free_port, python_proc, wait_for
+from cli_helpers import cli
+from conftest import free_port, python_proc, wait_for
 
 from companion.params import SPECS, qos_param_names
 from drone_contract.messages import CONTROL_TOKEN_PREFIX, Command, CommandResult, FailsafeEvent, VehicleState
@@ -20,11 +20,6 @@ from drone_contract.streams import stream_profile
 from zenoh_robot import Node, SessionConfig
 
 OPERATOR = "tester"   # the client id the test's sets carry; it takes control first (safety limits: holder only)
-
-
-def cli(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
-    env = {k: v for k, v in os.environ.items() if k not in ("RUST_LOG", "NO_COLOR")}
-    return subprocess.run([*CLI, *args], cwd=ROOT, capture_output=True, text=True, timeout=timeout, env=env)
 
 
 def _strict_json(text: str) -> object:

@@ -7,11 +7,9 @@ A stream added to the table and forgotten on either side fails here.
 """
 from __future__ import annotations
 
-import secrets
-
 import pytest
 from conftest import python_proc, stop_process, wait_for
-from test_system import OP, drone
+from rigs import OP, drone
 
 from drone_contract.commands import CLI_COMMANDS, COMMAND_SPECS, COMMANDS, CommandName, resolve_cli_name
 from drone_contract.messages import Command, CommandResult
@@ -22,11 +20,8 @@ from zenoh_robot.message import type_support
 DRONE = "uavc"
 
 
-@pytest.fixture(autouse=True)
-def own_domain(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Its companion and GCS (node names `companion`, `gcs`) in a domain of their own: another module's
-    `gcs` running beside it would otherwise make this one refuse to start (a second /gcs)."""
-    monkeypatch.setenv("ZR_DOMAIN", str(1 + secrets.randbelow(99)))
+# Its companion and GCS (node names `companion`, `gcs`) in a domain of their own (conftest's own_domain).
+pytestmark = pytest.mark.usefixtures("own_domain")
 
 
 def _endpoints(node: Node, topic: str) -> tuple[dict[str, str], dict[str, str]]:

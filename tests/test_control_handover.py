@@ -12,7 +12,7 @@ import time
 
 from conftest import wait_for
 from px4_helpers import wait_state_armable
-from test_control_lifecycle import PROFILE, Rig, _take_off, rig
+from rigs import PROFILE, Rig, rig, take_off
 
 from companion.offboard_session import OffboardState
 from gcs.app import Gcs, GcsConfig
@@ -66,7 +66,7 @@ def _holds_near(r: Rig, where: tuple[float, float, float], seconds: float) -> No
 def test_release_mid_flight_holds_and_the_observer_never_steers(ns: str) -> None:
     with rig(ns) as r:
         px4 = ReachedPx4(r.sim)
-        _take_off(r, ALT)
+        take_off(r, ALT)
         hover = r.sim.position
         intruder = _observer_streams(r)
         assert wait_for(lambda: "setpoint_rejected" in r.other.kinds("intruder"), 5)
@@ -129,7 +129,7 @@ def test_gcs_exits_mid_flight_drone_holds_and_control_is_kept(ns: str) -> None:
 def test_hand_over_confirmed_by_the_named_gcs(ns: str) -> None:
     with rig(ns) as r:
         px4 = ReachedPx4(r.sim)
-        _take_off(r, ALT)
+        take_off(r, ALT)
         x, y, z = r.sim.position
         r.other.target = (x, y, z)
         res = r.other.command("hand_over", text="op")
@@ -159,7 +159,7 @@ def test_hand_over_confirmed_by_the_named_gcs(ns: str) -> None:
 def test_unconfirmed_hand_over_changes_nothing_or_holds_when_the_holder_left(ns: str) -> None:
     with rig(ns) as r:
         r.companion.control.hand_over_s = 1.5
-        _take_off(r, ALT)
+        take_off(r, ALT)
         assert r.op.command("hand_over", text="intruder").success
         assert wait_for(lambda: any(e.kind == "control_changed" and "not confirmed" in e.detail
                                     for e in r.op.events), 6), r.op.kinds()
@@ -189,7 +189,7 @@ def test_lease_expiry_on_the_ground_releases_control(ns: str) -> None:
 
 def test_gcs_not_in_control_never_streams_to_that_drone(ns: str) -> None:
     with rig(ns) as r:
-        _take_off(r, ALT)
+        take_off(r, ALT)
         watcher = Gcs(r.ground, GcsConfig(drones=[ns], pattern="hover", altitude=ALT, profile=PROFILE,
                                           client_id="watcher"))
         drone = watcher.drones[ns]

@@ -5,113 +5,19 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
-from dataclasses import dataclass, field
 
 import pytest
-from conftest import linked_configs, wait_for
-from px4_helpers import wait_state_armable
+from conftest import wait_for
+from rigs import PROFILE, rig, take_off
 
-from companion.app import Companion
-from companion.config import CompanionConfig
-from drone_contract.messages import Command, CommandResult, DroneSetpoint, FailsafeEvent, VehicleState
-from drone_contract.streams import SETPOINT_DEADLINE, stream_profile
+from drone_contract.messages import Command
 from gcs.app import Gcs, GcsConfig
 from gcs.mission import run_mission
-from px4_link import Px4Link
-from px4_link.sim import Simulator
-from zenoh_robot import MultiThreadedExecutor, Node, SessionConfig
-from zenoh_robot.msgs import Header
-
-FAST = {"MPC_TKO_SPEED": 3.0, "MPC_LAND_SPEED": 2.0}
-PROFILE = stream_profile("resilient")
-
-
-@dataclass
-class Client:
-    """A test GCS-side peer with its own id: streams setpoints, sends commands, hears events."""
-    node: Node
-    ns: str
-    client_id: str
-    state: VehicleState | None = None
-    events: list[FailsafeEvent] = field(default_factory=list)
-    target: tuple[float, float, float] | None = None
-
-    def __post_init__(self) -> None:
-        q = PROFILE.qos
-        self.node.create_subscription(VehicleState, f"/{self.ns}/state", self._on_state, q["state"])
-        self.node.create_subscription(FailsafeEvent, f"/{self.ns}/events", self.events.append, q["events"])
-        self.pub = self.node.create_publisher(DroneSetpoint, f"/{self.ns}/setpoint",
-                                              q["setpoint"].replace(deadline=SETPOINT_DEADLINE))
-        self.client = self.node.create_client(f"/{self.ns}/command", Command, CommandResult)
-        self._stop = threading.Event()
-        threading.Thread(target=self._stream, daemon=True).start()
-
-    def _on_state(self, msg: VehicleState) -> None:
-        self.state = msg
-
-    def _stream(self) -> None:
-        while not self._stop.wait(0.1):
-            t = self.target
-            if t is not None:
-                self.pub.publish(DroneSetpoint(Header.now(), self.client_id, *t))
-
-    def command(self, name: str, value: float = 0.0, text: str = "", force: bool = False) -> CommandResult:
-        return self.client.call(Command(name, value, text, force, self.client_id), timeout=15.0)
-
-    def kinds(self, client_id: str | None = None) -> list[str]:
-        return [e.kind for e in self.events if client_id is None or e.client_id == client_id]
-
-    def close(self) -> None:
-        self._stop.set()
-
-
-@dataclass
-class Rig:
-    sim: Simulator
-    link: Px4Link
-    companion: Companion
-    op: Client
-    other: Client
-    ground: Node
-    connect: SessionConfig    # for another GCS's own session
-
-
-@contextmanager
-def rig(ns: str, **config: object) -> Iterator[Rig]:
-    listen, connect = linked_configs()
-    with Px4Link("udpin:127.0.0.1:0") as link, \
-            Simulator(1, port=0, target_port=link.local_port, params=FAST) as sim, \
-            Node("companion", namespace=ns, config=listen, executor=MultiThreadedExecutor(3)) as cnode, \
-            Node("ground", config=connect, executor=MultiThreadedExecutor(2)) as ground:
-        assert link.wait_connected(5.0)
-        comp = Companion(cnode, link, CompanionConfig(drone_id=ns, camera=None, **config))  # type: ignore[arg-type]
-        for n in (cnode, ground):
-            threading.Thread(target=n.spin, daemon=True).start()
-        op, other = Client(ground, ns, "op"), Client(ground, ns, "intruder")
-        try:
-            assert wait_for(lambda: op.state is not None and op.state.connected
-                            and all(v == v for v in op.state.position), 15), "no state from the companion"
-            yield Rig(sim, link, comp, op, other, ground, connect)
-        finally:
-            op.close()
-            other.close()
-
-
-def _take_off(r: Rig, alt: float = 2.5) -> None:
-    r.op.target = (0.0, 0.0, -alt)
-    time.sleep(0.5)
-    res = r.op.command("offboard_start")
-    assert res.success, res.message
-    wait_state_armable(r.op)
-    assert r.op.command("arm").success
-    assert wait_for(lambda: r.sim.altitude > alt * 0.8, 20), f"altitude {r.sim.altitude:.1f}"
 
 
 def test_arm_after_a_mission_stays_on_the_ground_and_nothing_streams_after_landing(ns: str) -> None:
     with rig(ns) as r:
-        _take_off(r)
+        take_off(r)
         assert r.op.command("land").success
         # The GCS keeps streaming its last target: exactly the real-SITL failure.
         assert wait_for(lambda: r.sim.landed and not r.sim.armed, 30), "never landed and disarmed"
@@ -133,7 +39,7 @@ def test_arm_after_a_mission_stays_on_the_ground_and_nothing_streams_after_landi
 
 def test_deadline_missed_holds_then_stops_streaming_and_resumes_only_when_asked(ns: str) -> None:
     with rig(ns) as r:
-        _take_off(r)
+        take_off(r)
         r.op.target = None   # the GCS dies
         assert wait_for(lambda: r.sim.mode == "AUTO.LOITER", 5), r.sim.mode
         assert wait_for(lambda: not r.link.offboard.streaming, 2)
@@ -152,7 +58,7 @@ def test_deadline_missed_holds_then_stops_streaming_and_resumes_only_when_asked(
 
 def test_resume_30_m_from_home_and_the_refusal_says_why(ns: str) -> None:
     with rig(ns) as r:
-        _take_off(r, 3.0)
+        take_off(r, 3.0)
         # Fly 30 m north, the target never more than 8 m ahead of the vehicle.
         while r.sim.position[0] < 29.0:
             r.op.target = (min(30.0, r.sim.position[0] + 8.0), 0.0, -3.0)
@@ -198,7 +104,7 @@ def test_mission_interrupted_by_a_failsafe_reports_failure(ns: str) -> None:
 
 def test_one_gcs_in_control_others_refused_and_told_why(ns: str) -> None:
     with rig(ns) as r:
-        _take_off(r)
+        take_off(r)
         r.other.target = (0.0, 0.0, -2.5)   # a second GCS streams too
         res = r.other.command("land")
         assert not res.success and "op is in control" in res.message, res.message
@@ -228,7 +134,7 @@ def test_one_gcs_in_control_others_refused_and_told_why(ns: str) -> None:
 
 def test_command_policy_force_disarm_and_param_allow_list(ns: str) -> None:
     with rig(ns) as r:
-        _take_off(r)
+        take_off(r)
         res = r.op.command("disarm", force=True)
         assert not res.success and "--allow-force-disarm" in res.message, res.message
         assert r.sim.armed
@@ -256,7 +162,7 @@ def test_sensor_rate_is_measured_and_a_shortfall_is_reported(ns: str) -> None:
 
 def test_gcs_without_mission_flies_its_pattern_from_where_the_drone_is(ns: str) -> None:
     with rig(ns) as r:
-        _take_off(r, 2.5)
+        take_off(r, 2.5)
         assert r.op.command("hold").success
         x0, y0, _ = r.sim.position
         r.op.target = None

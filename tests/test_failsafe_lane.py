@@ -13,7 +13,7 @@ from collections.abc import Callable
 from typing import Any
 
 from conftest import wait_for
-from test_control_lifecycle import Rig, _take_off, rig
+from rigs import Rig, rig, take_off
 
 from drone_contract.messages import CommandResult
 
@@ -91,7 +91,7 @@ def test_hold_within_bound_while_a_20_s_command_runs(ns: str) -> None:
     command lane; the command service still answers at once meanwhile. N=5 runs."""
     latencies: list[float] = []
     with rig(ns) as r:
-        _take_off(r)
+        take_off(r)
         stamped = _stamp(r)
         for i in range(5):
             if i:
@@ -122,7 +122,7 @@ def test_three_slow_commands_do_not_starve_the_watchdog_and_the_queue_is_bounded
     """Old tree: three blocking handlers filled the companion's 3 executor threads, so neither the
     QoS deadline event nor the watchdog ran, and nothing was refused."""
     with rig(ns) as r:
-        _take_off(r)
+        take_off(r)
         stamped = _stamp(r)
         slow = _SlowVehicleParams()
         r.link.param.set = slow.set   # type: ignore[method-assign]
@@ -168,7 +168,7 @@ def test_hold_withdraws_an_unacknowledged_px4_command(ns: str) -> None:
     """A COMMAND_LONG the vehicle never ACKs holds px4_link's one command slot for its retries
     (~4 s): the HOLD withdraws it instead of queueing behind it, and no more retries go out."""
     with rig(ns) as r:
-        _take_off(r)
+        take_off(r)
         stamped = _stamp(r)
         proto = r.sim.protocol
         assert proto is not None
@@ -198,7 +198,7 @@ def test_hold_withdraws_an_unacknowledged_px4_command(ns: str) -> None:
 def test_an_unexpected_exception_in_the_hold_is_counted_and_reported(ns: str) -> None:
     """Old tree: only CommandError was caught; anything else vanished into an unread future."""
     with rig(ns) as r:
-        _take_off(r)
+        take_off(r)
 
         def broken(mode: str | None = None) -> None:
             raise ValueError("boom")

@@ -11,7 +11,7 @@ import px4_helpers  # noqa: F401  (puts the checkout's px4_link first on sys.pat
 import pytest
 from conftest import wait_for
 from px4_helpers import sim_and_link
-from test_control_lifecycle import Rig, _take_off, rig
+from rigs import Rig, rig, take_off
 
 from companion.config import CompanionConfig
 from companion.params import SPECS, CompanionParameters, owner_only
@@ -190,7 +190,7 @@ def test_a_9_5_m_s_stream_stops_at_the_drone_fence_and_the_sender_hears_why(ns: 
     radius = 40.0
     with rig(ns, fence_radius_m=radius) as r:
         assert r.link.offboard.geofence is not None and r.link.offboard.geofence.max_distance_m == radius
-        _take_off(r, alt=5.0)
+        take_off(r, alt=5.0)
         assert wait_for(lambda: r.sim.mode == "OFFBOARD", 5)
         r.op.target = None
         stop = threading.Event()
@@ -216,7 +216,7 @@ def test_a_9_5_m_s_stream_stops_at_the_drone_fence_and_the_sender_hears_why(ns: 
 def test_a_velocity_stream_that_stops_stops_the_drone_before_the_failsafe(ns: str) -> None:
     # The deadline failsafe is made slow, so only the velocity's own expiry can stop the drone.
     with rig(ns, setpoint_deadline=5.0, control_lease_s=10.0) as r:
-        _take_off(r, alt=5.0)
+        take_off(r, alt=5.0)
         r.op.target = None
         stop = threading.Event()
         _velocity_stream(r, (3.0, 0.0, 0.0), stop)

@@ -20,7 +20,7 @@ from typing import Any
 
 import msgpack
 from conftest import linked_configs, wait_for
-from test_hardening import raw_put
+from wire_helpers import raw_put
 
 from drone_contract.streams import PROFILES
 from zenoh_robot import Node

@@ -18,7 +18,7 @@ import pytest
 from conftest import linked_nodes
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from test_hardening import KEEP_ALL, ArmRequest, ArmResponse, raw_put
+from wire_helpers import KEEP_ALL, ArmRequest, ArmResponse, raw_put
 
 from zenoh_robot import QoSProfile
 from zenoh_robot._wire import envelope

@@ -15,10 +15,10 @@ import msgpack
 import numpy as np
 import pytest
 from conftest import linked_nodes
+from wire_helpers import KEEP_ALL, ArmRequest, ArmResponse, raw_put
 
-from zenoh_robot import Message, QoSProfile, message, ros_field
+from zenoh_robot import Message, QoSProfile, message
 from zenoh_robot.msgs import Header, Image, Setpoint
-from zenoh_robot.qos import HistoryPolicy
 from zenoh_robot.services import ServiceError
 
 
@@ -37,27 +37,6 @@ class Stamped(Message):
     def __post_init__(self) -> None:
         if self.header is None:
             self.header = FloatStamp()
-
-
-@message(name="test_hardening/ArmRequest")
-class ArmRequest(Message):
-    force: bool = False
-    value: int = ros_field("int32", 0)
-    reason: str = ""
-
-
-@message(name="test_hardening/ArmResponse")
-class ArmResponse(Message):
-    ok: bool = False
-
-
-KEEP_ALL = QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=0)
-
-
-def raw_put(session, key: str):
-    """An attacker's put that Zenoh does not drop when its queue is full (a flood must arrive whole)."""
-    import zenoh
-    return session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK).put
 
 
 def _env(msg_type: type, body, pub_id: int = 1, seq: int = 1, stamp: int | None = None,

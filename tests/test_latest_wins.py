@@ -12,7 +12,7 @@ import time
 from typing import Any
 
 from conftest import wait_for
-from test_control_lifecycle import PROFILE, Rig, rig
+from rigs import PROFILE, Rig, rig
 
 from drone_contract.messages import DroneSetpoint
 from drone_contract.streams import SETPOINT_DEADLINE

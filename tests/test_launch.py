@@ -12,13 +12,12 @@ import time
 from pathlib import Path
 
 import pytest
+from cli_helpers import CLI_ARGS
 from conftest import ROOT, python_proc, wait_for
-
-CLI = ("-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())")
 
 from zenoh_robot.tools.launch import LaunchError, LaunchRunner, ProcessSpec, load_launch
 
-ZR = [sys.executable, *CLI]
+ZR = [sys.executable, *CLI_ARGS]
 CHILD = str(ROOT / "tests" / "procs" / "launch_child.py")
 
 
@@ -49,7 +48,7 @@ def test_required_failure_stops_the_rest_and_names_it(tmp_path):
             cmd: ["$(python)", "{CHILD}", "--fail-after", "0.8", "--code", "7"]
             delay: 0.2
     """)
-    proc = python_proc(*CLI, "launch", str(path), "--sigint-timeout", "3")
+    proc = python_proc(*CLI_ARGS, "launch", str(path), "--sigint-timeout", "3")
     out, _ = proc.communicate(timeout=60)
     assert proc.returncode == 1, out
     assert "required process 'flaky' failed (exit code 7); stopping everything" in out
@@ -69,7 +68,7 @@ def test_sigint_stops_everything_cleanly_including_grandchildren(tmp_path):
           - name: b
             cmd: ["$(python)", "{CHILD}"]
     """)
-    proc = python_proc(*CLI, "launch", str(path))
+    proc = python_proc(*CLI_ARGS, "launch", str(path))
     seen: list[str] = []
     deadline = time.monotonic() + 30
     while time.monotonic() < deadline:
@@ -180,7 +179,7 @@ def test_validation_errors_are_clear(tmp_path, body, message):
 
 def test_cli_reports_bad_files_in_one_line(tmp_path):
     path = write(tmp_path, "processes:\n  - name: x\n    cmd: [ls]\n")
-    proc = python_proc(*CLI, "launch", str(path), "bogus:=1")
+    proc = python_proc(*CLI_ARGS, "launch", str(path), "bogus:=1")
     out, _ = proc.communicate(timeout=30)
     assert proc.returncode == 1
     assert out.strip().splitlines() == [
@@ -226,7 +225,7 @@ def test_stop_goes_in_reverse_dependency_order(tmp_path):
             cmd: ["$(python)", "{script}", gcs]
             depends_on: [companion]
     """)
-    proc = python_proc(*CLI, "launch", str(path))
+    proc = python_proc(*CLI_ARGS, "launch", str(path))
     seen: list[str] = []
     deadline = time.monotonic() + 30
     while time.monotonic() < deadline and sum(" up" in line for line in seen) < 3:

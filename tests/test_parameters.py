@@ -4,6 +4,7 @@ from __future__ import annotations
 import threading
 
 import pytest
+from cli_helpers import CLI_ARGS
 from conftest import python_proc, wait_ready
 
 from zenoh_robot import History, Node, QoSError, QoSProfile, Reliability
@@ -22,8 +23,6 @@ from zenoh_robot.parameters import (
     parse_param_args,
     qos_from_parameters,
 )
-
-CLI = ("-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())")
 
 
 @pytest.fixture
@@ -139,7 +138,7 @@ def test_qos_from_parameters(ns):
 
 
 def _cli(*args: str) -> tuple[int, str]:
-    proc = python_proc(*CLI, "param", *args)
+    proc = python_proc(*CLI_ARGS, "param", *args)
     out, _ = proc.communicate(timeout=30)
     return proc.returncode, out
 

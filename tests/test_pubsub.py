@@ -7,7 +7,7 @@ import time
 
 import pytest
 from conftest import linked_nodes, python_proc, wait_for
-from test_messages import ALL
+from wire_helpers import SAMPLE_MESSAGES
 
 from zenoh_robot import InvalidNameError, MultiThreadedExecutor, Node, QoSProfile, qos
 from zenoh_robot.message import type_support
@@ -32,7 +32,7 @@ def test_every_message_type_arrives(pair, reliability: str) -> None:
     profile = QoSProfile(reliability=reliability, depth=10)
     received: dict[str, list] = {}
     pubs = []
-    for i, msg in enumerate(ALL):
+    for i, msg in enumerate(SAMPLE_MESSAGES):
         topic = f"t{i}"
         b.create_subscription(type(msg), topic, lambda m, t=topic: received.setdefault(t, []).append(m), profile)
         pubs.append((a.create_publisher(type(msg), topic, profile), msg))
@@ -40,13 +40,13 @@ def test_every_message_type_arrives(pair, reliability: str) -> None:
     # Best effort promises nothing per sample (a 230 KB frame is ~160 datagrams): send again
     # until each type has arrived once.
     deadline = time.monotonic() + 10.0
-    while len(received) < len(ALL) and time.monotonic() < deadline:
+    while len(received) < len(SAMPLE_MESSAGES) and time.monotonic() < deadline:
         for i, (pub, msg) in enumerate(pubs):
             if f"t{i}" not in received:
                 pub.publish(msg)
-        b.spin_until(lambda: len(received) == len(ALL), timeout=0.3)
-    assert len(received) == len(ALL), sorted(received)
-    for i, msg in enumerate(ALL):
+        b.spin_until(lambda: len(received) == len(SAMPLE_MESSAGES), timeout=0.3)
+    assert len(received) == len(SAMPLE_MESSAGES), sorted(received)
+    for i, msg in enumerate(SAMPLE_MESSAGES):
         assert received[f"t{i}"][0] == msg
 
 

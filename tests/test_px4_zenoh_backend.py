@@ -7,20 +7,16 @@ this backend has: PX4's topics never reach the GCS-facing session, parameters ar
 """
 from __future__ import annotations
 
-import secrets
 import threading
 
 import pytest
 from conftest import python_proc, stop_process, wait_for
 from px4_helpers import wait_state_armable
-from test_system import OP, Observer, drone
+from rigs import OP, Observer, drone
 
 from zenoh_robot import Node
 
-
-@pytest.fixture(autouse=True)
-def own_domain(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setenv("ZR_DOMAIN", str(100 + secrets.randbelow(120)))
+pytestmark = pytest.mark.usefixtures("own_domain")   # conftest's: a domain of its own
 
 
 def test_px4s_topics_stay_on_the_px4_side_and_parameters_are_refused_by_name(ns: str) -> None:

@@ -13,9 +13,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from px4_zenoh_probe import Probe, probed_sim
 
 from px4_zenoh.sim import ZenohSimulator
-from tests.px4_zenoh_probe import Probe, probed_sim
 
 # CI lays out <root>/main (this repo) beside <root>/shared; a missing trace set fails, never skips.
 TRACES = Path(__file__).resolve().parents[2] / "shared" / "px4_zenoh_traces"

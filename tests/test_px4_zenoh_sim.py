@@ -7,9 +7,9 @@ import time
 from collections.abc import Iterator
 
 import pytest
+from px4_zenoh_probe import Probe, probed_sim
 
 from px4_zenoh.sim import ZenohSimulator
-from tests.px4_zenoh_probe import Probe, probed_sim
 
 ACCEPTED, TEMPORARILY_REJECTED, UNSUPPORTED = 0, 1, 3
 DO_SET_MODE, ARM, NAV_LAND = 176, 400, 21
@@ -86,7 +86,7 @@ def test_refusals_and_dropped_inputs(px4: tuple[Probe, ZenohSimulator]) -> None:
 
 
 def test_client_retries_until_a_router_is_there() -> None:
-    from tests.px4_zenoh_probe import free_port
+    from px4_zenoh_probe import free_port
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     sim = ZenohSimulator(endpoint, retry_s=0.3).start()

@@ -8,7 +8,7 @@ import math
 import time
 
 from conftest import wait_for
-from test_control_lifecycle import Client, rig
+from rigs import Client, rig
 
 from drone_contract.messages import DroneSetpoint
 from zenoh_robot.msgs import Header

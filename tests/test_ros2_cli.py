@@ -13,7 +13,8 @@ import subprocess
 from collections.abc import Iterator
 
 import pytest
-from conftest import CLI, ROOT, kill_process, wait_for
+from cli_helpers import cli
+from conftest import kill_process, wait_for
 from ros2_peer import PEER_PRELUDE, Peer, router, start_peer, write_msgs
 
 STRING = "std_msgs/msg/String"
@@ -51,55 +52,56 @@ def peer(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[int, int, P
             kill_process(p.proc)
 
 
-def cli(peer: tuple[int, int, Peer], *args: str, timeout: float = 40.0) -> subprocess.CompletedProcess[str]:
+def ros2_cli(peer: tuple[int, int, Peer], *args: str, timeout: float = 40.0) -> subprocess.CompletedProcess[str]:
+    """``zenoh-robot <verb> --ros2 ...`` as an rmw_zenoh node: a peer connected to the router that listens and
+    gossips (rmw_zenoh #929)."""
     port, domain, _ = peer
-    # As an rmw_zenoh node: a peer connected to the router that listens and gossips (rmw_zenoh #929).
     flags = ["--ros2", "--ros-domain-id", str(domain), "-e", f"tcp/127.0.0.1:{port}", "-l", "tcp/127.0.0.1:0"]
-    return subprocess.run([*CLI, args[0], *flags, *args[1:]], cwd=ROOT, capture_output=True, text=True,
-                          timeout=timeout)
+    return cli(args[0], *flags, *args[1:], timeout=timeout)
 
 
 def test_topic_list_and_info_show_the_ros2_topic_with_its_type(peer) -> None:
-    listed = cli(peer, "topic", "list", "-t")
+    listed = ros2_cli(peer, "topic", "list", "-t")
     assert listed.returncode == 0, listed.stderr
     assert f"/sdk/chatter [{STRING}]" in listed.stdout.splitlines(), listed.stdout
-    info = cli(peer, "topic", "info", "/sdk/chatter", "-v")
+    info = ros2_cli(peer, "topic", "info", "/sdk/chatter", "-v")
     assert info.returncode == 0, info.stderr
     assert STRING in info.stdout and "sdk_node" in info.stdout, info.stdout
 
 
 def test_node_list_and_info(peer) -> None:
-    listed = cli(peer, "node", "list")
+    listed = ros2_cli(peer, "node", "list")
     assert listed.returncode == 0, listed.stderr
     assert "/sdk/sdk_node" in listed.stdout.splitlines(), listed.stdout
-    info = cli(peer, "node", "info", "/sdk/sdk_node")
+    info = ros2_cli(peer, "node", "info", "/sdk/sdk_node")
     assert info.returncode == 0, info.stderr
     assert f"/sdk/chatter: {STRING}" in info.stdout and f"/sdk/add_two_ints: {ADD}" in info.stdout, info.stdout
 
 
 def test_topic_echo_decodes_its_string_with_the_graphs_type(peer) -> None:
-    echo = cli(peer, "topic", "echo", "/sdk/chatter", "--once", "--duration", "20")
+    echo = ros2_cli(peer, "topic", "echo", "/sdk/chatter", "--once", "--duration", "20")
     assert echo.returncode == 0, echo.stderr
     assert echo.stdout.startswith("data: hello "), echo.stdout
 
 
 def test_topic_hz_measures_its_rate(peer) -> None:
-    hz = cli(peer, "topic", "hz", "/sdk/chatter", "--duration", "4")
+    hz = ros2_cli(peer, "topic", "hz", "/sdk/chatter", "--duration", "4")
     assert hz.returncode == 0, hz.stderr
     assert "average rate:" in hz.stdout, hz.stdout
 
 
 def test_topic_pub_with_a_ros_type_name_is_heard(peer) -> None:
     _, _, p = peer
-    pub = cli(peer, "topic", "pub", "/sdk/heard", STRING, "{data: from the cli}", "--times", "3", "--max-wait", "10")
+    pub = ros2_cli(peer, "topic", "pub", "/sdk/heard", STRING, "{data: from the cli}", "--times", "3",
+                   "--max-wait", "10")
     assert pub.returncode == 0, pub.stderr
     assert wait_for(lambda: "from the cli" in p.values("heard"), 10.0), p.values("heard")
 
 
 def test_service_list_and_call(peer) -> None:
-    listed = cli(peer, "service", "list", "-t", "--timeout", "10")
+    listed = ros2_cli(peer, "service", "list", "-t", "--timeout", "10")
     assert listed.returncode == 0, listed.stderr
     assert f"/sdk/add_two_ints [{ADD}]" in listed.stdout.splitlines(), listed.stdout
-    call = cli(peer, "service", "call", "/sdk/add_two_ints", "{a: 20, b: 22}", "--timeout", "10")
+    call = ros2_cli(peer, "service", "call", "/sdk/add_two_ints", "{a: 20, b: 22}", "--timeout", "10")
     assert call.returncode == 0, call.stderr
     assert call.stdout.strip() == "sum: 42", call.stdout

@@ -3,22 +3,14 @@ from __future__ import annotations
 
 import signal
 import stat
-import subprocess
 import time
 from pathlib import Path
 
 import zenoh
+from cli_helpers import CLI_ARGS, cli
 from conftest import free_port, python_proc, wait_for
 
 from zenoh_robot.session_config import SessionConfig  # noqa: E402
-
-CLI = ("-m", "zenoh_robot.tools.cli.main")
-
-
-def cli(*args: str) -> subprocess.CompletedProcess[str]:
-    proc = python_proc(*CLI, *args)
-    out, _ = proc.communicate(timeout=60)
-    return subprocess.CompletedProcess(proc.args, proc.returncode, out, "")
 
 
 def test_keys_cli_then_secure_router_process(tmp_path: Path) -> None:
@@ -35,7 +27,7 @@ def test_keys_cli_then_secure_router_process(tmp_path: Path) -> None:
     assert cli("keys", "init", str(d)).returncode == 1     # never silently replaces a CA
 
     port = free_port()
-    router = python_proc(*CLI, "router", "--secure", str(d), "--listen", f"tls/127.0.0.1:{port}",
+    router = python_proc(*CLI_ARGS, "router", "--secure", str(d), "--listen", f"tls/127.0.0.1:{port}",
                          "--no-scouting", "--status", "0", "--duration", "30")
     sessions: list[zenoh.Session] = []
     try:
@@ -73,7 +65,7 @@ def test_router_refuses_a_plain_endpoint_when_secure(tmp_path: Path) -> None:
     d = tmp_path / "keys"
     assert cli("keys", "init", str(d)).returncode == 0
     assert cli("keys", "issue", "router", "--role", "router", "--dir", str(d)).returncode == 0
-    res = cli("router", "--secure", str(d), "--listen", "tcp/127.0.0.1:0", "--duration", "1")
+    res = cli("router", "--secure", str(d), "--listen", "tcp/127.0.0.1:0", "--duration", "1", merged=True)
     assert res.returncode == 1 and "plain links are refused" in res.stdout
 
 

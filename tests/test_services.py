@@ -6,12 +6,11 @@ import time
 from concurrent.futures import Future
 
 import pytest
+from cli_helpers import CLI_ARGS
 from conftest import python_proc, wait_ready
 
 from zenoh_robot import Message, Node, message
 from zenoh_robot.services import ServiceCallError, ServiceError, ServiceTimeout, ServiceUnavailable, service_key
-
-CLI = ("-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())")
 
 
 @message(name="test_services/AddRequest")
@@ -136,16 +135,16 @@ def test_service_cli_list_and_call(ns):
     proc = python_proc("tests/procs/svc_param_node.py", "--ns", ns)
     try:
         assert wait_ready(proc)
-        out = python_proc(*CLI, "service", "list", f"/{ns}", "-t")
+        out = python_proc(*CLI_ARGS, "service", "list", f"/{ns}", "-t")
         text, _ = out.communicate(timeout=30)
         assert out.returncode == 0, text
         assert f"/{ns}/echo [std_msgs/String -> std_msgs/String]" in text
         assert f"/{ns}/pnode/get_parameters" in text
-        call = python_proc(*CLI, "service", "call", f"/{ns}/echo", "{data: hello}")
+        call = python_proc(*CLI_ARGS, "service", "call", f"/{ns}/echo", "{data: hello}")
         text, _ = call.communicate(timeout=30)
         assert call.returncode == 0, text
         assert "data: HELLO" in text
-        bad = python_proc(*CLI, "service", "call", f"/{ns}/echo", "{dat: x}")
+        bad = python_proc(*CLI_ARGS, "service", "call", f"/{ns}/echo", "{dat: x}")
         text, _ = bad.communicate(timeout=30)
         assert bad.returncode == 1
         assert "has no field(s) ['dat']" in text

@@ -5,11 +5,12 @@ from __future__ import annotations
 
 import time
 
+from px4_zenoh_probe import probed_sim
+
 from px4_link.sim import Simulator
 from px4_link.sim.base import SimulatorBase
 from px4_link.sim.faults import EstimateLoss, LowBattery
 from px4_zenoh.sim import ZenohSimulator
-from tests.px4_zenoh_probe import probed_sim
 
 WARNING_NONE = 0
 

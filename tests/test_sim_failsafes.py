@@ -2,15 +2,10 @@
 flown over real MAVLink/UDP with px4_link, naming the PX4 file it follows."""
 from __future__ import annotations
 
-import socket
-import threading
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 
 import pytest
-from px4_helpers import sim_and_link, wait_for
-from pymavlink.dialects.v20 import common as mavlink2
+from px4_helpers import gcs_heartbeats, sim_and_link, wait_for
 
 from px4_link import PositionTarget
 from px4_link.sim import Simulator
@@ -133,28 +128,6 @@ def test_critical_battery_only_warns_with_px4s_default() -> None:
 
 
 # ---------------------------------------------------------------- GCS link (NAV_DLL_ACT)
-@contextmanager
-def _gcs_heartbeats(port: int, mav_type: int = mavlink2.MAV_TYPE_GCS) -> Iterator[threading.Event]:
-    """A QGC-like peer: HEARTBEAT at 1 Hz to the simulator until the yielded event is set."""
-    stop = threading.Event()
-    mav = mavlink2.MAVLink(None, srcSystem=255, srcComponent=190)
-    hb = mav.heartbeat_encode(mav_type, mavlink2.MAV_AUTOPILOT_INVALID, 0, 0, 4).pack(mav)
-
-    def run() -> None:
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-            while not stop.is_set():
-                s.sendto(hb, ("127.0.0.1", port))
-                stop.wait(1.0)
-
-    t = threading.Thread(target=run, daemon=True)
-    t.start()
-    try:
-        yield stop
-    finally:
-        stop.set()
-        t.join(2)
-
-
 def test_gcs_loss_returns_after_com_dl_loss_t_and_only_gcs_heartbeats_count() -> None:
     """mavlink_receiver.cpp (MAV_TYPE_GCS heartbeats, 2.5 s timeout checked every 1.25 s),
     Commander.cpp (COM_DL_LOSS_T), failsafe.cpp (NAV_DLL_ACT 2 Return)."""
@@ -164,7 +137,7 @@ def test_gcs_loss_returns_after_com_dl_loss_t_and_only_gcs_heartbeats_count() ->
         assert wait_for(lambda: sim.protocol is not None and sim.protocol.stats.messages_received > 0, 5)
         time.sleep(1.5)   # px4_link's own heartbeats flow meanwhile
         assert sim.gcs_connection_lost, "the companion's ONBOARD_CONTROLLER heartbeats counted as a GCS"
-        with _gcs_heartbeats(sim.port) as stop:
+        with gcs_heartbeats(sim.port) as stop:
             assert wait_for(lambda: not sim.gcs_connection_lost, 3)
             _airborne(sim, link)
             stop.set()

@@ -6,9 +6,9 @@ import math
 import time
 
 from conftest import wait_for
-from test_control_lifecycle import Rig, rig
-from test_control_lifecycle import _take_off as _lifecycle_take_off
-from test_sim_failsafes import _gcs_heartbeats
+from px4_helpers import gcs_heartbeats
+from rigs import Rig, rig
+from rigs import take_off as _lifecycle_take_off
 
 from px4_link.sim.faults import EkfReset, EstimateLoss, LowBattery
 
@@ -17,8 +17,7 @@ def _take_off(r: Rig, alt: float) -> None:
     # PX4's estimator warm-up (sim/commander.py): arm once the pre-arm checks pass, as a GCS does.
     assert wait_for(lambda: r.sim.armable and r.op.state is not None
                     and all(math.isfinite(v) for v in r.op.state.position), 15), "never armable"
-    time.sleep(0.3)   # the companion's LOCAL_POSITION_NED cache
-    _lifecycle_take_off(r, alt)
+    _lifecycle_take_off(r, alt)   # waits for a setpoint the companion accepted (it needs LOCAL_POSITION_NED)
 
 
 def _lost_to(r: Rig, mode: str) -> bool:
@@ -87,7 +86,7 @@ def test_gcs_link_loss_px4_lands_by_nav_dll_act_and_the_companion_reports_it(ns:
             r.sim.set_param(name, value)
         # The simulator answers the first address it hears (as PX4's UDP link): the companion's.
         assert wait_for(lambda: r.sim.protocol is not None and r.sim.protocol.stats.messages_received > 0, 5)
-        with _gcs_heartbeats(r.sim.port) as stop:
+        with gcs_heartbeats(r.sim.port) as stop:
             assert wait_for(lambda: not r.sim.gcs_connection_lost, 3)
             _take_off(r, 3.0)
             stop.set()   # QGC's link dies; the companion's own link to PX4 is fine

@@ -6,107 +6,24 @@ UDP; the companion and the GCS are real child processes talking over Zenoh.
 """
 from __future__ import annotations
 
-import contextlib
 import json
 import math
-import secrets
 import signal
-import socket
-import subprocess
 import threading
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
 
 import pytest
-from conftest import python_proc, stop_process, wait_for
+from conftest import stop_process, wait_for
 from px4_helpers import assert_no_px4_failsafe, wait_state_armable
+from rigs import BACKENDS, OP, SETPOINT_QOS, Observer, drone, gcs_proc, spin
 
-from drone_contract.messages import Command, CommandResult, DroneSetpoint, FailsafeEvent, VehicleState
-from drone_contract.streams import SETPOINT_DEADLINE, stream_profile
-from px4_link.sim import Simulator
-from px4_zenoh.session import Px4Endpoint, free_tcp_endpoint, open_px4_session
-from px4_zenoh.sim import ZenohSimulator
-from zenoh_robot import Node, qos
+from drone_contract.messages import DroneSetpoint
+from zenoh_robot import Node
 from zenoh_robot.msgs import Header
 
-OP = "test-op"   # the GCS id the test's processes and nodes share
-
-
-@pytest.fixture(autouse=True)
-def own_domain(monkeypatch: pytest.MonkeyPatch) -> None:
-    """This module's processes (nodes `companion`, `gcs`) in a domain of their own: a `gcs` of another
-    module running beside them would otherwise make one refuse to start (a second /gcs)."""
-    monkeypatch.setenv("ZR_DOMAIN", str(100 + secrets.randbelow(120)))
-
-SETPOINT_QOS = qos.RESILIENT.replace(deadline=SETPOINT_DEADLINE)   # what the companion accepts
-
-FAST = {"MPC_TKO_SPEED": 3.0, "MPC_LAND_SPEED": 2.0}   # shorter climbs and landings; failsafe params untouched
-
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _stop(proc: subprocess.Popen, timeout: float = 10.0) -> str:
-    return stop_process(proc, timeout)
-
-
-@contextmanager
-def drone(drone_id: str, sysid: int = 1, *extra: str,
-          backend: str = "mavlink") -> Iterator[tuple[Any, subprocess.Popen]]:
-    """A companion process and its simulator in this process: PX4 over MAVLink (px4_link.sim, UDP) or over
-    PX4's own Zenoh module (px4_zenoh.sim, a client of a router here, as PX4 joins one)."""
-    with contextlib.ExitStack() as stack:
-        if backend == "mavlink":
-            port = _free_port()
-            sim: Any = stack.enter_context(Simulator(sysid, port=0, target_port=port, params=FAST))
-            px4 = f"udpin:127.0.0.1:{port}"
-        else:
-            ep = free_tcp_endpoint()
-            stack.callback(open_px4_session(Px4Endpoint("router", ep)).close)
-            sim = stack.enter_context(ZenohSimulator(connect=ep, sysid=sysid, params=FAST))
-            px4 = f"zenoh:{ep}"
-        proc = python_proc("-m", "companion", "--id", drone_id, "--px4", px4, "--camera-rate", "15", *extra)
-        try:
-            yield sim, proc
-        finally:
-            out = _stop(proc)
-            assert "Traceback" not in out, out
-
-
-BACKENDS = pytest.mark.parametrize("backend", ["mavlink", "zenoh"])
-
-
-def gcs_proc(*args: str) -> subprocess.Popen:
-    return python_proc("-m", "gcs", "--no-dashboard", "--gcs-id", OP, *args)
-
-
-class Observer:
-    """A test-side node: the drone's state and events, and its command service."""
-
-    def __init__(self, node: Node, drone_id: str) -> None:
-        profile = stream_profile("resilient")
-        self.state: VehicleState | None = None
-        self.events: list[FailsafeEvent] = []
-        node.create_subscription(VehicleState, f"/{drone_id}/state", self._on_state, profile.qos["state"])
-        node.create_subscription(FailsafeEvent, f"/{drone_id}/events", self.events.append, profile.qos["events"])
-        self.client = node.create_client(f"/{drone_id}/command", Command, CommandResult)
-
-    def _on_state(self, msg: VehicleState) -> None:
-        self.state = msg
-
-    def command(self, name: str, value: float = 0.0, text: str = "") -> CommandResult:
-        return self.client.call(Command(name, value, text, False, OP), timeout=10.0)
-
-
-def _spin(node: Node) -> None:
-    import threading
-    threading.Thread(target=node.spin, daemon=True).start()
+# This module's processes (nodes `companion`, `gcs`) in a domain of their own (conftest's own_domain).
+pytestmark = pytest.mark.usefixtures("own_domain")
 
 
 @BACKENDS
@@ -139,7 +56,7 @@ def test_mission_end_to_end(ns: str, tmp_path: Path, backend: str) -> None:
 def test_gcs_killed_companion_holds_then_resumes(ns: str, backend: str) -> None:
     with drone(ns, backend=backend) as (sim, companion), Node("observer") as node:
         obs = Observer(node, ns)
-        _spin(node)
+        spin(node)
         gcs = gcs_proc("--drones", ns, "--pattern", "hover", "--altitude", "2.5")
         try:
             assert wait_for(lambda: obs.state is not None and obs.state.connected, 20), "no state from the drone"
@@ -164,13 +81,13 @@ def test_gcs_killed_companion_holds_then_resumes(ns: str, backend: str) -> None:
             assert wait_for(lambda: obs.command("offboard_start").success, 15, interval=0.5)
             assert wait_for(lambda: sim.mode == "OFFBOARD", 5)
         finally:
-            _stop(gcs)
+            stop_process(gcs, 10.0)
 
 
 def test_nan_setpoint_from_a_rogue_publisher_never_reaches_px4(ns: str) -> None:
     with drone(ns) as (sim, companion), Node("rogue") as node:
         obs = Observer(node, ns)
-        _spin(node)
+        spin(node)
         pub = node.create_publisher(DroneSetpoint, f"/{ns}/setpoint", SETPOINT_QOS)
         assert wait_for(lambda: obs.state is not None and obs.state.connected, 20)
         for i in range(5):
@@ -209,7 +126,7 @@ def test_nan_setpoint_from_a_rogue_publisher_never_reaches_px4(ns: str) -> None:
 def test_two_drones_each_get_only_their_setpoints(ns: str) -> None:
     a, b = f"{ns}a", f"{ns}b"
     with drone(a, 1) as (sim_a, _), drone(b, 2) as (sim_b, _), Node("gcs2") as node:
-        _spin(node)
+        spin(node)
         pubs = {d: node.create_publisher(DroneSetpoint, f"/{d}/setpoint", SETPOINT_QOS) for d in (a, b)}
         observers = {d: Observer(node, d) for d in (a, b)}
         xs = {a: 1.5, b: -1.5}

@@ -7,12 +7,11 @@ from __future__ import annotations
 import json
 import math
 import threading
-import time
-from collections.abc import Callable
 from typing import Any
 
 import pytest
 from conftest import linked_configs, spinning_nodes, wait_for
+from stats_helpers import Stream, collect_windows, matched
 
 from zenoh_robot import Node, QoSProfile
 from zenoh_robot.msgs import Header, Setpoint, StatisticsEntry, String, TopicStatistics
@@ -27,46 +26,6 @@ def pair(ns: str):
     """(talker, listener), linked over loopback, both spinning in background threads."""
     with spinning_nodes(ns) as nodes:
         yield nodes
-
-
-class Stream:
-    """Publishes ``make()`` at ``rate_hz`` from a thread until stop()."""
-
-    def __init__(self, pub: Any, make: Callable[[], Any], rate_hz: float) -> None:
-        self.pub, self.make, self.period = pub, make, 1.0 / rate_hz
-        self.sent = 0
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-
-    def _run(self) -> None:
-        next_at = time.monotonic()
-        while not self._stop.is_set():
-            self.pub.publish(self.make())
-            self.sent += 1
-            next_at += self.period   # deadline-based, so scheduling jitter does not lower the rate
-            self._stop.wait(max(0.0, next_at - time.monotonic()))
-
-    def __enter__(self) -> "Stream":
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(timeout=2.0)
-
-    def __exit__(self, *exc: Any) -> None:
-        self.stop()
-
-
-def _windows(sub: Any) -> list[TopicStatistics]:
-    got: list[TopicStatistics] = []
-    sub.statistics.listeners.append(got.append)
-    return got
-
-
-def _matched(pub: Any, sub: Any) -> None:
-    assert wait_for(lambda: pub.get_subscription_count() >= 1 and sub.get_publisher_count() >= 1, 5.0), \
-        "publisher and subscription never matched"
 
 
 def _is_empty(e: StatisticsEntry) -> bool:
@@ -87,14 +46,14 @@ def test_rate_stream_gives_period_age_and_publishes_on_default_key(pair, ns: str
                                 topic_statistics=TopicStatisticsOptions(window=0.5))
     assert isinstance(sub.statistics, TopicStatisticsCollector)
     assert sub.statistics.topic == f"{ns}/statistics/setpoint"
-    windows = _windows(sub)
+    windows = collect_windows(sub)
     remote: list[TopicStatistics] = []
     # A third subscription, in the other session, on the default name derived the same way.
     stats_sub = a.create_subscription(TopicStatistics, "statistics/setpoint", remote.append, RELIABLE)
     assert stats_sub.statistics is None   # statistics of statistics are never collected
     pub = a.create_publisher(Setpoint, "setpoint", RELIABLE)
-    _matched(pub, sub)
-    _matched(sub.statistics.publisher, stats_sub)
+    matched(pub, sub)
+    matched(sub.statistics.publisher, stats_sub)
 
     def full() -> list[TopicStatistics]:
         return [w for w in windows if w.message_period_ms.sample_count >= 10]
@@ -121,9 +80,9 @@ def test_unstamped_header_gives_no_age_but_a_period(pair) -> None:
     a, b = pair
     sub = b.create_subscription(Setpoint, "unstamped", lambda m: None, RELIABLE,
                                 topic_statistics=TopicStatisticsOptions(window=0.3))
-    windows = _windows(sub)
+    windows = collect_windows(sub)
     pub = a.create_publisher(Setpoint, "unstamped", RELIABLE)
-    _matched(pub, sub)
+    matched(pub, sub)
     with Stream(pub, lambda: Setpoint(x=2.0), 50.0):   # Header() has stamp 0: "not stamped"
         assert wait_for(lambda: any(w.message_period_ms.sample_count >= 3 for w in windows), 6.0)
     w = next(w for w in windows if w.message_period_ms.sample_count >= 3)
@@ -135,9 +94,9 @@ def test_type_without_header_uses_envelope_stamp(pair) -> None:
     a, b = pair
     sub = b.create_subscription(String, "chatter", lambda m: None, RELIABLE,
                                 topic_statistics=TopicStatisticsOptions(window=0.3))
-    windows = _windows(sub)
+    windows = collect_windows(sub)
     pub = a.create_publisher(String, "chatter", RELIABLE)
-    _matched(pub, sub)
+    matched(pub, sub)
     with Stream(pub, lambda: String("hi"), 50.0):
         assert wait_for(lambda: any(w.message_age_ms.sample_count >= 3 for w in windows), 6.0)
     w = next(w for w in windows if w.message_age_ms.sample_count >= 3)
@@ -149,9 +108,9 @@ def test_first_sample_alone_has_no_period(pair) -> None:
     a, b = pair
     sub = b.create_subscription(Setpoint, "once", lambda m: None, RELIABLE,
                                 topic_statistics=TopicStatisticsOptions(window=0.2))
-    windows = _windows(sub)
+    windows = collect_windows(sub)
     pub = a.create_publisher(Setpoint, "once", RELIABLE)
-    _matched(pub, sub)
+    matched(pub, sub)
     pub.publish(Setpoint(header=Header.now()))
     assert wait_for(lambda: any(w.message_age_ms.sample_count for w in windows), 5.0)
     w = next(w for w in windows if w.message_age_ms.sample_count)
@@ -166,9 +125,9 @@ def test_empty_window_after_publisher_stops(pair) -> None:
     a, b = pair
     sub = b.create_subscription(Setpoint, "stops", lambda m: None, RELIABLE,
                                 topic_statistics=TopicStatisticsOptions(window=0.2))
-    windows = _windows(sub)
+    windows = collect_windows(sub)
     pub = a.create_publisher(Setpoint, "stops", RELIABLE)
-    _matched(pub, sub)
+    matched(pub, sub)
     with Stream(pub, lambda: Setpoint(header=Header.now()), 50.0) as stream:
         assert wait_for(lambda: any(w.message_period_ms.sample_count >= 3 for w in windows), 6.0)
     assert wait_for(lambda: sub.counters.received >= stream.sent, 3.0)
@@ -206,9 +165,9 @@ def test_node_wide_statistics_with_custom_topic(ns: str) -> None:
         rec = StatisticsRecorder.subscribe(a, "stats_all")   # the other session, relative name
         p1 = a.create_publisher(Setpoint, "setpoint", RELIABLE)
         p2 = a.create_publisher(String, "chatter", RELIABLE)
-        _matched(p1, s1)
-        _matched(p2, s2)
-        _matched(s1.statistics.publisher, rec.subscription)
+        matched(p1, s1)
+        matched(p2, s2)
+        matched(s1.statistics.publisher, rec.subscription)
 
         def seen() -> set[str]:
             return {r["topic"] for r in rec.rows if r["period_count"] > 0}

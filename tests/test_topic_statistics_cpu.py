@@ -13,7 +13,7 @@ from typing import Any
 
 import pytest
 from conftest import spinning_nodes, wait_for
-from test_topic_statistics import Stream, _matched, _windows
+from stats_helpers import Stream, collect_windows, matched
 
 from zenoh_robot import QoSProfile
 from zenoh_robot.msgs import String, TopicStatistics
@@ -49,10 +49,10 @@ def test_busy_pct_shows_a_burning_callback_and_not_an_idle_one(pair) -> None:
     light = b.create_subscription(String, "light", lambda m: None, RELIABLE, topic_statistics=opts)
     idle = b.create_subscription(String, "idle", lambda m: None, RELIABLE, topic_statistics=opts)
     untimed = b.create_subscription(String, "light", lambda m: None, RELIABLE)   # no statistics: no clock
-    hot_w, light_w, idle_w = _windows(hot), _windows(light), _windows(idle)
+    hot_w, light_w, idle_w = collect_windows(hot), collect_windows(light), collect_windows(idle)
     pubs = [a.create_publisher(String, t, RELIABLE) for t in ("hot", "light")]
-    _matched(pubs[0], hot)
-    _matched(pubs[1], light)
+    matched(pubs[0], hot)
+    matched(pubs[1], light)
     with Stream(pubs[0], lambda: String("x"), 20.0), Stream(pubs[1], lambda: String("y"), 20.0):
         assert wait_for(lambda: len(_full(hot_w)) >= 3 and len(_full(light_w)) >= 3, 15.0), (hot_w, light_w)
     hot_pct = sorted(w.busy_pct for w in _full(hot_w))
@@ -75,10 +75,10 @@ def test_budget_warning_fires_when_exceeded_and_not_otherwise(pair, caplog) -> N
                                  topic_statistics=TopicStatisticsOptions(window=0.5, cpu_budget_pct=0.5))
     under = b.create_subscription(String, "under", lambda m: None, RELIABLE,
                                   topic_statistics=TopicStatisticsOptions(window=0.5, cpu_budget_pct=50))
-    over_w, under_w = _windows(over), _windows(under)
+    over_w, under_w = collect_windows(over), collect_windows(under)
     pubs = [a.create_publisher(String, t, RELIABLE) for t in ("over", "under")]
-    _matched(pubs[0], over)
-    _matched(pubs[1], under)
+    matched(pubs[0], over)
+    matched(pubs[1], under)
     with Stream(pubs[0], lambda: String("x"), 20.0), Stream(pubs[1], lambda: String("y"), 20.0):
         assert wait_for(lambda: len(_full(over_w)) >= 2 and len(_full(under_w)) >= 2, 15.0)
     assert over.statistics.over_budget_windows >= 1
