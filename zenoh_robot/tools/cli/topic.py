@@ -144,12 +144,14 @@ def discover_graph(node: "Node", timeout: float, found: Callable[[], bool] = lam
     """Learn the graph: until ``found()`` and no entry has come for GRAPH_QUIET s, at most ``timeout``.
 
     A fresh session returns from open once it reaches one peer; the others, and their
-    entities, arrive over the next moments: a quiet spell is the sign they all have.
+    entities, arrive over the next moments: a quiet spell is the sign they all have. A session
+    that connected during the spell has not sent its tokens yet, so it restarts the spell.
     """
     if not timeout > 0:
         raise CliError(f"--timeout must be > 0 seconds, got {timeout:g}")
     end = time.monotonic() + timeout
     node.refresh_graph(min(1.0, timeout))
+    peers = set(node.peers())
     while True:
         since = node.graph.changes
         ready = found()
@@ -157,6 +159,10 @@ def discover_graph(node: "Node", timeout: float, found: Callable[[], bool] = lam
         if left <= 0:
             return
         changed = node.graph.wait_for_change(since, min(GRAPH_QUIET if ready else 0.1, left))
+        now = set(node.peers())
+        if not now <= peers:
+            changed = True
+        peers = now
         if ready and not changed:
             return
 
