@@ -56,7 +56,7 @@ from .session_config import SessionConfig, SessionConfigError
 from .subscription import MessageInfo, Subscription
 from .topic_statistics import TopicStatisticsOptions
 
-__version__ = "0.5.3"
+__version__ = "0.6.0"
 
 __all__ = [
     # nodes, entities, executors
