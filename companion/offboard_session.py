@@ -45,7 +45,7 @@ class Offboard(Protocol):
 
     @property
     def streaming(self) -> bool: ...
-    def set_setpoint(self, sp: Target) -> None: ...
+    def set_setpoint(self, sp: Target, sent_at: float | None = ...) -> None: ...
     def start(self) -> object: ...
     def stop(self, mode: str | None = ...) -> object: ...
     def stop_stream(self) -> None: ...
@@ -96,15 +96,16 @@ class OffboardLifecycle:
             self._on_transition(old, new, why)
 
     # -- setpoints (any thread) ----------------------------------------------------
-    def forward(self, sp: Target) -> None:
-        """Hand ``sp`` to PX4's stream, or raise TargetRefused("no_session") when no session is open."""
+    def forward(self, sp: Target, sent_at: float | None = None) -> None:
+        """Hand ``sp`` to PX4's stream, or raise TargetRefused("no_session") when no session is open.
+        ``sent_at``: the sender's time of ``sp`` (s, its clock), for px4_link's step check."""
         with self._lock:
             if not self.in_session:
                 hint = ("failsafe hold: send offboard_start to resume from the vehicle's position"
                         if self._state is OffboardState.FAILSAFE_HOLD else
                         "no offboard session: send offboard_start first")
                 raise TargetRefused("no_session", f"setpoint not forwarded to PX4 ({hint})")
-            self.link.offboard.set_setpoint(sp)   # px4_link's TargetRefused propagates: nothing was sent
+            self.link.offboard.set_setpoint(sp, sent_at)   # px4_link's TargetRefused propagates: nothing sent
 
     # -- requests (command thread) -------------------------------------------------
     def start(self, candidate: Target) -> None:

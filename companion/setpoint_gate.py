@@ -120,7 +120,7 @@ class SetpointGate:
                 if self._is_stale(client, stamp):   # a newer one was forwarded meanwhile (another thread)
                     self.stale += 1
                     return
-                self._lifecycle.forward(sp)
+                self._lifecycle.forward(sp, stamp[0] / 1e9 if stamp[0] > 0 else None)
                 self._last_forwarded = (client, *stamp)
         except TargetRefused as exc:
             if exc.reason == "no_session":   # valid, kept as the candidate, never sent

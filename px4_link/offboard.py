@@ -89,20 +89,21 @@ class Offboard:
         """True between a successful start() and stop() or PX4 leaving OFFBOARD."""
         return self._active
 
-    def set_setpoint(self, sp: Target) -> None:
+    def set_setpoint(self, sp: Target, sent_at: float | None = None) -> None:
         """Validate and stream ``sp``; the first one starts the stream. Raises
-        TargetRefused (nothing is sent)."""
+        TargetRefused (nothing is sent). ``sent_at``: the sender's time of ``sp`` in seconds, on its
+        own clock (TargetValidator: a stream's spacing as sent, not only as it arrived)."""
         core = self._core
         now = time.monotonic()
         lp = self._fresh_position(now)
         vehicle_pos = lp.position if lp is not None else None
         try:
-            self._validator.check(sp, now, vehicle_pos)
+            self._validator.check(sp, now, vehicle_pos, sent_at)
         except TargetRefused as e:
             core.count("setpoints_rejected")
             core.emit("setpoint_rejected", {"setpoint": sp, "reason": e.reason, "message": str(e)})
             raise
-        self._validator.accept(sp, now)
+        self._validator.accept(sp, now, sent_at)
         with self._lock:
             self.setpoint = sp
             self._set_at = now

@@ -241,7 +241,12 @@ class TargetValidator:
       vehicle's position when there is a fence (it is fenced on every send, ``fence_velocity``).
       A position target may
       lie at most ``max_speed * dt`` from the reference, where dt is the time since the
-      previous accepted position target clamped to [min_dt, 1 s]. The reference is that
+      previous accepted position target clamped to [min_dt, 1 s], or, when the targets carry their
+      sender's time (``sent_at``), the time between them as sent if that is longer: after a fade, a
+      lossy link delivers the stream's next target milliseconds after the last one before the fade,
+      and the pattern moved on meanwhile (arrival spacing alone refused a square at 2 m/s as 12 m/s
+      after a 300 ms fade). Only the spacing of one sender's own stamps counts, never their clock. The
+      reference is that
       previous target when it is younger than 1 s, otherwise the vehicle's latest position
       (if known). So a stream may move the target at up to max_speed, and a fresh target
       may be at most max_speed * 1 s from the vehicle. Stateful: ``accept`` records the
@@ -264,6 +269,7 @@ class TargetValidator:
         self.min_dt = min_dt
         self._last_pos: Vec3 | None = None
         self._last_time: float | None = None
+        self._last_sent: float | None = None
 
     @staticmethod
     def _check_values(sp: Target, max_speed: float | None) -> None:
@@ -276,8 +282,10 @@ class TargetValidator:
         if isinstance(sp, VelocityTarget) and max_speed is not None and sp.speed > max_speed:
             raise TargetRefused("too_fast", f"velocity {sp.speed:.1f} m/s exceeds max_speed {max_speed:g} m/s")
 
-    def check(self, sp: Target, now: float, vehicle_position: Vec3 | None = None) -> None:
-        """Raise TargetRefused if px4_link must not stream ``sp``; records nothing."""
+    def check(self, sp: Target, now: float, vehicle_position: Vec3 | None = None,
+              sent_at: float | None = None) -> None:
+        """Raise TargetRefused if px4_link must not stream ``sp``; records nothing. ``sent_at``: the
+        sender's time of ``sp``, seconds on its own clock (the step rule's spacing, class doc)."""
         self._check_values(sp, self.max_speed)
         if isinstance(sp, VelocityTarget):
             # Fenced on every send, from where the vehicle is then (Geofence.fence_velocity): a
@@ -299,6 +307,8 @@ class TargetValidator:
                 and now - self._last_time < self.STALE_S:
             ref = self._last_pos
             dt = max(now - self._last_time, self.min_dt)
+            if sent_at is not None and self._last_sent is not None:
+                dt = max(dt, min(sent_at - self._last_sent, self.STALE_S))
         elif vehicle_position is not None:
             ref = vehicle_position
         elif self._last_pos is not None:
@@ -316,11 +326,12 @@ class TargetValidator:
                 "too_fast", f"target {sp} jumps {jump:.1f} m in {dt:.2f} s "
                             f"({jump / dt:.1f} m/s > max_speed {self.max_speed:g} m/s)")
 
-    def accept(self, sp: Target, now: float) -> None:
+    def accept(self, sp: Target, now: float, sent_at: float | None = None) -> None:
         """Record an accepted target as the reference for the next step check."""
         if isinstance(sp, PositionTarget):
             self._last_pos = (sp.x, sp.y, sp.z)
             self._last_time = now
+            self._last_sent = sent_at
 
     def check_against_vehicle(self, sp: Target, vehicle: VehicleMotion | None, max_offset_m: float,
                               max_speed: float | None = None) -> None:

@@ -49,8 +49,8 @@ def _forwarded(r: Rig) -> list[Target]:
     seen: list[Target] = []
     original = r.link.offboard.set_setpoint
 
-    def spy(sp: Target) -> None:
-        original(sp)
+    def spy(sp: Target, sent_at: float | None = None) -> None:
+        original(sp, sent_at)
         seen.append(sp)
     r.link.offboard.set_setpoint = spy     # type: ignore[method-assign]
     return seen
