@@ -41,9 +41,16 @@ SERIAL_FILES = frozenset({
     # yet; kept apart until it is.
     "test_ros2_interop.py", "test_ros2_cli.py", "test_ros2_services.py",
 })
-# Single tests with real-time rate bounds, which failed beside a neighbour in the parallel pass.
+# Single tests whose figures depend on the machine's load (a module's other tests run in the parallel pass).
 SERIAL_TESTS = frozenset({
-    "test_px4_realism.py::test_sensor_rate_when_200hz_is_asked_matches_trace",   # 114..126 Hz in real time
+    "test_bursty_setpoints.py::test_a_setpoint_publisher_planned_for_fades_sends_its_copies_3_ms_apart",  # 3 ms spacing
+})
+# The fast tier (`make test-fast`, `-m fast`): tests that start no process and open no socket beyond in-process
+# Zenoh sessions. A module marks itself (``pytestmark = pytest.mark.fast``) or its tests (``@pytest.mark.fast``);
+# these files, whose owners are reworking them at the time of writing, are marked from here until they do.
+FAST_FILES = frozenset({
+    "test_fec.py", "test_image_transport.py", "test_gcs_patterns.py", "test_gcs_planner.py",
+    "test_gcs_discovery.py", "test_gcs_attack_shown.py",
 })
 
 
@@ -55,9 +62,23 @@ def pytest_configure(config: pytest.Config) -> None:
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
-        if (item.path.name in SERIAL_FILES or f"{item.path.name}::{item.name}" in SERIAL_TESTS
+        if (item.path.name in SERIAL_FILES or f"{item.path.name}::{item.originalname}" in SERIAL_TESTS
                 or item.get_closest_marker("netns")):
             item.add_marker(pytest.mark.serial)
+        if item.path.name in FAST_FILES:
+            item.add_marker(pytest.mark.fast)
+
+
+@pytest.fixture(autouse=True)
+def fast_tests_start_no_process(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A test in the fast tier that starts a process fails, saying so: the tier's promise is kept by a check,
+    not by a reviewer's eye."""
+    if request.node.get_closest_marker("fast") is None:
+        return
+
+    def refuse(*args: Any, **kwargs: Any) -> None:
+        raise AssertionError(f"a test marked fast started a process: {args[1:2]!r} (mark it otherwise)")
+    monkeypatch.setattr(subprocess.Popen, "__init__", refuse)
 
 
 @pytest.fixture(autouse=True)

@@ -17,6 +17,9 @@ from px4_link.sim import Simulator
 
 # Faster than PX4's defaults where only test time is at stake (climb/landing rates).
 FAST_PARAMS = {"MPC_TKO_SPEED": 3.0, "MPC_LAND_SPEED": 2.0, "MIS_TAKEOFF_ALT": 2.0}
+# PX4's pre-arm checks pass 4.1 s after boot (the simulator's default, test_px4_realism.py checks it against
+# the SITL trace); a simulator whose test is not about that warm-up passes them after 1 s.
+QUICK_WARMUP_S = 1.0
 
 
 class EventLog:
@@ -59,20 +62,53 @@ def wait_state_armable(view: object, timeout: float = ARMABLE_TIMEOUT_S) -> None
 
 @contextmanager
 def sim_and_link(sysid: int = 1, params: dict | None = None, link_kwargs: dict | None = None,
-                 sim_kwargs: dict | None = None,
-                 armable: bool = True) -> Iterator[tuple[Simulator, Px4Link, EventLog]]:
+                 sim_kwargs: dict | None = None, armable: bool = True,
+                 warmup_s: float = QUICK_WARMUP_S) -> Iterator[tuple[Simulator, Px4Link, EventLog]]:
     """A simulator sending to a link bound on an ephemeral localhost port, connected; with
-    ``armable`` (the default) also past PX4's estimator warm-up, so tests that arm can at once."""
+    ``armable`` (the default) also past PX4's estimator warm-up (``warmup_s`` after boot; PX4's is
+    ``px4_link.sim.commander.PX4_ESTIMATOR_WARMUP_S``), so tests that arm can at once."""
     events = EventLog()
     kw = {"on_event": events, **(link_kwargs or {})}
     with Px4Link("udpin:127.0.0.1:0", **kw) as link:
         with Simulator(sysid, port=0, target_port=link.local_port,
                        params={**FAST_PARAMS, **(params or {})}, seed=sysid,
-                       **(sim_kwargs or {})) as sim:
+                       **{"estimator_warmup_s": warmup_s, **(sim_kwargs or {})}) as sim:
             assert link.wait_connected(5.0), "link never saw the simulator's heartbeat"
             if armable:
                 wait_armable(link)
             yield sim, link, events
+
+
+class ReceivedSetpoints:
+    """Every setpoint the simulator received from now on, as it understood it (time, position, velocity)."""
+
+    def __init__(self, sim: Any) -> None:
+        self.items: list[Any] = []
+        inner = sim.commander.on_setpoint
+
+        def record(sp: Any) -> None:
+            self.items.append(sp)
+            inner(sp)
+        sim.commander.on_setpoint = record
+
+    def after(self, t: float) -> list[Any]:
+        return [sp for sp in list(self.items) if sp.time >= t]
+
+
+def switched_at(sim: Any, mode: str, since: float = 0.0) -> float:
+    """When the simulator switched into ``mode`` (its mode log's time: the physics step that did it, on
+    time.monotonic()'s clock), the first switch at or after ``since``. A duration taken from the
+    simulator's own records holds on a loaded machine, where this thread may look late."""
+    times = [c.time for c in sim.mode_log if c.new == mode and c.time >= since]
+    assert times, f"never switched to {mode} after {since:.3f}: {[(c.new, c.reason) for c in sim.mode_log]}"
+    return times[0]
+
+
+def silent_to(sim: Any, mode: str) -> float:
+    """Seconds from the last setpoint the simulator received to its switch into ``mode`` after it."""
+    last = sim.last_setpoint
+    assert last is not None, "no setpoint ever reached the simulator"
+    return switched_at(sim, mode, last.time) - last.time
 
 
 def sim_process(sysid: int, target_port: int, *extra: str):

@@ -13,6 +13,7 @@ import contextlib
 import socket
 import subprocess
 import threading
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -20,7 +21,7 @@ from typing import Any
 
 import pytest
 from conftest import linked_configs, python_proc, stop_process, wait_for
-from px4_helpers import wait_state_armable
+from px4_helpers import QUICK_WARMUP_S, wait_state_armable
 
 from companion.app import Companion
 from companion.config import CompanionConfig
@@ -35,10 +36,9 @@ from zenoh_robot.msgs import Header
 FAST = {"MPC_TKO_SPEED": 3.0, "MPC_LAND_SPEED": 2.0}
 # rig()'s vehicle, whose take-off and landing no test of it is about: motors up in 0.3 s and the climb-rate
 # ramp over 0.5 s (PX4: 1 s and 3 s; arm -> 2.5 m in ~2 s, not ~4.7 s), disarmed 0.5 s after the land
-# detector (PX4: 2 s), and PX4's pre-arm checks passing 1 s after boot (PX4 SITL: 4.1 s). The simulator's
+# detector (PX4: 2 s), and PX4's pre-arm checks passing after QUICK_WARMUP_S (PX4 SITL: 4.1 s). The simulator's
 # own timings are px4_link's tests (test_px4_realism.py, test_sim_failsafes.py).
 QUICK_FLIGHT = {**FAST, "COM_SPOOLUP_TIME": 0.3, "MPC_TKO_RAMP_T": 0.5, "COM_DISARM_LAND": 0.5}
-QUICK_WARMUP_S = 1.0
 PROFILE = stream_profile("resilient")
 OP = "test-op"   # the GCS id of drone()'s tests: their processes and nodes share it
 SETPOINT_QOS = qos.RESILIENT.replace(deadline=SETPOINT_DEADLINE)   # what the companion accepts
@@ -119,12 +119,14 @@ def rig(ns: str, **config: object) -> Iterator[Rig]:
 
 
 def streams_to_companion(r: Rig, c: Client, timeout: float = 5.0) -> None:
-    """Wait until the companion holds an accepted setpoint from ``c``: the candidate an ``offboard_start``
-    begins from, as a GCS's first streamed setpoints give it before it asks."""
-    def accepted() -> bool:
+    """Wait until the companion holds a setpoint from ``c`` that arrived after this call and was accepted:
+    the candidate an ``offboard_start`` begins from, as a GCS's streamed setpoints give it before it asks."""
+    since = time.monotonic()
+
+    def fresh() -> bool:
         cand = r.companion.gate._candidates.get(c.client_id)
-        return cand is not None and cand.sp is not None
-    assert wait_for(accepted, timeout), f"no accepted setpoint from {c.client_id} at the companion"
+        return cand is not None and cand.at >= since and cand.sp is not None
+    assert wait_for(fresh, timeout), f"no accepted setpoint from {c.client_id} reached the companion"
 
 
 def take_off(r: Rig, alt: float = 2.5) -> None:

@@ -76,7 +76,9 @@ def test_doctor_sees_the_peer_its_node_and_its_clock(talker):
     (clock,) = v["clock"]
     m = re.match(rf"OK /{ns}/talker: ([+-][0-9.]+) ms \(median receive - source stamp over (\d+) samples", clock)
     assert m and int(m[2]) >= 3, clock
-    assert abs(float(m[1])) < 50.0, clock      # one host, one clock: only loopback latency is left
+    # One host, one clock: only delivery is left (well under a second even on a loaded machine; a unit or
+    # clock-source error would read seconds to years).
+    assert abs(float(m[1])) < 1000.0, clock
     assert v["mtu"][0].startswith("OK batch size 65535 bytes"), out.stdout     # lo's MTU holds a whole batch
     assert v["shared memory"] == ["OK off in the config, 0 transport(s) using it"], out.stdout
     assert v["domain"][0].startswith("OK 0 "), out.stdout

@@ -63,7 +63,8 @@ def test_delay_of_stamped_and_of_unstamped_messages(talker):
     out = cli("topic", "delay", f"/{talker}/setpoint", "--duration", "3")
     assert out.returncode == 0, out.stderr
     delays = [float(d) for d in re.findall(r"^average delay: (-?[0-9.]+)$", out.stdout, re.M)]
-    assert delays and abs(delays[-1]) < 1.0, out.stdout    # one host: well under a second
+    # One host: the delivery only (a loaded machine can stretch it; a unit or clock-source error reads years).
+    assert delays and abs(delays[-1]) < 5.0, out.stdout
     out = cli("topic", "delay", f"/{talker}/chatter", "--duration", "2")
     assert "messages have no header stamp" in out.stdout, out.stdout
 

@@ -2,8 +2,12 @@
 MAVLink/UDP and real Zenoh sessions (the rig of test_control_lifecycle.py).
 
 HOLD latency is measured as the simulator sees it: from the moment the companion's setpoint
-deadline is missed (last setpoint published + ``setpoint_deadline``) to the simulated PX4 being in
-AUTO.LOITER. The bound (deadline + 0.3 s) is a safety bound, not a speed target."""
+deadline is missed (last setpoint published + ``setpoint_deadline``) to the simulated PX4's switch
+to AUTO.LOITER (its own mode log). What these tests prove is the order of events: the HOLD goes
+out while the command lane is still blocked, and before PX4's own offboard-loss failsafe
+(COM_OF_LOSS_T 1 s + 0.4 s after the last setpoint). The latency is printed; the bound asserted
+(``HOLD_BOUND_S``) is that order's, not a speed target a loaded machine could miss: on a quiet
+machine the HOLD comes 10-60 ms after the missed deadline."""
 from __future__ import annotations
 
 import statistics
@@ -13,11 +17,13 @@ from collections.abc import Callable
 from typing import Any
 
 from conftest import wait_for
-from rigs import Rig, rig, take_off
+from rigs import Rig, rig, streams_to_companion, take_off
 
 from drone_contract.messages import CommandResult
 
-HOLD_BOUND_S = 0.3
+# HOLD after the missed deadline (0.5 s) and before PX4's own failsafe would fire (1.4 s after the last
+# setpoint): a HOLD queued behind a blocked command (20 s, or px4_link's ~4 s of retries) is far later.
+HOLD_BOUND_S = 0.9
 SLOW_PARAM = "MPC_XY_VEL_MAX"
 
 
@@ -62,25 +68,21 @@ def _in_background(call: Callable[[], CommandResult]) -> list[tuple[float, Comma
 
 
 def _hold_latency(r: Rig, stamped: _StampedPublisher) -> float:
-    """Stop the GCS's setpoints; seconds from the missed deadline to PX4 in AUTO.LOITER."""
+    """Stop the GCS's setpoints; seconds from the missed deadline to PX4's switch to AUTO.LOITER, as the
+    simulator logged it (not when this thread happened to look)."""
     deadline = r.companion.config.setpoint_deadline
     assert wait_for(lambda: stamped.last > 0, 2) and r.sim.mode == "OFFBOARD", r.sim.mode
     r.op.target = None
-    t_hold = None
-    end = time.monotonic() + 25.0
-    while time.monotonic() < end:
-        if r.sim.mode == "AUTO.LOITER":
-            t_hold = time.monotonic()
-            break
-        time.sleep(0.002)
-    assert t_hold is not None, f"never held: mode {r.sim.mode}"
+    stopped = time.monotonic()
+    assert wait_for(lambda: r.sim.mode == "AUTO.LOITER", 25, interval=0.01), f"never held: mode {r.sim.mode}"
+    t_hold = next(c.time for c in reversed(r.sim.mode_log) if c.new == "AUTO.LOITER" and c.time >= stopped)
     return t_hold - (stamped.last + deadline)
 
 
 def _resume(r: Rig) -> None:
     x, y, z = r.sim.position
     r.op.target = (x, y, z)
-    time.sleep(0.5)
+    streams_to_companion(r, r.op)
     res = r.op.command("offboard_start")
     assert res.success, res.message
     assert wait_for(lambda: r.sim.mode == "OFFBOARD", 5)
@@ -100,10 +102,10 @@ def test_hold_within_bound_while_a_20_s_command_runs(ns: str) -> None:
             r.link.param.set = slow.set   # type: ignore[method-assign]
             background = _in_background(lambda: r.op.command("set_param", 5.0, SLOW_PARAM))
             assert slow.entered.wait(5), "the slow command never started"
-            t0 = time.monotonic()
             res = r.op.command("take_control")   # answered without PX4: the executor is free
-            assert res.success and time.monotonic() - t0 < 1.0, (res, time.monotonic() - t0)
+            assert res.success and not background, (res, background)   # while the slow one still runs
             latencies.append(_hold_latency(r, stamped))
+            assert not slow.release.is_set() and not background   # the HOLD did not wait for the command lane
             # PX4's heartbeat confirms the mode up to a second later: then the HOLD job is done.
             assert wait_for(lambda n=i + 1: r.companion.failsafe.holds == n, 3), r.companion.summary()["failsafe"]
             assert not r.link.offboard.streaming
@@ -153,10 +155,11 @@ def test_a_timed_out_command_never_runs_later(ns: str) -> None:
         first = _in_background(lambda: r.op.command("set_param", 5.0, SLOW_PARAM))
         assert slow.entered.wait(5)
         second = _in_background(lambda: r.op.command("set_param", 6.0, "MPC_XY_CRUISE"))
-        assert wait_for(lambda: first and second, 4), "no reply at the commands' deadline"
+        # Both answered at their deadline, while the running one is still blocked (up to 20 s).
+        assert wait_for(lambda: first and second, 10), "no reply at the commands' deadline"
         (t1, r1), (t2, r2) = first[0], second[0]
-        assert not r1.success and "abandoned" in r1.message and t1 < 2.5, (t1, r1)
-        assert not r2.success and "will not run" in r2.message and t2 < 2.5, (t2, r2)
+        assert not r1.success and "abandoned" in r1.message, (t1, r1)
+        assert not r2.success and "will not run" in r2.message, (t2, r2)
         slow.release.set()          # the running one ends now; the waiting one must never start
         time.sleep(1.0)
         assert slow.calls == [SLOW_PARAM], slow.calls
@@ -183,15 +186,13 @@ def test_hold_withdraws_an_unacknowledged_px4_command(ns: str) -> None:
         proto._on_command = deaf_to_arm   # type: ignore[method-assign]
         reply = _in_background(lambda: r.op.command("arm"))
         assert wait_for(lambda: bool(arms), 3)
-        stopped = time.monotonic()
-        assert _hold_latency(r, stamped) <= HOLD_BOUND_S
+        assert _hold_latency(r, stamped) <= HOLD_BOUND_S   # not behind the arm's ~4 s of retries
         assert wait_for(lambda: bool(reply), 5)
         res = reply[0][1]
         assert not res.success and "superseded by the failsafe" in res.message, res
         sent = len(arms)
         time.sleep(1.5)
         assert len(arms) == sent, "px4_link kept retrying a withdrawn command"
-        assert time.monotonic() - stopped < 6.0
         assert r.companion.summary()["px4_worker"]["preempted"] >= 1
 
 

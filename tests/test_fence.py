@@ -10,7 +10,7 @@ import time
 import px4_helpers  # noqa: F401  (puts the checkout's px4_link first on sys.path)
 import pytest
 from conftest import wait_for
-from px4_helpers import sim_and_link
+from px4_helpers import ReceivedSetpoints, sim_and_link
 from rigs import Rig, rig, take_off
 
 from companion.config import CompanionConfig
@@ -25,6 +25,7 @@ STOP = StoppingModel()   # 3 m/s^2, 1 s
 
 
 # ------------------------------------------------------------------------------------------ units
+@pytest.mark.fast
 def test_fence_bounds_radius_ceiling_and_floor_and_names_the_limit() -> None:
     f = Geofence(max_distance_m=50, max_altitude_m=30, min_altitude_m=2)
     assert f.violation(10, 10, -10) is None
@@ -38,6 +39,7 @@ def test_fence_bounds_radius_ceiling_and_floor_and_names_the_limit() -> None:
     assert "floor 0 m" in (d.violation(0, 0, 0.5) or "")
 
 
+@pytest.mark.fast
 def test_position_targets_below_the_floor_or_above_the_ceiling_are_refused() -> None:
     v = TargetValidator(Geofence(max_distance_m=50, max_altitude_m=30, min_altitude_m=2), max_speed=10)
     for sp, words in ((PositionTarget(0, 0, -1), "floor 2 m"), (PositionTarget(0, 0, -31), "ceiling 30 m"),
@@ -48,6 +50,7 @@ def test_position_targets_below_the_floor_or_above_the_ceiling_are_refused() -> 
     v.check(PositionTarget(0, 0, -5), now=0.0)
 
 
+@pytest.mark.fast
 def test_velocity_targets_need_a_position_to_be_fenced() -> None:
     v = TargetValidator(Geofence(), max_speed=10)
     with pytest.raises(TargetRefused) as e:
@@ -57,6 +60,7 @@ def test_velocity_targets_need_a_position_to_be_fenced() -> None:
     TargetValidator(None, max_speed=10).check(VelocityTarget(3, 0, 0), now=0.0)   # no fence: nothing to need
 
 
+@pytest.mark.fast
 def test_stopping_model_is_its_own_inverse() -> None:
     assert STOP.distance(9.5) == pytest.approx(9.5 * 1.0 + 9.5 ** 2 / 6)
     for d in (0.1, 1.0, 24.54, 100.0):
@@ -64,6 +68,7 @@ def test_stopping_model_is_its_own_inverse() -> None:
     assert STOP.speed_within(0.0) == STOP.speed_within(-3.0) == 0.0
 
 
+@pytest.mark.fast
 def test_fence_velocity_cuts_only_what_points_out_and_only_near_the_fence() -> None:
     f = Geofence(max_distance_m=100, max_altitude_m=50, min_altitude_m=1)
     far = f.fence_velocity(VelocityTarget(9.5, 0, 0), (10.0, 0.0, -10.0), STOP)
@@ -93,6 +98,7 @@ def test_fence_velocity_cuts_only_what_points_out_and_only_near_the_fence() -> N
     assert f.fence_velocity(VelocityTarget(3, 0, 0), (math.nan, 0.0, -5.0), STOP)[0] == VelocityTarget(0, 0, 0)
 
 
+@pytest.mark.fast
 def test_fence_velocity_at_the_origin_uses_the_heading_as_outward() -> None:
     tiny = Geofence(max_distance_m=1.0)
     sent, why = tiny.fence_velocity(VelocityTarget(0, 9, 0), (0.0, 0.0, -5.0), STOP)
@@ -100,6 +106,7 @@ def test_fence_velocity_at_the_origin_uses_the_heading_as_outward() -> None:
 
 
 # ------------------------------------------------------------------------------- companion config
+@pytest.mark.fast
 def test_fence_parameters_are_live_owner_only_and_bounded() -> None:
     specs = {s.name: s for s in SPECS}
     for name in ("fence_radius_m", "fence_ceiling_m", "fence_floor_m"):
@@ -155,15 +162,18 @@ def test_link_stops_a_velocity_stream_at_the_fence_and_reports_it_once() -> None
 def test_link_velocity_expires_to_zero_and_a_position_is_kept() -> None:
     with sim_and_link(link_kwargs={"velocity_timeout_s": 1.0}) as (sim, link, ev):
         _airborne(sim, link)
-        link.offboard.set_setpoint(VelocityTarget(3.0, 0.0, 0.0))
+        received = ReceivedSetpoints(sim)
         t_last = time.monotonic()
-        assert wait_for(lambda: sim.last_setpoint.velocity == (3.0, 0.0, 0.0), 1)
-        assert wait_for(lambda: sim.last_setpoint.velocity == (0.0, 0.0, 0.0), 2)
-        expired_after = time.monotonic() - t_last
-        assert 0.95 < expired_after < 1.3, expired_after
-        assert sim.wait_for(lambda s: math.hypot(*s.velocity) < 0.3, 3), sim.velocity
-        stopped_after = time.monotonic() - t_last
-        assert stopped_after < 3.5, stopped_after
+        link.offboard.set_setpoint(VelocityTarget(3.0, 0.0, 0.0))
+        assert wait_for(lambda: sim.last_setpoint.velocity == (3.0, 0.0, 0.0), 2)
+        assert wait_for(lambda: sim.last_setpoint.velocity == (0.0, 0.0, 0.0), 5)
+        zero = next(sp for sp in received.after(t_last) if sp.velocity == (0.0, 0.0, 0.0))
+        moving = [sp for sp in received.after(t_last) if sp.velocity == (3.0, 0.0, 0.0) and sp.time < zero.time]
+        # Zeroed 1 s (velocity_timeout_s) after it was set: never sooner (on the simulator's clock), and no
+        # more 20 Hz ticks of it than 1.3 s hold (a loaded machine runs fewer ticks, never more).
+        assert zero.time - t_last > 0.95, zero.time - t_last
+        assert 0 < len(moving) <= 26, len(moving)
+        assert sim.wait_for(lambda s: math.hypot(*s.velocity) < 0.3, 5), sim.velocity
         assert ev.count("setpoint_expired") == 1 and link.stats.setpoints_expired == 1
         assert sim.mode == "OFFBOARD"
         # A position is a place, not a motion: re-sent long after it was set.
@@ -221,15 +231,18 @@ def test_a_velocity_stream_that_stops_stops_the_drone_before_the_failsafe(ns: st
         stop = threading.Event()
         _velocity_stream(r, (3.0, 0.0, 0.0), stop)
         assert r.sim.wait_for(lambda s: s.velocity[0] > 2.5, 5), r.sim.velocity
+        received = ReceivedSetpoints(r.sim)
         stop.set()
         t_last = time.monotonic()
-        assert wait_for(lambda: r.sim.last_setpoint.velocity == (0.0, 0.0, 0.0), 2.0)
-        zero_after = time.monotonic() - t_last
-        assert r.sim.wait_for(lambda s: math.hypot(*s.velocity) < 0.3, 3), r.sim.velocity
-        stopped_after = time.monotonic() - t_last
-        print(f"zero velocity sent {zero_after:.2f} s after the last setpoint, drone still {stopped_after:.2f} s")
-        assert zero_after < 1.4, zero_after
-        assert stopped_after < 3.5, stopped_after
+        assert wait_for(lambda: r.sim.last_setpoint.velocity == (0.0, 0.0, 0.0), 5.0)
+        zero = next(sp for sp in received.after(t_last) if sp.velocity == (0.0, 0.0, 0.0))
+        # px4_link repeats the last velocity at 20 Hz until it expires (1 s): at most 1.4 s of ticks after
+        # the GCS stopped (a loaded machine runs fewer ticks, never more).
+        moving = [sp for sp in received.after(t_last) if sp.velocity != (0.0, 0.0, 0.0) and sp.time < zero.time]
+        assert len(moving) <= 28, len(moving)
+        assert r.sim.wait_for(lambda s: math.hypot(*s.velocity) < 0.3, 5), r.sim.velocity
+        print(f"zero velocity sent {zero.time - t_last:.2f} s after the last setpoint ({len(moving)} ticks of it), "
+              f"drone still {time.monotonic() - t_last:.2f} s")
         assert r.sim.mode == "OFFBOARD"    # no HOLD yet: the expiry stopped it, not the failsafe
         assert wait_for(lambda: "setpoint_expired" in r.op.kinds("op"), 3), r.op.kinds()
         assert r.link.stats.setpoints_expired == 1

@@ -4,16 +4,18 @@ from __future__ import annotations
 
 import math
 import socket
+import statistics
 import time
+from itertools import pairwise
 
 import numpy as np
 import pytest
-from px4_helpers import assert_no_px4_failsafe, sim_and_link, trace_messages
+from px4_helpers import assert_no_px4_failsafe, silent_to, sim_and_link, switched_at, trace_messages, wait_for
 from pymavlink.dialects.v20 import common as mavlink2
 
-from px4_link import PositionTarget
+from px4_link import Imu, LocalPosition, PositionTarget
 from px4_link.sim import Simulator
-from px4_link.sim.commander import Commander, ReceivedSetpoint
+from px4_link.sim.commander import PX4_ESTIMATOR_WARMUP_S, Commander, ReceivedSetpoint
 from px4_link.sim.params import ParamStore
 from px4_link.sim.physics import PointMassQuad
 
@@ -61,9 +63,15 @@ def test_sensor_rate_when_200hz_is_asked_matches_trace() -> None:
     real = len(imu) / 10.0
     assert 116 <= real <= 125
     with sim_and_link() as (sim, link, _):
+        stamps: list[int] = []
+        link.telemetry.add_listener(lambda s: stamps.append(s.timestamp_us), Imu)
         link.telemetry.request_message_interval("HIGHRES_IMU", 200)
-        time.sleep(2.5)
-        measured = link.telemetry.rate_hz("HIGHRES_IMU", window=2.0)
+        # The rate PX4's own timestamps give (the simulator's clock: a loaded receiver does not move them),
+        # over 2 s of samples after the change.
+        n0 = len(stamps) + 10
+        assert wait_for(lambda: len(stamps) >= n0 + 241, 15)
+        window = stamps[n0:n0 + 241]
+        measured = 1e6 / statistics.median(b - a for a, b in pairwise(window))
         assert 114 <= measured <= 126, measured
         assert abs(measured - real) < 8
 
@@ -130,18 +138,21 @@ def test_offboard_flight_climb_land_disarm_mode_and_gimbal_like_px4() -> None:
         or len(gimbal) == 6
 
     with sim_and_link(params=PX4_DEFAULTS) as (sim, link, events):
+        # Timed on PX4's clock (the simulator's records and the LOCAL_POSITION_NED it stamped), as the trace is.
+        track: list[tuple[int, float]] = []
+        link.telemetry.add_listener(lambda p: track.append((p.time_boot_ms, p.z)), LocalPosition)
         link.offboard.set_setpoint(PositionTarget(0, 0, -5))
         link.offboard.start()
-        t_arm = time.monotonic()
         link.action.arm()
-        assert sim.wait_for(lambda s: s.altitude > 4.0, 10.0)
-        climb = time.monotonic() - t_arm
+        assert sim.wait_for(lambda s: s.altitude > 4.0, 20.0)
+        assert wait_for(lambda: any(z < -4.0 for _, z in list(track)), 5)
+        t_arm = next(t for t, c, r in sim.command_log if c == 400 and r == 0)
+        climb = next(ms for ms, z in list(track) if z < -4.0) / 1000 - (t_arm - sim.boot_time)
         assert abs(climb - real_climb) < 1.0, (climb, real_climb)
         assert sim.wait_for(lambda s: abs(s.altitude - 5) < 0.2, 5.0)
-        t_land = time.monotonic()
         link.action.set_mode("AUTO.LAND")          # as the companion did (DO_SET_MODE 4/6)
-        assert sim.wait_for(lambda s: not s.armed, 20.0)
-        land_to_disarm = time.monotonic() - t_land
+        assert sim.wait_for(lambda s: not s.armed, 30.0)
+        land_to_disarm = sim.landed_at - switched_at(sim, "AUTO.LAND")
         assert 11.5 < land_to_disarm < 15.5 and abs(land_to_disarm - real_land_to_disarm) < 2.5, \
             (land_to_disarm, real_land_to_disarm)
         # Back to the last user-selected mode, still receiving the companion's setpoints.
@@ -162,10 +173,9 @@ def test_offboard_loss_failsafe_is_rtl_after_1_4_s_and_helper_sees_it() -> None:
         assert sim.wait_for(lambda s: s.altitude > 1.5, 10)
         assert_no_px4_failsafe(sim)
         link.offboard.stop_stream()
-        t0 = time.monotonic()
-        assert sim.wait_for(lambda s: s.mode != "OFFBOARD", 3.0)
-        assert 1.2 < time.monotonic() - t0 < 1.7
+        assert sim.wait_for(lambda s: s.mode != "OFFBOARD", 5.0)
         assert sim.mode == "AUTO.RTL" and sim.system_status == 5
+        assert 1.2 < silent_to(sim, "AUTO.RTL") < 1.7      # after the last setpoint, on PX4's clock
         with pytest.raises(AssertionError, match="AUTO.RTL"):
             assert_no_px4_failsafe(sim)
 
@@ -203,20 +213,26 @@ def test_prearm_warmup_length_bits_and_refusal_like_px4() -> None:
     assert {(m.onboard_control_sensors_present, m.onboard_control_sensors_health) for m in warming} \
         == {(0x0300400F, 0x0320883F)}
 
-    with sim_and_link(armable=False) as (sim, link, events):
+    with sim_and_link(armable=False, warmup_s=PX4_ESTIMATOR_WARMUP_S) as (sim, link, events):
         from px4_link.commands import CommandTemporarilyRejected
         from px4_link.telemetry import SysStatus
+        statuses: list[SysStatus] = []
+        link.telemetry.add_listener(statuses.append, SysStatus)
         with pytest.raises(CommandTemporarilyRejected, match="Resolve system health failures"):
             link.action.arm()
         assert not sim.armed and not sim.armable
-        assert sim.wait_for(lambda s: s.commander.since_boot() > 3.0, 5)
-        s = link.telemetry.wait(SysStatus, 1.0)
-        assert s is not None and not s.armable
-        assert (s.sensors_present & ~0x10000000, s.sensors_health) == (0x0300400F, 0x0320883F)
-        assert sim.wait_for(lambda s: s.armable, 3.0)
-        sim_ready = sim.commander.since_boot()
-        assert abs(sim_ready - ready) < 0.4, (sim_ready, ready)
-        assert link.telemetry.wait(SysStatus, 1.0, lambda m: m.armable) is not None
+        assert sim.wait_for(lambda s: s.armable, 8.0)
+        assert sim.commander.since_boot() >= sim.commander.estimator_warmup_s
+        assert abs(sim.commander.estimator_warmup_s - ready) < 0.4, (sim.commander.estimator_warmup_s, ready)
+        assert link.telemetry.wait(SysStatus, 2.0, lambda m: m.armable) is not None
+        # Every SYS_STATUS received from 3 s after boot (sensors up at 2.2 s; a status is received after PX4
+        # sent it) until 0.3 s before the warm-up's end: sensors up, the pre-arm bit not yet set.
+        warming_here = [m for m in list(statuses)
+                        if 3.0 < m.received_at - sim.boot_time < sim.commander.estimator_warmup_s - 0.3]
+        assert warming_here and all(not m.armable for m in warming_here), warming_here
+        assert {(m.sensors_present & ~0x10000000, m.sensors_health) for m in warming_here} \
+            == {(0x0300400F, 0x0320883F)}
+        assert any(m.armable for m in list(statuses))
         texts = _statustexts(events)
         assert "Preflight Fail: heading estimate not stable" in texts
         assert texts.index("Preflight Fail: heading estimate not stable") < texts.index("Ready for takeoff!")
@@ -224,6 +240,12 @@ def test_prearm_warmup_length_bits_and_refusal_like_px4() -> None:
         assert sim.armed
         refused = [r for _, c, r in sim.command_log if c == 400]
         assert refused == [1, 0]
+    # When the bit flips, on PX4's clock: the commander on its own, stepped to either side of the trace's time.
+    c = Commander(ParamStore(), PointMassQuad(np.random.default_rng(1)), 0.0)
+    c.update(ready - 0.4)
+    assert not c.armable()
+    c.update(ready + 0.4)
+    assert c.armable()
 
 
 def test_offboard_available_from_the_first_recent_setpoint_like_px4() -> None:
