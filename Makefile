@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed
 DURATION ?= 60
 ARGS ?=
 
-.PHONY: install sysdeps demo test lint bench experiment swarm clean
+.PHONY: install sysdeps demo test test-fast lint bench experiment swarm clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -39,6 +39,11 @@ test: install sysdeps lint
 	$(BIN)/python -m pytest -n 2 --dist loadscope -m "not serial" $(ARGS) || rc=$$?; \
 	$(BIN)/python -m pytest -m serial $(ARGS) || { r=$$?; [ $$r = 5 ] || rc=$$r; }; \
 	[ $$rc = 0 ] || [ $$rc = 5 ]
+
+# The fast tier (docs/testing.md): in-process tests only (no process, no socket beyond in-process Zenoh
+# sessions), on two workers, one test at a time each; no lint. Under 2 minutes.
+test-fast: install
+	$(BIN)/python -m pytest -q -n 2 -m fast $(ARGS)
 
 bench: install
 	$(BIN)/zenoh-robot bench $(ARGS)

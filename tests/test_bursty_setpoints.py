@@ -56,6 +56,7 @@ def _rate(plan: tuple[int, float]) -> float:
     return plan[0] / plan[1]
 
 
+@pytest.mark.fast
 def test_fades_put_the_copies_at_the_ceiling_and_uniform_loss_keeps_its_plan(monkeypatch) -> None:
     """100 windows of 5 s each: fades at a 30 and 50 % mean are told from independent loss at 30, 50 and
     70 %, and only they move the copies (to one every 3 ms, what 90 % uniform loss gets)."""
@@ -79,6 +80,7 @@ def test_fades_put_the_copies_at_the_ceiling_and_uniform_loss_keeps_its_plan(mon
                 assert repeat_plan(mean, DEADLINE, burst=b) == repeat_plan(max(mean, b.loss_after_loss), DEADLINE)
 
 
+@pytest.mark.fast
 def test_inside_a_95_percent_fade_the_planned_copies_cross_within_the_staleness_budget() -> None:
     """The budget a copy has to cross a fade: 500 ms less one publish period (the newest sample may be
     that old when the last packet before the fade leaves)."""
@@ -91,6 +93,7 @@ def test_inside_a_95_percent_fade_the_planned_copies_cross_within_the_staleness_
     assert not BurstEstimate(loss_after_loss=0.75, lost=4, received=96).fading
 
 
+@pytest.mark.fast
 def test_the_staleness_bound_counts_the_publish_period() -> None:
     # A 10 Hz publisher at a 500 ms deadline: the plan the stream always had.
     assert repeat_plan(0.5, DEADLINE, period_s=0.1) == repeat_plan(0.5, DEADLINE)
@@ -126,6 +129,7 @@ def test_a_setpoint_publisher_planned_for_fades_sends_its_copies_3_ms_apart(ns: 
         assert statistics.median(gaps) < 0.004, statistics.median(gaps)
 
 
+@pytest.mark.fast
 def test_the_first_fade_after_a_clean_stretch_is_called_from_its_silence(monkeypatch) -> None:
     """5 s clean, then the probes stop: 150 ms of silence is a fade under way (the old plan waited for a
     1 s window to count it, at 40 packets/s); a probe or two missing is not."""
@@ -141,6 +145,7 @@ def test_the_first_fade_after_a_clean_stretch_is_called_from_its_silence(monkeyp
     assert not _estimates(monkeypatch, [window + [True] * 3])[0].fading
 
 
+@pytest.mark.fast
 def test_the_gcs_sizes_each_drone_from_its_own_probes(monkeypatch) -> None:
     """Two drones, uav2 silent (in a fade): only uav2's setpoint copies and command loss go up."""
     from types import SimpleNamespace

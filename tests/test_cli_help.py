@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import argparse
 
+import pytest
+
 from zenoh_robot.tools.cli.main import build_parser
+
+pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
 
 
 def _walk(parser: argparse.ArgumentParser, path: str) -> list[tuple[str, argparse.ArgumentParser]]:

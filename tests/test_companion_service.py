@@ -14,8 +14,6 @@ import pytest
 
 from px4_link.connection_url import parse_px4_url
 
-pytestmark = pytest.mark.fast
-
 UNIT = Path(__file__).resolve().parents[1] / "configs" / "systemd" / "zenoh-robot-companion.service"
 
 
@@ -26,6 +24,7 @@ def service() -> configparser.SectionProxy:
     return unit["Service"]
 
 
+@pytest.mark.fast
 def test_the_unit_restarts_and_stops_cleanly() -> None:
     s = service()
     assert s["Restart"] == "always" and float(s["RestartSec"]) > 0
@@ -33,6 +32,7 @@ def test_the_unit_restarts_and_stops_cleanly() -> None:
     assert "KillSignal" not in s   # SIGTERM, which the companion turns into a clean stop and its summary
 
 
+@pytest.mark.fast
 def test_its_command_line_is_one_the_companion_takes() -> None:
     from companion.cli import check_px4, register
     argv = shlex.split(service()["ExecStart"])

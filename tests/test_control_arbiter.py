@@ -1,8 +1,12 @@
 """ControlArbiter rules (pure logic; the Zenoh and PX4 paths are in test_control_lifecycle.py)."""
 from __future__ import annotations
 
+import pytest
+
 from companion.control import ControlArbiter
 from zenoh_robot.ratelimit import RateLimiter
+
+pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
 
 
 def test_first_claim_wins_others_refused_with_the_holder_named() -> None:

@@ -11,6 +11,8 @@ from zenoh_robot.graph import DuplicateNodeError
 from zenoh_robot.msgs import String
 from zenoh_robot.session_config import SessionConfig, SessionConfigError, resolve_domain
 
+pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
+
 
 def _pair(domain: int, port: int) -> tuple[SessionConfig, SessionConfig]:
     """Listener and connector on loopback."""

@@ -6,6 +6,8 @@ import pytest
 
 from zenoh_robot._wire import envelope
 
+pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
+
 BODIES = [[], [1.0, 2.0, -3.0], [[0, "map", 0], 1.5, None, True], {"k": b"\x00\xff"}, "x" * 300,
           [np.float32(1.5), np.arange(3)], [2**63, -2**63]]
 EXTRAS = [None, {}, {"r": 3}, {"h": [[1, 2, [0.5]]]}]

@@ -11,6 +11,8 @@ import pytest
 
 from drone_lab.experiment.report import MAX_SLICES, groups, main, markdown_report, oldest_strip_ages
 
+pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
+
 MS = 1_000_000
 
 

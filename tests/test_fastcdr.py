@@ -20,6 +20,8 @@ from zenoh_robot.ros2.fastcdr import build
 from zenoh_robot.ros2.types import register_definitions
 from zenoh_robot.wire import ros2_wire
 
+pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
+
 # A uORB-style fixed-size struct, as PX4's zenoh module sends it (px4_msgs/VehicleAttitude's shape).
 PX4_LIKE = "zr_fastcdr/msg/Px4Like"
 PX4_LIKE_MSG = ("uint64 timestamp\nuint64 timestamp_sample\nfloat32[4] q\nfloat32[4] delta_q_reset\n"

@@ -29,6 +29,8 @@ from zenoh_robot.msgs import Header, Image, JointState, SensorCombined, Setpoint
 from zenoh_robot.services import ServiceError
 from zenoh_robot.subscription import MAX_TRACKED_PUBLISHERS
 
+pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
+
 FAST = settings(max_examples=150, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
 TYPES: list[type[Message]] = [Setpoint, SensorCombined, Image, JointState, Twist, Header, ArmRequest]
 

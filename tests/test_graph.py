@@ -23,11 +23,13 @@ ODD = QoSProfile(reliability="best_effort", durability="transient_local", histor
                  priority="real_time", express=True, redundancy=8, repeat=3)
 
 
+@pytest.mark.fast
 @pytest.mark.parametrize("profile", [QoSProfile(), ODD, *qos.PRESETS.values()])
 def test_qos_survives_the_token_key(profile):
     assert decode_qos(encode_qos(profile)) == profile
 
 
+@pytest.mark.fast
 def test_token_keys_parse_back():
     key = endpoint_token_key("MP", "abc123", 42, "uav1/cam", "camera", "uav1/cam/image", "zenoh_robot/Image",
                              "deadbeef", ODD)
@@ -82,6 +84,7 @@ def test_graph_sees_another_process_and_forgets_it_when_it_exits(ns):
             child.wait(5)
 
 
+@pytest.mark.fast
 def test_destroyed_entities_leave_the_graph(ns):
     listen, connect = linked_configs()
     with Node("a", namespace=ns, config=listen) as a, Node("b", namespace=ns, config=connect) as b:

@@ -21,6 +21,8 @@ from zenoh_robot import Message, QoSProfile, message
 from zenoh_robot.msgs import Header, Image, Setpoint
 from zenoh_robot.services import ServiceError
 
+pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
+
 
 @message(name="test_hardening/FloatStamp")
 class FloatStamp(Message):

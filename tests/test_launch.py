@@ -115,6 +115,7 @@ def test_respawn(tmp_path):
     assert len(re.findall(r"^\[blip\] +hi$", out.getvalue(), re.M)) >= 2
 
 
+@pytest.mark.fast
 def test_substitutions_params_and_includes(tmp_path, monkeypatch):
     monkeypatch.setenv("ZR_TEST_LEVEL", "warn")
     write(tmp_path, """
@@ -169,6 +170,7 @@ def test_substitutions_params_and_includes(tmp_path, monkeypatch):
     ("args: {need: {description: d}}\nprocesses:\n  - {name: x, cmd: [ls]}\n", "pass need:=VALUE"),
     ("processes: [\n", "not valid YAML"),
 ])
+@pytest.mark.fast
 def test_validation_errors_are_clear(tmp_path, body, message):
     path = write(tmp_path, body)
     with pytest.raises(LaunchError) as err:
@@ -186,6 +188,7 @@ def test_cli_reports_bad_files_in_one_line(tmp_path):
         f"zenoh-robot launch: {path}: unknown launch argument(s) bogus; declared: none"]
 
 
+@pytest.mark.fast
 @pytest.mark.parametrize("name", ["demo", "gcs_reliable", "gcs_best_effort", "drone_reliable", "drone_best_effort"])
 def test_shipped_launch_files_validate(name: str) -> None:
     from zenoh_robot.tools.launch import load_launch
@@ -239,6 +242,7 @@ def test_stop_goes_in_reverse_dependency_order(tmp_path):
     assert t["companiondone"] <= t["simgot SIGINT"], text
 
 
+@pytest.mark.fast
 def test_stop_order_defaults_to_reverse_declaration_and_refuses_cycles(tmp_path):
     from zenoh_robot.tools.launch import stop_order
     specs = [ProcessSpec("sim", ["x"]), ProcessSpec("companion", ["x"]), ProcessSpec("gcs", ["x"])]

@@ -21,6 +21,7 @@ LO = ("127.0.0.1", 0)
 
 # ---- units
 
+@pytest.mark.fast
 def test_copies_follow_the_reported_loss() -> None:
     cfg = ShimConfig()
     assert copies(cfg, 100, None, warm=False) == cfg.k_warm          # nothing measured yet: the handshake
@@ -36,6 +37,7 @@ def test_copies_follow_the_reported_loss() -> None:
         ShimConfig(k_big_max=20, k_small_max=16)
 
 
+@pytest.mark.fast
 def test_dedup_forwards_each_seq_once_within_a_bounded_window() -> None:
     d = Dedup(window=64)
     assert d.fresh(0) and not d.fresh(0)
@@ -46,6 +48,7 @@ def test_dedup_forwards_each_seq_once_within_a_bounded_window() -> None:
     assert d.mask < 1 << 64              # the memory is the window, whatever came before
 
 
+@pytest.mark.fast
 def test_header_round_trip_and_malformed_packets() -> None:
     h = Header(copies=7, flow=0xDEADBEEF, seq=42, pseq=43, feedback=0.5)
     head, payload = parse(h.pack() + b"zenoh") or (None, b"")
@@ -59,6 +62,7 @@ def test_header_round_trip_and_malformed_packets() -> None:
     assert parse(good[:-1] + b"\xfb") is None                 # feedback out of range
 
 
+@pytest.mark.fast
 @settings(max_examples=300, deadline=None)
 @given(st.binary(max_size=64))
 def test_parse_never_raises(data: bytes) -> None:
@@ -66,6 +70,7 @@ def test_parse_never_raises(data: bytes) -> None:
     parse(b"ZS\x01" + data)
 
 
+@pytest.mark.fast
 def test_loss_meter_reads_pseq_gaps() -> None:
     m = LossMeter(every=64)
     rng = random.Random(1)
@@ -75,6 +80,7 @@ def test_loss_meter_reads_pseq_gaps() -> None:
     assert m.loss is not None and 0.22 < m.loss < 0.38
 
 
+@pytest.mark.fast
 def test_bad_addresses_and_roles_are_refused() -> None:
     assert parse_addr("udp/127.0.0.1:7448") == ("127.0.0.1", 7448)
     for bad in ("127.0.0.1", ":1", "h:99999", "h:x"):

@@ -3,10 +3,13 @@ from __future__ import annotations
 
 import threading
 
+import pytest
 from conftest import linked_configs, spinning_nodes, wait_for
 
 from zenoh_robot import Node
 from zenoh_robot.liveliness import LivelinessWatch
+
+pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
 
 
 def test_a_watch_sees_a_token_come_and_go_on_the_watchers_executor(ns: str) -> None:

@@ -28,6 +28,8 @@ from zenoh_robot.tools import keys
 from zenoh_robot.wire import ENVELOPE, sealed
 from zenoh_robot.wire.format import WireFormat
 
+pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
+
 
 @pytest.fixture(scope="module")
 def fleet(tmp_path_factory: pytest.TempPathFactory) -> Path:

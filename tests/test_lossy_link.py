@@ -73,6 +73,7 @@ def test_setpoints_at_10_percent_loss(lossy_link: LossyLink, tmp_path: Path) -> 
     assert res["max_gap"] < 1.0
 
 
+@pytest.mark.fast
 def test_reliable_profile_never_drops_at_the_sender() -> None:
     """The thesis's `reliable` profile (RELIABLE, keep last 10) lost 12 % of sensor samples at 10 %
     loss: KEEP_LAST mapped to CongestionControl.DROP, and Zenoh drops a sample that finds its
@@ -159,6 +160,7 @@ def test_experiment_cell_window_lies_within_both_apps_streams(tmp_path: Path,
     assert whole["unique"] > 0 and strip["delivered_pct"] == whole["delivered_pct"], (whole, strip)
 
 
+@pytest.mark.fast
 def test_sweep_resume_reruns_invalid_cells_and_reports_skip_them(tmp_path: Path,
                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
     """A cell flagged ``invalid`` (its window missed the apps' streams) measured nothing about the link:
@@ -265,6 +267,7 @@ class _Addresses:
         return f"veth-{side}"
 
 
+@pytest.mark.fast
 def test_thesis_variants_through_a_router_are_plain_clients_over_tcp() -> None:
     from drone_lab.experiment.cell import ROUTER_LOCAL, transport_for
 

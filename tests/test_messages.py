@@ -10,6 +10,8 @@ from zenoh_robot import Message, array, message
 from zenoh_robot.message import lookup, type_support
 from zenoh_robot.msgs import Header, Image, JointState, SensorCombined, Setpoint, String, Twist
 
+pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
+
 
 @pytest.mark.parametrize("msg", SAMPLE_MESSAGES, ids=lambda m: type(m).__name__)
 def test_round_trip_through_msgpack(msg: Message) -> None:

@@ -12,6 +12,8 @@ from drone_contract.commands import NO_SETPOINTS_YET
 from drone_contract.messages import CommandResult, VehicleState
 from gcs import mission
 
+pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
+
 
 class _Drone:
     """What the mission reads and calls of a drone, with scripted offboard_start answers."""

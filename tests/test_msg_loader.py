@@ -10,6 +10,8 @@ from zenoh_robot.message import type_support
 from zenoh_robot.msg_loader import MsgParseError
 from zenoh_robot.msgs import Header
 
+pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

@@ -31,6 +31,7 @@ def node(ns):
         yield n
 
 
+@pytest.mark.fast
 def test_declare_and_get(node):
     p = node.declare_parameter("depth", 10, "queue depth")
     assert (p.name, p.value, p.type_) == ("depth", 10, ParameterType.INTEGER)
@@ -55,6 +56,7 @@ def test_declare_and_get(node):
         node.declare_parameter("untyped")
 
 
+@pytest.mark.fast
 def test_set_with_type_checks(node):
     node.declare_parameter("depth", 10)
     node.declare_parameter("gain", 0.5)
@@ -75,6 +77,7 @@ def test_set_with_type_checks(node):
     assert node.get_parameter_value("depth") == 7
 
 
+@pytest.mark.fast
 def test_on_set_callback_may_refuse(node):
     node.declare_parameter("gain", 0.5)
     seen = []
@@ -102,6 +105,7 @@ def test_on_set_callback_may_refuse(node):
     assert not r.successful and "ZeroDivisionError" in r.reason
 
 
+@pytest.mark.fast
 def test_overrides_apply_at_declare_time(ns):
     overrides = parse_param_args(["-p", "depth:=3", "-p", "gain:=1", "--param", "mode:=best_effort",
                                   "-p", "flag:=true", "-p", "l:=[1, 2.5]", "name:=", "-p", "text:='5'"])
@@ -171,6 +175,7 @@ def test_remote_param_cli(ns):
         node.wait(timeout=10)
 
 
+@pytest.mark.fast
 def test_a_write_guard_judges_each_remote_request_by_its_caller(ns):
     """Node.set_parameter_write_guard over real sessions: the caller's client_id reaches the guard
     and the on-set callbacks; a refusal covers the whole request; local sets and guardless nodes

@@ -26,6 +26,7 @@ def _spin_in_background(node: Node) -> threading.Thread:
     return t
 
 
+@pytest.mark.fast
 @pytest.mark.parametrize("reliability", ["reliable", "best_effort"])
 def test_every_message_type_arrives(pair, reliability: str) -> None:
     a, b = pair
@@ -50,6 +51,7 @@ def test_every_message_type_arrives(pair, reliability: str) -> None:
         assert received[f"t{i}"][0] == msg
 
 
+@pytest.mark.fast
 def test_namespaced_key_and_message_info(pair, ns: str) -> None:
     a, b = pair
     infos = []
@@ -81,6 +83,7 @@ def test_publisher_in_another_process(ns: str) -> None:
     assert got[-1].x == 39.0 and got[-1].z == -2.0
 
 
+@pytest.mark.fast
 def test_keep_last_drops_oldest_under_a_slow_callback(pair) -> None:
     a, b = pair
     seen: list[int] = []
@@ -107,6 +110,7 @@ def test_keep_last_drops_oldest_under_a_slow_callback(pair) -> None:
     assert seen == sorted(seen) and seen[-1] == 59      # newest kept, order preserved
 
 
+@pytest.mark.fast
 def test_wrong_type_is_reported_once_per_publisher_and_dropped(pair, caplog) -> None:
     a, b = pair
     got: list[Setpoint] = []
@@ -126,6 +130,7 @@ def test_wrong_type_is_reported_once_per_publisher_and_dropped(pair, caplog) -> 
     assert "zenoh_robot/Setpoint" in mismatch_logs[0].getMessage()
 
 
+@pytest.mark.fast
 def test_malformed_bytes_are_counted_and_the_subscriber_keeps_working(pair, ns: str) -> None:
     a, b = pair
     got: list[Setpoint] = []
@@ -142,6 +147,7 @@ def test_malformed_bytes_are_counted_and_the_subscriber_keeps_working(pair, ns: 
     assert got[0].y == 3.0
 
 
+@pytest.mark.fast
 def test_callback_exception_is_logged_counted_and_survived(pair, caplog) -> None:
     a, b = pair
     calls = []
@@ -162,6 +168,7 @@ def test_callback_exception_is_logged_counted_and_survived(pair, caplog) -> None
     assert any("boom" in r.getMessage() and r.exc_info for r in caplog.records)
 
 
+@pytest.mark.fast
 def test_publish_rejects_wrong_type_and_bad_array(pair) -> None:
     a, _ = pair
     pub = a.create_publisher(Setpoint, "x", qos.SETPOINT)
@@ -174,6 +181,7 @@ def test_publish_rejects_wrong_type_and_bad_array(pair) -> None:
     assert spub.sequence == 0   # nothing was sent
 
 
+@pytest.mark.fast
 @pytest.mark.parametrize("topic", ["", "a//b", "1abc", "a/b/", "bad-name", "a b", "~x"])
 def test_invalid_topic_names(pair, topic: str) -> None:
     a, _ = pair
@@ -181,6 +189,7 @@ def test_invalid_topic_names(pair, topic: str) -> None:
         a.create_publisher(Setpoint, topic, qos.SETPOINT)
 
 
+@pytest.mark.fast
 def test_name_resolution(pair, ns: str) -> None:
     a, _ = pair
     assert a.resolve_topic_name("setpoint") == f"{ns}/setpoint"
@@ -190,6 +199,7 @@ def test_name_resolution(pair, ns: str) -> None:
         Node("bad name")
 
 
+@pytest.mark.fast
 def test_timer_and_multithreaded_executor(ns: str) -> None:
     ex = MultiThreadedExecutor(num_threads=2)
     with Node("mt", namespace=ns, executor=ex) as node:
@@ -209,6 +219,7 @@ def test_timer_and_multithreaded_executor(ns: str) -> None:
 
 @pytest.mark.parametrize("profile", [qos.RESILIENT, qos.SENSOR.replace(repeat=3), qos.SENSOR.replace(redundancy=3)],
                          ids=["redundant+repeated", "repeated", "redundant"])
+@pytest.mark.fast
 def test_repeated_and_redundant_samples_arrive_once_whatever_the_subscriber_qos(pair, profile) -> None:
     a, b = pair
     got: list[int] = []
@@ -225,6 +236,7 @@ def test_repeated_and_redundant_samples_arrive_once_whatever_the_subscriber_qos(
     assert got == list(range(1, 21))              # yet each sample was delivered once, in order
 
 
+@pytest.mark.fast
 def test_publish_returns_the_seq_and_stamp_the_subscriber_sees(pair) -> None:
     a, b = pair
     got: list = []
@@ -239,6 +251,7 @@ def test_publish_returns_the_seq_and_stamp_the_subscriber_sees(pair) -> None:
         sent[0].seq = 9   # frozen: a record of what was sent
 
 
+@pytest.mark.fast
 def test_raw_subscription_of_any_type_gets_envelope_fields_and_bytes(pair) -> None:
     from zenoh_robot._wire import envelope
     from zenoh_robot.subscription import RawMessage
@@ -269,6 +282,7 @@ def test_raw_subscription_of_any_type_gets_envelope_fields_and_bytes(pair) -> No
     assert sorted(types) == sorted([type_support(Setpoint).name, type_support(String).name])
 
 
+@pytest.mark.fast
 def test_raw_subscription_of_one_type_still_checks_the_type(pair) -> None:
     a, b = pair
     got: list = []
@@ -283,12 +297,14 @@ def test_raw_subscription_of_one_type_still_checks_the_type(pair) -> None:
     assert got[0].type_name == type_support(Setpoint).name and got[0].fields[1] == 1.0
 
 
+@pytest.mark.fast
 def test_a_typed_subscription_needs_a_type(pair) -> None:
     _, b = pair
     with pytest.raises(TypeError):
         b.create_subscription(None, "notype", lambda m: None)
 
 
+@pytest.mark.fast
 def test_one_argument_callbacks_hooks_and_two_argument_callbacks_see_the_same_samples(pair) -> None:
     # The receive path builds no MessageInfo for a 1-argument callback without hooks: the sample
     # must still arrive whole, and a hook added later must get the info the publisher returned.
@@ -309,6 +325,7 @@ def test_one_argument_callbacks_hooks_and_two_argument_callbacks_see_the_same_sa
     assert hooked == more and s1.counters.lost == 0 and s1.counters.delivered == 8
 
 
+@pytest.mark.fast
 def test_timers_added_cancelled_and_reset_while_the_executor_waits(ns: str) -> None:
     # spin_once reads the next due time without the timer lock: a timer added, cancelled or reset
     # from another thread while the executor is blocked must still be seen.

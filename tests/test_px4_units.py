@@ -27,6 +27,8 @@ from px4_link.targets import (
 from px4_link.telemetry import Imu
 from px4_link.wire import Encoder, Parser, float_bits_to_int, int_to_float_bits
 
+pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
+
 
 @pytest.mark.parametrize("name,main,sub", [
     ("MANUAL", 1, 0), ("ALTCTL", 2, 0), ("POSCTL", 3, 0), ("AUTO.TAKEOFF", 4, 2),

@@ -10,6 +10,8 @@ from zenoh_robot import QoSError, QoSProfile, qos
 from zenoh_robot.qos import DurabilityPolicy, HistoryPolicy, Priority, ReliabilityPolicy, load_qos, save_qos
 from zenoh_robot.qos_mapping import publisher_options
 
+pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

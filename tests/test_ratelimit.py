@@ -7,6 +7,8 @@ import pytest
 import px4_link.ratelimit as px4_rl
 import zenoh_robot.ratelimit as lib_rl
 
+pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
+
 
 class Clock:
     def __init__(self) -> None:

@@ -17,6 +17,8 @@ from zenoh_robot.msgs import Float32, Setpoint
 from zenoh_robot.qos import HistoryPolicy
 from zenoh_robot.subscription import DRAIN_BATCH, Subscription
 
+pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
+
 KEEP_ALL = QoSProfile(history=HistoryPolicy.KEEP_ALL, depth=0)
 
 

@@ -4,10 +4,13 @@ from __future__ import annotations
 import random
 import time
 
+import pytest
 from conftest import linked_configs
 
 from zenoh_robot import Node
 from zenoh_robot._wire.redundancy import Deduplicator, RedundantHistory
+
+pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
 
 
 def _send(n: int, k: int):

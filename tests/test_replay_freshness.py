@@ -26,8 +26,6 @@ from zenoh_robot.wire import ENVELOPE, sealed
 from zenoh_robot.wire.freshness import FUTURE_S, OwnClock, ScopeClocks, age_ms, own_clock
 from zenoh_robot.wire.sealed import STAMP, STAMP_AT, StaleSample, service_seal
 
-pytestmark = pytest.mark.fast
-
 
 @pytest.fixture(scope="module")
 def fleet(tmp_path_factory: pytest.TempPathFactory) -> Path:
@@ -61,11 +59,13 @@ def _refusal(decode: Any, payload: bytes) -> str:
     return info.value.reason
 
 
+@pytest.mark.fast
 def test_age_is_signed_and_survives_the_32_bit_wrap() -> None:
     assert age_ms(1000, 400) == 600 and age_ms(400, 1000) == -600
     assert age_ms(5, (1 << 32) - 5) == 10 and age_ms((1 << 32) - 5, 5) == -10
 
 
+@pytest.mark.fast
 def test_the_owner_checks_its_own_start_and_clock() -> None:
     clock = OwnClock(1_800_000_000)
     now = clock.now_ms()
@@ -77,6 +77,7 @@ def test_the_owner_checks_its_own_start_and_clock() -> None:
     assert clock.check(clock.boot, now + int(FUTURE_S * 1000) + 1000, 5.0) == "expired"
 
 
+@pytest.mark.fast
 def test_an_estimate_moves_only_forward_so_a_replay_cannot_pull_it_back() -> None:
     clocks = ScopeClocks()
     assert clocks.estimate("uav1") == (0, 0)
@@ -108,6 +109,7 @@ def test_a_start_counter_goes_up_across_processes_and_is_stored(tmp_path: Path) 
     assert other.returncode == 0 and int(other.stdout) >= int(time.time()) - 60
 
 
+@pytest.mark.fast
 def test_a_capture_from_before_the_drone_restarted_is_refused_and_the_gcs_rebinds(fleet: Path,
                                                                                   tmp_path: Path) -> None:
     first = _drone(fleet, tmp_path / "uav1.boot")
@@ -136,6 +138,7 @@ def test_a_capture_from_before_the_drone_restarted_is_refused_and_the_gcs_rebind
     assert counts["restarted"] == 2 and counts["opened"] == 1 and counts["replayed"] == 0
 
 
+@pytest.mark.fast
 def test_a_capture_older_than_the_bound_is_expired_and_never_enters_the_window(fleet: Path, tmp_path: Path) -> None:
     drone = _drone(fleet, tmp_path / "uav1.boot", fresh_s=0.2)
     gcs = sealed(ENVELOPE, Keyring(fleet, "gcs1"))
@@ -150,11 +153,13 @@ def test_a_capture_older_than_the_bound_is_expired_and_never_enters_the_window(f
     assert drone.snapshot()["expired"] == 2
 
 
+@pytest.mark.fast
 def test_fresh_s_is_validated(fleet: Path, tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="fresh_s"):
         _drone(fleet, tmp_path / "b", fresh_s=0)
 
 
+@pytest.mark.fast
 def test_a_caller_that_never_heard_the_drone_is_answered_stale_and_resends_once(fleet: Path, tmp_path: Path) -> None:
     """A service call sealed before the caller heard the drone (a GCS that just started, ``gcs cmd``)
     is refused as ``unbound`` and answered with a sealed ``stale`` error; the client learns the drone's

@@ -6,6 +6,7 @@ import stat
 import time
 from pathlib import Path
 
+import pytest
 import zenoh
 from cli_helpers import CLI_ARGS, cli
 from conftest import free_port, python_proc, wait_for
@@ -69,6 +70,7 @@ def test_router_refuses_a_plain_endpoint_when_secure(tmp_path: Path) -> None:
     assert res.returncode == 1 and "plain links are refused" in res.stdout
 
 
+@pytest.mark.fast
 def test_lossy_router_config_forms_sessions_across_loss() -> None:
     """``router --lossy``: the ground router of a swarm on a radio link tries handshakes fast (250 ms
     tries, retries from 50 ms) and holds its lease with keep-alives every 100 ms; plain stays Zenoh's."""

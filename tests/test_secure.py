@@ -22,6 +22,8 @@ from conftest import free_port, wait_for
 import zenoh_robot.tools.keys as keys
 from zenoh_robot.session_config import SessionConfig, SessionConfigError  # noqa: E402
 
+pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
+
 SETTLE = 0.6     # long enough for a put to cross two loopback hops many times over
 
 

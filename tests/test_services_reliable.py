@@ -20,6 +20,8 @@ from zenoh_robot.message import type_support
 from zenoh_robot.services import IdempotencyCache, ServiceError, ServiceTimeout, ServiceUnavailable
 from zenoh_robot.services import client as services_client
 
+pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
+
 
 @message(name="test_services_reliable/Bump")
 class Bump(Message):

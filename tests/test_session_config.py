@@ -7,6 +7,8 @@ import pytest
 
 from zenoh_robot import Node, SessionConfig, SessionConfigError
 
+pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

@@ -4,7 +4,11 @@ from __future__ import annotations
 import math
 import time
 
+import pytest
+
 from zenoh_robot.tools.stream_metrics import StreamRecorder, analyse
+
+pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
 
 MS = 1_000_000
 

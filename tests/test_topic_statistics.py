@@ -18,6 +18,8 @@ from zenoh_robot.msgs import Header, Setpoint, StatisticsEntry, String, TopicSta
 from zenoh_robot.tools.recorder import COLUMNS, StatisticsRecorder
 from zenoh_robot.topic_statistics import TopicStatisticsCollector, TopicStatisticsOptions, default_statistics_key
 
+pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
+
 RELIABLE = QoSProfile(reliability="reliable", depth=50)
 
 

@@ -21,6 +21,8 @@ from zenoh_robot.tools.cli import stats as stats_cli
 from zenoh_robot.tools.cli.interface import render
 from zenoh_robot.topic_statistics import TopicStatisticsOptions, with_cpu_budget
 
+pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
+
 RELIABLE = QoSProfile(reliability="reliable", depth=50)
 BURN_S = 0.005
 

@@ -22,6 +22,8 @@ from zenoh_robot._wire.validate import INT_RANGES, decoder_source
 from zenoh_robot.message import Message, message, ros_field, type_support
 from zenoh_robot.msgs import Header, Image, JointState, SensorCombined, Setpoint
 
+pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
+
 PRIMS = ["bool", "byte", "char", "int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64",
          "float32", "float64", "string"]
 

@@ -22,6 +22,8 @@ from zenoh_robot.message import TypeSupport, type_support
 from zenoh_robot.msgs import Setpoint, String
 from zenoh_robot.wire import ENVELOPE, Header, MalformedSample, WireFormat, WireSample
 
+pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
+
 _ATTACHMENT = struct.Struct("<qqq")     # seq, stamp_ns, publisher id
 
 
