@@ -32,11 +32,12 @@ lint: install
 	$(BIN)/python -m mypy
 
 # Two passes (docs/testing.md): two pytest-xdist workers, one module each at a time (its shared processes
-# start once), then the `serial` tests (loss, CPU load, throughput figures) alone. Both passes always run;
+# start once; the longest modules first, conftest's LONGEST_FIRST), then the `serial` tests (loss, CPU load,
+# real-time figures) alone. Both passes always run;
 # exit code 5 (ARGS selected nothing in a pass) is no failure.
 test: install sysdeps lint
 	@rc=0; \
-	$(BIN)/python -m pytest -n 2 --dist loadscope -m "not serial" $(ARGS) || rc=$$?; \
+	$(BIN)/python -m pytest -n 2 --dist loadscope --no-loadscope-reorder -m "not serial" $(ARGS) || rc=$$?; \
 	$(BIN)/python -m pytest -m serial $(ARGS) || { r=$$?; [ $$r = 5 ] || rc=$$r; }; \
 	[ $$rc = 0 ] || [ $$rc = 5 ]
 

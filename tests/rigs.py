@@ -34,10 +34,10 @@ from zenoh_robot.msgs import Header
 
 # Shorter climbs and landings (only test time is at stake); failsafe parameters untouched.
 FAST = {"MPC_TKO_SPEED": 3.0, "MPC_LAND_SPEED": 2.0}
-# rig()'s vehicle, whose take-off and landing no test of it is about: motors up in 0.3 s and the climb-rate
-# ramp over 0.5 s (PX4: 1 s and 3 s; arm -> 2.5 m in ~2 s, not ~4.7 s), disarmed 0.5 s after the land
-# detector (PX4: 2 s), and PX4's pre-arm checks passing after QUICK_WARMUP_S (PX4 SITL: 4.1 s). The simulator's
-# own timings are px4_link's tests (test_px4_realism.py, test_sim_failsafes.py).
+# rig()'s and drone()'s vehicle, whose take-off and landing no test of theirs is about: motors up in 0.3 s
+# and the climb-rate ramp over 0.5 s (PX4: 1 s and 3 s; arm -> 2.5 m in ~3 s, not ~4.7 s), disarmed 0.5 s
+# after the land detector (PX4: 2 s), and PX4's pre-arm checks passing after QUICK_WARMUP_S (PX4 SITL:
+# 4.1 s). The simulator's own timings are px4_link's tests (test_px4_realism.py, test_sim_failsafes.py).
 QUICK_FLIGHT = {**FAST, "COM_SPOOLUP_TIME": 0.3, "MPC_TKO_RAMP_T": 0.5, "COM_DISARM_LAND": 0.5}
 PROFILE = stream_profile("resilient")
 OP = "test-op"   # the GCS id of drone()'s tests: their processes and nodes share it
@@ -151,19 +151,21 @@ def _free_udp_port() -> int:
 def drone(drone_id: str, sysid: int = 1, *extra: str,
           backend: str = "mavlink") -> Iterator[tuple[Any, subprocess.Popen]]:
     """A companion process and its simulator in this process: PX4 over MAVLink (px4_link.sim, UDP) or over
-    PX4's own Zenoh module (px4_zenoh.sim, a client of a router here, as PX4 joins one). Its output must
-    hold no traceback when it stops."""
+    PX4's own Zenoh module (px4_zenoh.sim, a client of a router here, as PX4 joins one); the vehicle is rig()'s
+    quicker one. Its output must hold no traceback when it stops."""
     from px4_zenoh.session import Px4Endpoint, free_tcp_endpoint, open_px4_session
     from px4_zenoh.sim import ZenohSimulator
     with contextlib.ExitStack() as stack:
         if backend == "mavlink":
             port = _free_udp_port()
-            sim: Any = stack.enter_context(Simulator(sysid, port=0, target_port=port, params=FAST))
+            sim: Any = stack.enter_context(Simulator(sysid, port=0, target_port=port, params=QUICK_FLIGHT,
+                                                     estimator_warmup_s=QUICK_WARMUP_S))
             px4 = f"udpin:127.0.0.1:{port}"
         else:
             ep = free_tcp_endpoint()
             stack.callback(open_px4_session(Px4Endpoint("router", ep)).close)
-            sim = stack.enter_context(ZenohSimulator(connect=ep, sysid=sysid, params=FAST))
+            sim = stack.enter_context(ZenohSimulator(connect=ep, sysid=sysid, params=QUICK_FLIGHT,
+                                                     estimator_warmup_s=QUICK_WARMUP_S))
             px4 = f"zenoh:{ep}"
         proc = python_proc("-m", "companion", "--id", drone_id, "--px4", px4, "--camera-rate", "15", *extra)
         try:

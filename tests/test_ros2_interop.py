@@ -10,7 +10,6 @@ the data keys only meet if its hashes equal ours.
 from __future__ import annotations
 
 import secrets
-import subprocess
 import time
 from pathlib import Path
 from typing import Any
@@ -93,14 +92,9 @@ def pair(tmp_path: Path):
             assert wait_for(lambda: peer.find("ready"), 30.0), "".join(peer.raw)[-3000:]
             yield node, peer
         finally:
-            try:
-                peer.send("quit")
-            except OSError:
-                pass
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                kill_process(proc)
+            # Nothing is asserted of the peer's exit, and zenoh-ros2-sdk's threads keep it alive after "quit"
+            # (every teardown waited the whole 10 s for it): end it at once.
+            kill_process(proc)
 
 
 def test_the_peer_hears_our_string_pose_and_imu(pair) -> None:
