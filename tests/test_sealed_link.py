@@ -451,7 +451,9 @@ def test_revoked_key_is_refused_within_the_refresh_bound(transport: str, tmp_pat
             time.sleep(0.05)
         took = time.monotonic() - revoked_at
         assert s.drone.wire.snapshot()["revoked"] > before, "the revoked key was never refused"  # type: ignore[attr-defined]
-        assert took < REFRESH_S + 0.5, f"revocation took {took:.2f} s (bound {REFRESH_S} s + delivery)"
+        # REFRESH_S + delivery, with a second's room for a loaded machine: the keyring's default refresh (2 s)
+        # or none at all would still fail it.
+        assert took < REFRESH_S + 1.0, f"revocation took {took:.2f} s (bound {REFRESH_S} s + delivery)"
         settled = sum(sp.client_id == "gcs2" for sp in s.setpoints)
         s.put("uav1/setpoint", _seal(secret, kid, "uav1/setpoint", _setpoint("gcs2"), epoch, counter + 1, s.stamp()))
         s.still_flowing()
