@@ -49,7 +49,7 @@ SERIAL_TESTS = frozenset({
 # these files, whose owners are reworking them at the time of writing, are marked from here until they do.
 FAST_FILES = frozenset({
     "test_fec.py", "test_image_transport.py", "test_gcs_patterns.py", "test_gcs_planner.py",
-    "test_gcs_discovery.py", "test_gcs_attack_shown.py",
+    "test_gcs_discovery.py", "test_gcs_attack_shown.py", "test_gcs_dashboard.py",
 })
 
 
@@ -65,7 +65,8 @@ def pytest_configure(config: pytest.Config) -> None:
 # modules last).
 LONGEST_FIRST = (
     "test_px4_realism.py", "test_px4_link.py", "test_control_lifecycle.py", "test_system.py", "test_sim_failsafes.py",
-    "test_fence.py", "test_bench_smoke.py", "test_control_handover.py", "test_fuzz_storm.py", "test_sim_faults.py",
+    "test_fence.py", "test_bench_smoke.py", "test_companion_serial.py", "test_control_handover.py",
+    "test_fuzz_storm.py", "test_sim_faults.py", "test_ros2_graph_listings.py",
     "test_failsafe_lane.py", "test_secure_apps.py", "test_px4_hardening.py", "test_cli_topic.py",
     "test_gcs_presence.py", "test_secure_launch.py", "test_companion_params.py", "test_cli_more.py",
     "test_bag_gcs_e2e.py", "test_px4_streams.py", "test_px4_zenoh_realism.py", "test_cli_node.py",

@@ -167,12 +167,20 @@ def test_each_graph_lists_the_other(pair) -> None:
     assert (info.node_name, info.node_namespace, info.topic_type, info.topic_type_hash) == \
         ("sdk_talker", "/sdk", "geometry_msgs/msg/PoseStamped", type_support(PoseStamped).hash)
     assert info.qos_profile.reliability.name == "RELIABLE" and info.qos_profile.depth == 10
-    # The peer lists ours.
-    peer.send("graph")
-    assert wait_for(lambda: peer.find("info"), 15.0), "".join(peer.raw)[-3000:]
-    graph = dict((n, ts) for n, ts in peer.find("graph")[0]["graph"])
+    # The peer lists ours. Its listing is one query of at most 1 s: ask again (as a user would) until it
+    # holds our subscription, at most 15 s.
+    def listed() -> bool:
+        infos = peer.find("info")
+        return bool(infos) and any(e[0] == "zr_node" for e in infos[-1]["info"] or [])
+    deadline = time.monotonic() + 15.0
+    while not listed() and time.monotonic() < deadline:
+        asked = len(peer.find("info"))
+        peer.send("graph")
+        wait_for(lambda n=asked: len(peer.find("info")) > n, 5.0)
+    assert listed(), "".join(peer.raw)[-3000:]
+    graph = dict((n, ts) for n, ts in peer.find("graph")[-1]["graph"])
     assert graph["/zr/pose"] == ["geometry_msgs/msg/PoseStamped"]
     # /zr/pose has the peer's own subscription too, listed in no fixed order: ours is the one of zr_node.
-    [ours] = [e for e in peer.find("info")[0]["info"] if e[0] == "zr_node"]
+    [ours] = [e for e in peer.find("info")[-1]["info"] if e[0] == "zr_node"]
     assert ours[:4] == ["zr_node", "/zr", "geometry_msgs/msg/PoseStamped", type_support(PoseStamped).hash]
     assert ours[4].startswith("2:2:1,7:")     # best effort, volatile, keep last 7
