@@ -3,7 +3,7 @@ image path, the transport.
 
 ``STREAM_SPECS`` is the one table of the streams between a GCS and a drone: the topic (under the
 drone's namespace), who publishes it and what type it carries. The companion and the GCS declare
-their publishers and subscriptions from it, and tests/test_contract.py fails when a stream is
+their publishers and subscriptions from it, and tests/wing/test_contract.py fails when a stream is
 declared here but not wired on both sides.
 
 The thesis compared two launch variants (every stream RELIABLE, or every stream

@@ -114,7 +114,7 @@ class DroneView:
         self.sent = {"setpoint": StreamRecorder()}
         ns = f"/{drone_id}"
         # Names and types from the contract's stream table (drone_contract.streams): the companion
-        # wires the other end from the same rows, and tests/test_contract.py checks both are there.
+        # wires the other end from the same rows, and tests/wing/test_contract.py checks both are there.
         setpoint = wired("setpoint", UP)
         self.setpoint_pub = node.create_publisher(message_of(setpoint), f"{ns}/{setpoint.name}", q[setpoint.name])
         budget = {k: with_cpu_budget(node.enable_topic_statistics, v) for k, v in STREAM_CPU_BUDGET_PCT.items()}

@@ -258,5 +258,5 @@ def run_swarm_mission(gcs: Gcs, drone_ids: list[str], duration: float, log: Call
 
 def _fly(gcs: Gcs, drone: DroneView, duration: float, out: dict[str, Any], log: Callable[..., None],
          abort: threading.Event, why: Callable[[], str]) -> None:
-    """The steps alone, into ``out`` (tests/test_mission_offboard_start.py flies a stand-in drone)."""
+    """The steps alone, into ``out`` (tests/wing/test_mission_offboard_start.py flies a stand-in drone)."""
     Mission(gcs, drone, duration, log, abort, why, out).fly()

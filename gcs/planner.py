@@ -18,7 +18,7 @@ home to a far slot is a transit the GCS commands on purpose, not an error of the
 ``TargetPlanner`` is one drone's planning: gcs/app.py's ``DroneView`` gives it the drone's
 reported position and whether its session is active, and streams what it answers. It
 imports neither Zenoh nor the node (tests/test_architecture.py), so its tests drive it with
-a clock of their own (tests/test_gcs_planner.py).
+a clock of their own (tests/wing/test_gcs_planner.py).
 """
 from __future__ import annotations
 

@@ -365,3 +365,24 @@ def test_no_gcs_function_grows_long() -> None:
                 if lines > GCS_FUNCTION_MAX_LINES:
                     long.append(f"{name}.{node.name}: {lines} lines")
     assert long == []
+
+
+TEST_LAYERS = ("library", "px4", "wing", "tools", "lab")   # tests mirror the layers (docs/testing.md)
+
+
+def test_tests_mirror_the_layers_and_share_helpers_not_modules() -> None:
+    """Every test module lives in its layer's folder (this file, about all of them, stays on top), and
+    none imports another test module: shared rigs and helpers live in helper modules (rigs.py, ...)."""
+    tests = ROOT / "tests"
+    stray = [p.name for p in tests.glob("test_*.py") if p.name != "test_architecture.py"]
+    assert stray == [], f"put these in one of {TEST_LAYERS}: {stray}"
+    folders = {p.name for p in tests.iterdir() if p.is_dir() and any(p.glob("test_*.py"))}
+    assert folders <= set(TEST_LAYERS), folders - set(TEST_LAYERS)
+    modules = {p.stem for p in tests.rglob("test_*.py")}
+    crossing = []
+    for path in tests.rglob("test_*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+            crossing += [f"{path.name} imports {n}" for n in names if n.split(".")[-1] in modules]
+    assert crossing == []

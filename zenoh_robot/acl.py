@@ -94,7 +94,7 @@ def acl_config(nodes: dict[str, NodeEntry], domain: int = 0) -> dict[str, Any]:
 
     Enforced by each session on its own links, by the certificate CN of the node at the other
     end (so a router enforces it for its clients; a client trusts the router it authenticated).
-    Each rule below says why it exists; tests/test_secure_apps.py runs the real companion and
+    Each rule below says why it exists; tests/wing/test_secure_apps.py runs the real companion and
     GCS through a router with these rules and fails on any message the router drops for them.
     Keys beginning with ``@`` are verbatim in Zenoh: ``**`` never matches ``@srv/...`` or
     ``@zr/...``, so those families are granted by name. Egress to any known node is allowed:

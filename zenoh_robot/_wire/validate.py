@@ -32,7 +32,7 @@ it: the common case, a conforming body, costs little more than building the mess
 Anything the generated fast path does not accept as is (a wrong type, a tuple body, an
 int list for bytes, an overflow) falls back to the reference, which converts or raises:
 so errors carry exactly the reference's messages and field paths, and the fast path only
-has to be *at most* as permissive as the reference (tests/test_validate_codegen.py
+has to be *at most* as permissive as the reference (tests/library/test_validate_codegen.py
 checks both on many generated shapes).
 """
 from __future__ import annotations

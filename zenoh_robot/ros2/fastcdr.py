@@ -7,7 +7,7 @@ per type, Python source that packs a body (field values in declaration order, ne
 lists) into XCDR1 little-endian with one ``struct.Struct`` per run of fixed-size fields (nested
 types inlined, alignment padding resolved at generation time wherever the offset is known, at run
 time after strings and sequences), and unpacks it back into the lists ``TypeSupport.decode``
-validates. The bytes are rosbags' bytes (tests/test_fastcdr.py checks them with hypothesis):
+validates. The bytes are rosbags' bytes (tests/library/test_fastcdr.py checks them with hypothesis):
 
 - every primitive is aligned to its size relative to the byte after the 4-byte encapsulation
   header; a sequence's elements only when it has some (as rosbags does); no padding at the end;

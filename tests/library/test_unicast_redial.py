@@ -29,7 +29,7 @@ from conftest import skip_unless_required, wait_for
 
 from drone_lab.experiment.netns import LossyLink, unavailable_reason
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PORT = 7447
 LEASE_S = 2.0
 BLOCKED_S = 8.0        # the TCP link dies after LEASE_S; the old settings then re-dial ~2 times a second

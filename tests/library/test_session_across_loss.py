@@ -25,7 +25,7 @@ from conftest import skip_unless_required
 
 from drone_lab.experiment.netns import LossyLink, unavailable_reason
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 LOSS = 30
 LIMIT_S = 10.0        # per session, from the connecting process's launch (its imports included)
 SESSIONS = 3          # independent opens: the old settings pass all three with 0.24^3 = 1.4 %

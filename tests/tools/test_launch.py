@@ -192,7 +192,7 @@ def test_cli_reports_bad_files_in_one_line(tmp_path):
 @pytest.mark.parametrize("name", ["demo", "gcs_reliable", "gcs_best_effort", "drone_reliable", "drone_best_effort"])
 def test_shipped_launch_files_validate(name: str) -> None:
     from zenoh_robot.tools.launch import load_launch
-    path = Path(__file__).resolve().parents[1] / "configs" / "launch" / f"{name}.yaml"
+    path = Path(__file__).resolve().parents[2] / "configs" / "launch" / f"{name}.yaml"
     specs = load_launch(path).processes
     assert specs and all(s.argv[1] == "-m" for s in specs), specs
 

@@ -14,7 +14,7 @@ import pytest
 
 from px4_link.connection_url import parse_px4_url
 
-UNIT = Path(__file__).resolve().parents[1] / "configs" / "systemd" / "zenoh-robot-companion.service"
+UNIT = Path(__file__).resolve().parents[2] / "configs" / "systemd" / "zenoh-robot-companion.service"
 
 
 def service() -> configparser.SectionProxy:

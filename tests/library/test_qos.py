@@ -12,7 +12,7 @@ from zenoh_robot.qos_mapping import publisher_options
 
 pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_repr_reads_like_rclpy() -> None:

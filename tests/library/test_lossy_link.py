@@ -18,7 +18,7 @@ from conftest import last_json, skip_unless_required, wait_ready
 
 from drone_lab.experiment.netns import LossyLink, unavailable_reason
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PEER = str(ROOT / "tests" / "procs" / "lossy_peer.py")
 
 

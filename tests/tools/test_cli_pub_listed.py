@@ -21,7 +21,7 @@ from zenoh_robot.session_config import SessionConfig
 from zenoh_robot.wire import ENVELOPE
 from zenoh_robot.wire.ros2 import ros2_wire
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 # Through the router only: no multicast scouting into other tests' sessions.
 ENV = {**os.environ, "ZENOH_CONFIG_OVERRIDE": "scouting/multicast/enabled=false"}
 CLI = [sys.executable, "-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())"]

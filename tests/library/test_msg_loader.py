@@ -12,7 +12,7 @@ from zenoh_robot.msgs import Header
 
 pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_humanoid_state_loads_with_fixed_arrays() -> None:

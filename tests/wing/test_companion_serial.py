@@ -20,7 +20,7 @@ from drone_contract.streams import stream_profile
 from px4_link.sim import Simulator
 from zenoh_robot import Node
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 FAST = {"MPC_TKO_SPEED": 3.0, "MPC_LAND_SPEED": 2.0}   # shorter climbs and landings; failsafes untouched
 OP = "test-op"
 QOS = stream_profile("resilient").qos

@@ -18,7 +18,7 @@ from px4_zenoh_probe import Probe, probed_sim
 from px4_zenoh.sim import ZenohSimulator
 
 # CI lays out <root>/main (this repo) beside <root>/shared; a missing trace set fails, never skips.
-TRACES = Path(__file__).resolve().parents[2] / "shared" / "px4_zenoh_traces"
+TRACES = Path(__file__).resolve().parents[3] / "shared" / "px4_zenoh_traces"
 DO_SET_MODE, ARM = 176, 400
 ZID = re.compile(r"^(@ros2_lv/\d+/)[0-9a-f]+/")
 

@@ -26,7 +26,7 @@ from px4_zenoh.uorb import UorbCodec, load_types
 
 pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
 
-TRACES = Path(__file__).resolve().parents[2] / "shared" / "px4_zenoh_traces"
+TRACES = Path(__file__).resolve().parents[3] / "shared" / "px4_zenoh_traces"
 USED_TYPES = sorted({t.type_short for t in topics.USED})
 
 

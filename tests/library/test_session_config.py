@@ -9,7 +9,7 @@ from zenoh_robot import Node, SessionConfig, SessionConfigError
 
 pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.mark.parametrize("endpoint,match", [
