@@ -18,9 +18,10 @@ $(STAMP): pyproject.toml
 install: $(STAMP)
 
 # nftables, iproute2 and ethtool build the lossy-link namespaces; only root can install or use them.
+# systemd-analyze checks the companion's unit file (configs/systemd/).
 sysdeps:
-	@if [ "$$(id -u)" = 0 ] && ! (command -v nft && command -v ip && command -v ethtool) >/dev/null 2>&1; then \
-		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq nftables iproute2 ethtool >/dev/null; \
+	@if [ "$$(id -u)" = 0 ] && ! (command -v nft && command -v ip && command -v ethtool && command -v systemd-analyze) >/dev/null 2>&1; then \
+		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq nftables iproute2 ethtool systemd >/dev/null; \
 	fi
 
 demo: install
