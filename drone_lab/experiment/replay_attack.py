@@ -151,6 +151,19 @@ class _Cell:
         text = (self.workdir / f"{name}.log").read_text(errors="replace")
         return {"rc": rc, "ok": rc == 0 and "mission ok" in text}
 
+    def recorded_mission(self, name: str, recording: Path) -> dict[str, Any]:
+        """A mission flown while the attacker records it to ``recording``; returns once the vehicle has
+        landed and disarmed and the recording is on disk."""
+        stop_file = recording.with_suffix(".stop")
+        rec = self.attacker("record", recording, stop_file)
+        _wait_log(self.workdir / f"attacker-record-{recording.stem}.log", "recording", {"rec": rec}, 30.0)
+        time.sleep(1.0)
+        outcome = self.mission(name)
+        stop_file.touch()
+        rec.wait(timeout=60)
+        time.sleep(SETTLE_S)     # landed and disarmed before a replay
+        return outcome
+
     def attacker(self, verb: str, recording: Path, stop_file: Path | None = None) -> subprocess.Popen[bytes]:
         cmd = [sys.executable, "-m", "drone_lab.experiment.replay_attack", verb, "--zenoh",
                str(self.workdir / "attacker.json5"), "--file", str(recording)]
@@ -244,15 +257,9 @@ def run_replay_cell(cell: ReplayCell, workdir: Path, link_keys: Path, log: Any =
                 if cell.transport == "router":
                     c.procs["router"] = _start_router(link, workdir)
                 c.companion("companion1")
-                flight1, stop1 = workdir / "flight1.msgpack", workdir / "flight1.stop"
-                rec = c.attacker("record", flight1, stop1)
-                _wait_log(workdir / f"attacker-record-{flight1.stem}.log", "recording", {"rec": rec}, 30.0)
-                time.sleep(1.0)
-                result["mission1"] = c.mission("gcs1")
+                flight1 = workdir / "flight1.msgpack"
+                result["mission1"] = c.recorded_mission("gcs1", flight1)
                 log(f"  {cell.label}: mission 1 {'ok' if result['mission1']['ok'] else 'FAILED'}")
-                stop1.touch()
-                rec.wait(timeout=60)
-                time.sleep(SETTLE_S)     # landed and disarmed before the first replay
                 result["replay_running"] = _replay_into(c, flight1, workdir / "companion1.vehicle.jsonl")
                 log(f"  {cell.label}: replay into the running companion: {result['replay_running']}")
                 c.stop("companion1")
@@ -260,15 +267,9 @@ def run_replay_cell(cell: ReplayCell, workdir: Path, link_keys: Path, log: Any =
                 time.sleep(1.0)
                 result["replay_companion_restarted"] = _replay_into(c, flight1, workdir / "companion2.vehicle.jsonl")
                 log(f"  {cell.label}: replay after the companion restarted: {result['replay_companion_restarted']}")
-                flight2, stop2 = workdir / "flight2.msgpack", workdir / "flight2.stop"
-                rec = c.attacker("record", flight2, stop2)
-                _wait_log(workdir / f"attacker-record-{flight2.stem}.log", "recording", {"rec": rec}, 30.0)
-                time.sleep(1.0)
-                result["mission2"] = c.mission("gcs2")
+                flight2 = workdir / "flight2.msgpack"
+                result["mission2"] = c.recorded_mission("gcs2", flight2)
                 log(f"  {cell.label}: mission 2 (after the replays) {'ok' if result['mission2']['ok'] else 'FAILED'}")
-                stop2.touch()
-                rec.wait(timeout=60)
-                time.sleep(SETTLE_S)
                 result["replay_gcs_restarted"] = _replay_into(c, flight2, workdir / "companion2.vehicle.jsonl")
                 log(f"  {cell.label}: replay of the second GCS's flight: {result['replay_gcs_restarted']}")
                 c.stop("companion2")
