@@ -283,7 +283,8 @@ class Gcs:
         for d in config.drones:
             self.add_drone(d)
         # Every drone heard, asked for or not: a mission for a drone that is not there names the ones that are.
-        self.seen: set[str] = set()
+        self._seen: set[str] = set()
+        self._seen_lock = threading.Lock()     # added on Zenoh's thread, read by the mission's
         self._discovery = watch_drones(node, self._on_drone_heard)
         node.create_timer(1.0 / config.rate_hz, self._stream)
         node.create_timer(PRESENCE_PERIOD_S, self._presence)
@@ -324,12 +325,18 @@ class Gcs:
                 self.node.declare_parameter(name, value, what, read_only=True)
 
     def _on_drone_heard(self, drone_id: str) -> None:   # Zenoh thread: hand over to the executor
-        if drone_id not in self.seen and len(self.seen) < MAX_SEEN:
-            self.seen.add(drone_id)
+        with self._seen_lock:
+            if drone_id not in self._seen and len(self._seen) < MAX_SEEN:
+                self._seen.add(drone_id)
         if drone_id not in self.drones and not self.config.drones:
             def add() -> None:
                 self.add_drone(drone_id)
             self.node.executor.call_soon(add)
+
+    def seen(self) -> list[str]:
+        """Every drone id heard on the network (asked for or not), sorted."""
+        with self._seen_lock:
+            return sorted(self._seen)
 
     def add_drone(self, drone_id: str) -> DroneView:
         with self._lock:

@@ -103,7 +103,7 @@ class Mission:
                    "--take-control)" if not drone.may_stream else "")
 
     def _not_heard(self) -> str:
-        others = sorted(self.gcs.seen - {self.drone.id})
+        others = [d for d in self.gcs.seen() if d != self.drone.id]
         return f"no state from {self.drone.id}; " + (f"seen on the network: {', '.join(others[:10])}" if others else
                                                      "no drone seen on the network (is its companion running, in "
                                                      "this domain, reachable with these Zenoh flags?)")

@@ -61,7 +61,7 @@ def test_a_mission_for_a_missing_drone_names_the_drones_that_are_there(ns: str) 
         th = threading.Thread(target=publish, daemon=True)
         th.start()
         try:
-            assert wait_for(lambda: f"{ns}d1" in gcs.seen, 5.0)
+            assert wait_for(lambda: f"{ns}d1" in gcs.seen(), 5.0)
             assert list(gcs.drones) == [f"{ns}d2"]          # asked for d2 only: d1 is seen, not flown
             assert missing._not_heard() == f"no state from {ns}d2; seen on the network: {ns}d1"
         finally:

@@ -191,7 +191,8 @@ class Service(Generic[Req, Resp]):
                 pass
         return pub
 
-    def _put_reply(self, client_id: int, seq: int, ok: bool, payload: bytes, copies: int) -> None:
+    def _put_reply(self, client_id: int, seq: int, ok: bool, payload: bytes, copies: int,
+                   remember: bool = True) -> None:
         """The first copy now, the others REPLY_SPACING_S apart (each in its own datagram)."""
         now = time.monotonic()
         reply_key = f"{client_id}/{seq}"
@@ -199,10 +200,11 @@ class Service(Generic[Req, Resp]):
             last = self._recent_replies.get(reply_key)
             # Joined duplicates are all answered at once when the handler ends: one burst of copies
             # serves them all. A request copy arriving later still gets its own copies.
-            if last is not None and now - last < plans.REPLY_SPACING_S:
+            if remember and last is not None and now - last < plans.REPLY_SPACING_S:
                 return
-            self._recent_replies[reply_key] = now
-            self._recent_replies.move_to_end(reply_key)
+            if remember:
+                self._recent_replies[reply_key] = now
+                self._recent_replies.move_to_end(reply_key)
             while len(self._recent_replies) > self._RECENT_REPLIES:
                 self._recent_replies.popitem(last=False)
             self.reply_copies += copies
@@ -229,7 +231,9 @@ class Service(Generic[Req, Resp]):
             peek = envelope.unpack(inner)
         except envelope.MalformedSample:
             return
-        self._put_reply(peek.publisher_id, peek.seq, False, err, 1)
+        # Not remembered as this call's reply burst: the call's real reply follows at once, when the
+        # caller resends with the server's clock, and must not be taken for a duplicate burst.
+        self._put_reply(peek.publisher_id, peek.seq, False, err, 1, remember=False)
 
     def _opened(self, payload: zenoh.ZBytes | None, answer_stale: Callable[[bytes, bytes], None]) -> bytes | None:
         """A sealed request's envelope, or None: refused (counted as a bad request and on the format).
