@@ -114,6 +114,16 @@ def _answered_at(sim: ZenohSimulator, command: int, since: float) -> float:
     return next(t for t, c, _ in sim.command_log if c == command and t >= since)
 
 
+def _first_arrival(sim: ZenohSimulator, since: float, timeout: float) -> float:
+    deadline = time.monotonic() + timeout
+    while True:
+        arrived = [t for t, _ in sim.setpoint_arrivals if t >= since]
+        if arrived:
+            return arrived[0]
+        assert time.monotonic() < deadline, "no trajectory_setpoint reached the simulator"
+        time.sleep(0.01)
+
+
 def _offboard_and_arm(probe: Probe, sim: ZenohSimulator, z: float) -> None:
     """Each latency on PX4's clock (its message stamps and the simulator's records), as the trace has them:
     a loaded machine delays the probe's thread, not what PX4 did."""
@@ -121,7 +131,9 @@ def _offboard_and_arm(probe: Probe, sim: ZenohSimulator, z: float) -> None:
     probe.start_stream((0.0, 0.0, z))
     flag = probe.wait("failsafe_flags", lambda m: not m.offboard_control_signal_lost, 5.0, t0)
     assert flag is not None
-    first = next(t for t, _ in sim.setpoint_arrivals if t >= t0)
+    # PX4 clears the flag on offboard_control_mode; the probe puts the trajectory right after it, and a
+    # loaded machine may run the flag's whole round trip in between: wait for the arrival, never race it.
+    first = _first_arrival(sim, t0, 5.0)
     assert _px4_time(sim, flag[1]) - first < 0.25              # trace: 6 ms after the first setpoint
     time.sleep(1.5)                                            # trace: DO_SET_MODE 1.49 s after stream start
     t = probe.command(DO_SET_MODE, 1, 6)
