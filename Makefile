@@ -32,14 +32,25 @@ lint: install
 	$(BIN)/python -m ruff check zenoh_robot px4_link px4_zenoh companion gcs drone_contract drone_lab tests examples
 	$(BIN)/python -m mypy
 
-# Two passes (docs/testing.md): two pytest-xdist workers, one module each at a time (its shared processes
-# start once; the longest modules first, conftest's LONGEST_FIRST), then the `serial` tests (loss, CPU load,
-# real-time figures) alone. Both passes always run;
-# exit code 5 (ARGS selected nothing in a pass) is no failure.
+# Three passes (docs/testing.md), each run whatever the one before gave:
+# 1. the parallel pass: $(WORKERS) pytest-xdist workers, one module each at a time (its shared processes start
+#    once; the longest modules first, conftest's LONGEST_FIRST). Most tests wait on flights and processes,
+#    not on the CPU: two workers left a 2-core machine 57 % idle.
+# 2. the `serial` tests (loss in network namespaces, swarms): two modules at a time.
+# 3. the `alone` tests (CPU hogs, 0.3 s leases, ROS 2 peers, 3 ms spacing): nothing beside them.
+# Exit code 5 (ARGS selected nothing in a pass) is no failure.
+WORKERS ?= 4
+# Compiled modules are kept (in .venv, out of the tree) even where the environment turns them off
+# (PYTHONDONTWRITEBYTECODE): without them every companion, GCS and CLI process the tests start compiles
+# the project again (0.3-0.4 s of CPU each) and every pass re-rewrites the tests' asserts (12 s each).
+test test-fast: export PYTHONDONTWRITEBYTECODE :=
+test test-fast: export PYTHONPYCACHEPREFIX := $(CURDIR)/$(VENV)/pycache
 test: install sysdeps lint
 	@rc=0; \
-	$(BIN)/python -m pytest -n 2 --dist loadscope --no-loadscope-reorder -m "not serial" $(ARGS) || rc=$$?; \
-	$(BIN)/python -m pytest -m serial $(ARGS) || { r=$$?; [ $$r = 5 ] || rc=$$r; }; \
+	$(BIN)/python -m pytest -n $(WORKERS) --dist loadscope --no-loadscope-reorder -m "not serial" $(ARGS) || rc=$$?; \
+	$(BIN)/python -m pytest -n 2 --dist loadscope --no-loadscope-reorder -m "serial and not alone" $(ARGS) \
+		|| { r=$$?; [ $$r = 5 ] || rc=$$r; }; \
+	$(BIN)/python -m pytest -m alone $(ARGS) || { r=$$?; [ $$r = 5 ] || rc=$$r; }; \
 	[ $$rc = 0 ] || [ $$rc = 5 ]
 
 # The fast tier (docs/testing.md): in-process tests only (no process, no socket beyond in-process Zenoh

@@ -28,18 +28,23 @@ from drone_lab.experiment.stall_runs import wait_ready  # noqa: F401  (one READY
 # Fixtures defined beside the helpers they go with, visible to every test module.
 pytest_plugins = ["bag_helpers"]
 
-# Files whose tests run alone (`-m serial`): what they assert depends on the machine's load.
-SERIAL_FILES = frozenset({
-    "test_lossy_link.py", "test_secure_lossy.py", "test_commands_lossy.py",   # netns + nftables loss
-    "test_bursty_loss.py", "test_session_across_loss.py",                     # netns + nftables loss (#29)
-    "test_stall_multicast.py",                                                # CPU hogs by design
-    "test_swarm.py",                               # three companions and simulators: flight quality under load
+# Files whose tests run after the parallel pass (`-m serial`): what they assert depends on the machine's
+# load. Two of them at a time (pass 2), except the ALONE_FILES and SERIAL_TESTS, which have the machine
+# to themselves (pass 3): a neighbouring flight is load they cannot take.
+ALONE_FILES = frozenset({
+    "test_stall_multicast.py",                     # CPU hogs by design
     "test_qos_events.py",                          # 0.3 s liveliness leases: a starved spin misses one
     # zenoh-ros2-sdk peers: two of these modules side by side lost the interop test's samples (both
     # directions matched, nothing delivered, in 2 of 2 runs with -n 2; alone: 3 of 3 pass). Not understood
     # yet; kept apart until it is.
-    "test_ros2_interop.py", "test_ros2_cli.py", "test_ros2_services.py",
+    "test_ros2_interop.py", "test_ros2_cli.py", "test_ros2_services.py", "test_ros2_actions.py",
 })
+SERIAL_FILES = ALONE_FILES | {
+    "test_lossy_link.py", "test_secure_lossy.py", "test_commands_lossy.py",   # netns + nftables loss
+    "test_bursty_loss.py", "test_session_across_loss.py",                     # netns + nftables loss (#29)
+    "test_replay_attack.py",                                                  # netns, two missions
+    "test_swarm.py",                               # three companions and simulators: flight quality under load
+}
 # Single tests whose figures depend on the machine's load (a module's other tests run in the parallel pass).
 SERIAL_TESTS = frozenset({
     "test_bursty_setpoints.py::test_a_setpoint_publisher_planned_for_fades_sends_its_copies_3_ms_apart",  # 3 ms spacing
@@ -54,25 +59,30 @@ FAST_FILES = frozenset({
 
 
 def pytest_configure(config: pytest.Config) -> None:
-    config.addinivalue_line("markers", "serial: runs alone, after the parallel pass (see SERIAL_FILES)")
+    config.addinivalue_line("markers", "serial: runs after the parallel pass, two modules at a time (see SERIAL_FILES)")
+    config.addinivalue_line("markers", "alone: a serial test that runs with nothing beside it (see ALONE_FILES)")
     config.addinivalue_line("markers", "fast: starts no process and opens no socket beyond in-process loopback "
                                        "Zenoh sessions; `make test-fast` runs these (docs/testing.md)")
 
 
-# The parallel pass's longest modules (measured 2026-11-28), longest first: with --no-loadscope-reorder
+# Each pass's longest modules (measured 2026-11-28, evening), longest first: with --no-loadscope-reorder
 # pytest-xdist hands out whole modules in collection order, and a long module picked up last leaves the
 # other worker idle (by default it orders them by their number of tests, which put the long single-test
 # modules last).
 LONGEST_FIRST = (
-    "test_px4_realism.py", "test_px4_link.py", "test_control_lifecycle.py", "test_system.py", "test_sim_failsafes.py",
-    "test_fence.py", "test_bench_smoke.py", "test_companion_serial.py", "test_control_handover.py",
-    "test_fuzz_storm.py", "test_sim_faults.py", "test_ros2_graph_listings.py",
-    "test_failsafe_lane.py", "test_secure_apps.py", "test_px4_hardening.py", "test_cli_topic.py",
-    "test_gcs_presence.py", "test_secure_launch.py", "test_companion_params.py", "test_cli_more.py",
-    "test_bag_gcs_e2e.py", "test_px4_streams.py", "test_px4_zenoh_realism.py", "test_cli_node.py",
-    "test_foxglove.py", "test_pubsub.py", "test_px4_latency.py", "test_sealed_link.py", "test_mavsdk_sim.py",
-    "test_bag_ros2.py", "test_px4_zenoh_sim.py", "test_cli_errors.py", "test_bag.py", "test_bag_replay.py",
-    "test_startup_line.py", "test_cli_demo.py", "test_secure.py", "test_router.py", "test_px4_zenoh_backend.py",
+    "test_px4_realism.py", "test_control_lifecycle.py", "test_sim_failsafes.py", "test_px4_link.py",
+    "test_system.py", "test_fence.py", "test_bench_smoke.py", "test_fuzz_storm.py", "test_cli_node.py",
+    "test_cli_topic.py", "test_companion_params.py", "test_cli_more.py", "test_control_handover.py",
+    "test_cli_demo.py", "test_sim_faults.py", "test_failsafe_lane.py", "test_secure_apps.py",
+    "test_ros2_graph_listings.py", "test_secure_launch.py", "test_cli_errors.py", "test_companion_serial.py",
+    "test_bag_gcs_e2e.py", "test_px4_zenoh_realism.py", "test_pubsub.py", "test_bag_replay.py", "test_bag_ros2.py",
+    "test_px4_streams.py", "test_parameters.py", "test_sealed_link.py", "test_px4_zenoh_sim.py", "test_bag.py",
+    "test_mavsdk_sim.py", "test_px4_latency.py", "test_launch.py", "test_secure.py", "test_validate_codegen.py",
+    "test_router.py", "test_px4_hardening.py", "test_receive_path.py", "test_px4_zenoh_backend.py",
+    "test_ros2_streams.py", "test_px4_serial.py", "test_bag_ros2_play.py", "test_px4_sim_process.py",
+    "test_startup_line.py", "test_cli_pub_listed.py", "test_lossy_link.py", "test_replay_attack.py", "test_swarm.py",
+    "test_secure_lossy.py", "test_commands_lossy.py", "test_unicast_redial.py", "test_bursty_loss.py",
+    "test_session_across_loss.py",
 )
 
 
@@ -80,9 +90,11 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))   # stable: the rest keep their order
     for item in items:
-        if (item.path.name in SERIAL_FILES or f"{item.path.name}::{item.originalname}" in SERIAL_TESTS
-                or item.get_closest_marker("netns")):
+        alone = item.path.name in ALONE_FILES or f"{item.path.name}::{item.originalname}" in SERIAL_TESTS
+        if alone or item.path.name in SERIAL_FILES or item.get_closest_marker("netns"):
             item.add_marker(pytest.mark.serial)
+        if alone:
+            item.add_marker(pytest.mark.alone)
         if item.path.name in FAST_FILES:
             item.add_marker(pytest.mark.fast)
 

@@ -42,7 +42,9 @@ def test_secure_session_forms_and_delivers_through_loss(link: LossyLink, tmp_pat
     lossy = ss.run_cell(cell, tmp_path / "c30", link, keys)
     assert "error" not in lossy, lossy
     sp = lossy["topics"]["setpoint"]
-    assert sp["sent"] > 40 and sp["delivered_pct"] >= 60.0, sp
+    # Delivers through the loss (a broken session delivers nothing): 60 samples at 30 % loss deliver 70 % on
+    # average and under 60 % in 1 run of 40 (binomial spread), so the bound sits far below the mean.
+    assert sp["sent"] > 40 and sp["delivered_pct"] >= 40.0, sp
     # The session was up before the loss started: both ends heard each other within the warm-up.
     assert sp["setup_s"] is not None and sp["setup_s"] < cell.warmup, sp
     assert set(lossy["exit_codes"].values()) == {0}, lossy["exit_codes"]
