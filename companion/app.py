@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from typing import Any
 
 from drone_contract.commands import COMMAND_SERVICE
@@ -35,7 +36,7 @@ from drone_contract.streams import DOWN, UP, message_of, wired
 from px4_link.telemetry import LocalPosition
 from px4_link.vehicle import VehicleLink
 from zenoh_robot import Node
-from zenoh_robot.events import SubscriptionEventCallbacks
+from zenoh_robot.events import DuplicateNodeInfo, SubscriptionEventCallbacks
 from zenoh_robot.loss_feedback import LossMonitor
 from zenoh_robot.tools.stream_metrics import StreamRecorder
 from zenoh_robot.topic_statistics import with_cpu_budget
@@ -125,6 +126,11 @@ class Companion:
             self.camera.start()
         self.params.on_change = self._on_params_changed
         self.params.guard_writes(node, self.control, self.events)   # safety limits: only the GCS in control
+        # A second companion with this id that got past the start-up check (zenoh_robot.claim): both say so,
+        # and the later start stops (``on_yield``, the CLI's stop) instead of flying beside the other.
+        self.yielded = ""
+        self.on_yield: Callable[[], None] | None = None
+        node.claim.on_duplicate(self._on_duplicate)
         node.add_on_close(self.close)
 
     def _vehicle_position(self) -> tuple[float, float, float] | None:
@@ -209,6 +215,14 @@ class Companion:
             self.worker.submit_guarded("disarmed", self.lifecycle.disarmed)
         else:
             self.telemetry.on_link_event(name, details)
+
+    def _on_duplicate(self, info: DuplicateNodeInfo) -> None:   # the node's executor
+        action = "resolved" if not info.alive else "stopping" if info.yields else "keeps running"
+        self.events.event("duplicate_id", info.describe(), action)
+        if info.alive and info.yields and not self.yielded:
+            self.yielded = info.describe()
+            if self.on_yield is not None:
+                self.on_yield()
 
     def _on_token(self, key: str, alive: bool) -> None:   # the node's executor
         client = key.rsplit("/", 1)[-1]

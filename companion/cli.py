@@ -243,7 +243,8 @@ def run(args: argparse.Namespace) -> int:
         px4_side.close()
         raise CliError(f"--px4 {args.px4}: {exc}") from None
     with px4_side, Node("companion", namespace=args.id, config=session, executor=MultiThreadedExecutor(3), wire=wire,
-                 parameter_overrides=params, enable_topic_statistics=not args.no_topic_statistics) as node:
+                        parameter_overrides=params, enable_topic_statistics=not args.no_topic_statistics,
+                        settle_name=True) as node:   # one companion per drone id, whatever order sessions start in
         log.info("companion %s: PX4 at %s, profile %s", args.id, connection, profile.name)
         if not link.wait_connected(timeout=3.0):
             log.warning("no PX4 heartbeat yet on %s; waiting in the background (the sensor rate is asked "
@@ -258,6 +259,7 @@ def run(args: argparse.Namespace) -> int:
             except CommandError as exc:   # PX4's default rate applies until it reconnects
                 log.warning("could not set the HIGHRES_IMU rate: %s", exc)
             companion.telemetry.request_streams()   # logs what PX4 refused; never raises a CommandError
+        companion.on_yield = stop.set    # a second companion with this id came first: this one stops
         spinner = threading.Thread(target=node.spin, name="companion-spin", daemon=True)
         spinner.start()
         if args.vehicle_record:
@@ -278,6 +280,9 @@ def run(args: argparse.Namespace) -> int:
         if args.record:
             write_summary(args.record, summary)
         stop.set()     # the vehicle record's last lines
+    if companion.yielded:
+        print(f"companion: {companion.yielded}", file=sys.stderr)
+        return 1
     return 0
 
 

@@ -17,6 +17,8 @@ log = logging.getLogger("companion")   # the app's logger: event lines keep the 
 # Kinds that every flight sends on its way (the lifecycle's steps, setpoints before offboard_start, what PX4's
 # sensor rate is): logged at INFO, still published to the GCS like every event.
 ROUTINE = frozenset({"lifecycle", "setpoint_ignored", "sensor_rate_low"})
+# Kinds that mean this process should not be flying as it is (a second companion with its id): errors.
+SEVERE = frozenset({"duplicate_id"})
 
 
 class EventReporter:
@@ -29,7 +31,7 @@ class EventReporter:
 
     def event(self, kind: str, detail: str, action: str = "", client_id: str = "", count: int = 0) -> None:
         # Expected steps of a normal flight are information; what the operator must look at is a warning.
-        level = logging.INFO if kind in ROUTINE else logging.WARNING
+        level = logging.INFO if kind in ROUTINE else logging.ERROR if kind in SEVERE else logging.WARNING
         log.log(level, "%s%s: %s -> %s", kind, f" [{client_id}]" if client_id else "", detail, action or "no action")
         self.sent.append(kind)
         del self.sent[:-self.KEPT]

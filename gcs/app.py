@@ -55,12 +55,14 @@ from zenoh_robot.services import ServiceCallError, command_retry
 from zenoh_robot.tools.stream_metrics import StreamRecorder
 from zenoh_robot.topic_statistics import with_cpu_budget
 
+from .alerts import Alerts
 from .config import GcsConfig
 from .discovery import watch_drones
 from .downlink import DownlinkRates
 from .formation import slot
 from .patterns import PathPoint, make_pattern
 from .planner import FormationClock, Position, TargetPlanner
+from .vehicle_identity import StateSource, watch_claims
 
 log = logging.getLogger("gcs")
 # Executor time (% of one core) each drone stream may take before `zenoh-robot stats` shows it red
@@ -108,6 +110,8 @@ class DroneView:
         self.events: list[FailsafeEvent] = []
         self.failures: list[str] = []     # failsafes and refusals addressed to this GCS (bounded)
         self.events_seen = 0
+        self.alerts = Alerts(drone_id)    # a second companion with this id, a matched stream that sends nothing
+        self.source = StateSource(lambda why: self.alerts.raise_("duplicate_id", why))
         # image: frames shown (sliced: begun, possibly with stale strips); image_whole: frames whose every
         # strip is fresh; image_strip: fresh strips (FEC: whole frames), as frame * MAX_SLICES + index.
         self.streams = {name: StreamRecorder() for name in ("sensor", "state", "image", "image_whole", "image_strip")}
@@ -119,10 +123,11 @@ class DroneView:
         self.setpoint_pub = node.create_publisher(message_of(setpoint), f"{ns}/{setpoint.name}", q[setpoint.name])
         budget = {k: with_cpu_budget(node.enable_topic_statistics, v) for k, v in STREAM_CPU_BUDGET_PCT.items()}
         sensor, state, events = wired("sensor", DOWN), wired("state", DOWN), wired("events", DOWN)
+        silent = self.alerts.silence_events      # "uav3 sensor: publisher seen, 0 samples in 5 s" (alerts.py)
         node.create_subscription(message_of(sensor), f"{ns}/{sensor.name}", self._on_sensor, q[sensor.name],
-                                 topic_statistics=budget["sensor"])
+                                 topic_statistics=budget["sensor"], event_callbacks=silent("sensor"))
         node.create_subscription(message_of(state), f"{ns}/{state.name}", self._on_state, q[state.name],
-                                 topic_statistics=budget["state"])
+                                 topic_statistics=budget["state"], event_callbacks=silent("state"))
         node.create_subscription(message_of(events), f"{ns}/{events.name}", self._on_event, q[events.name])
         image = wired("image", DOWN)
         # Filed on the executor, decoded only when a frame is looked at (latest_frame); the records
@@ -141,6 +146,8 @@ class DroneView:
         self.streams["sensor"].record(info.seq, info.source_stamp_ns, info.received_stamp_ns)
 
     def _on_state(self, msg: VehicleState, info: Any) -> None:
+        if not self.source.accept(info.publisher_id, time.monotonic()):
+            return     # another vehicle with this id: never merged into this one's view (vehicle_identity.py)
         self.streams["state"].record(info.seq, info.source_stamp_ns, info.received_stamp_ns)
         previous_at = self.state_at
         if self.state is not None and msg.link_refused > self.state.link_refused:
@@ -286,6 +293,7 @@ class Gcs:
         self._seen: set[str] = set()
         self._seen_lock = threading.Lock()     # added on Zenoh's thread, read by the mission's
         self._discovery = watch_drones(node, self._on_drone_heard)
+        self._claims = watch_claims(node, self._on_companion_claims)
         node.create_timer(1.0 / config.rate_hz, self._stream)
         node.create_timer(PRESENCE_PERIOD_S, self._presence)
         # Loss feedback (loss_feedback.py): setpoint copies follow the loss the drones measure.
@@ -332,6 +340,17 @@ class Gcs:
             def add() -> None:
                 self.add_drone(drone_id)
             self.node.executor.call_soon(add)
+
+    def _on_companion_claims(self, drone_id: str, zids: list[str]) -> None:   # the executor
+        d = self.drones.get(drone_id)
+        if len(zids) > 1:
+            why = f"{len(zids)} companions claim this id (zids {', '.join(zids)}): the later start must stop"
+            if d is not None:
+                d.alerts.raise_("duplicate_claim", why)
+            else:
+                log.warning("%s: %s", drone_id, why)
+        elif d is not None:
+            d.alerts.clear("duplicate_claim", "one companion claims this id again")
 
     def seen(self) -> list[str]:
         """Every drone id heard on the network (asked for or not), sorted."""

@@ -162,7 +162,8 @@ def stream_table(d: DroneView, rates: RateMeter) -> Table:
 def _drone_cells(d: DroneView, f: dict[str, float]) -> dict[str, str]:
     s = d.state
     if s is None:
-        return {"drone": d.id, "mode": "?", "link": "waiting", "sp Hz": _hz(f["setpoint"])}
+        return {"drone": d.id, "mode": "?", "link": "waiting", "sp Hz": _hz(f["setpoint"]),
+                "failsafe": _first_alert(d)[:30]}
     link = ("ok" if d.link_age < 2.0 else f"silent {d.link_age:.0f}s") if s.connected else "PX4 DOWN"
     if d.under_attack:      # the drone refuses forged or replayed sealed samples: someone is trying
         link = f"ATTACK ({s.link_refused} refused)"
@@ -176,7 +177,13 @@ def _drone_cells(d: DroneView, f: dict[str, float]) -> dict[str, str]:
             "sp Hz": _hz(f["setpoint"]), "state Hz": _hz(f["state"]), "sensor Hz (PX4)": sensor_rate(s, f["sensor"]),
             "img fps": _hz(f["frames"]), "whole fps": _hz(f["whole_fps"]), "fresh %": _pct(f["fresh_pct"]),
             "oldest ms": _ms(f["oldest_ms"]).strip(),
-            "failsafe": (s.failsafe or (d.failures[-1] if d.failures else ""))[:30]}
+            "failsafe": (s.failsafe or _first_alert(d) or (d.failures[-1] if d.failures else ""))[:30]}
+
+
+def _first_alert(d: DroneView) -> str:
+    """A standing problem (gcs/alerts.py) without the drone's name, which the row already shows."""
+    text = next(iter(d.alerts.now.values()), "")
+    return text.removeprefix(f"{d.id} ")
 
 
 def sensor_rate(s: VehicleState, here: float = math.nan) -> str:
@@ -213,6 +220,7 @@ def plain_lines(gcs: Gcs, rates: RateMeter) -> list[str]:
             parts.append(img)
         if s is not None and s.failsafe:
             parts.append(f"FAILSAFE {s.failsafe}")
+        parts.extend(d.alerts.now.values())    # "uav3 sensor: publisher seen, 0 samples in 5 s", two companions
         if s is not None and d.under_attack:
             parts.append(f"UNDER ATTACK: {s.link_refused} sealed samples refused (see its link_refused events)")
         lines.append(", ".join(parts))

@@ -37,6 +37,8 @@ def summarize(gcs: Gcs, profile: str) -> dict[str, Any]:
             "joined_path": d.plan.on_path,
             "final_state": d.state.to_dict() if d.state else None,
             "events": [e.to_dict() for e in d.events],
+            # Silent streams and a second companion with this id (gcs/alerts.py), and that one's states dropped.
+            "alerts": d.alerts.log, "alerts_now": d.alerts.now, "state_ignored": d.source.ignored,
             "downlink": gcs.downlink.status[d.id].as_dict()
             if gcs.downlink is not None and d.id in gcs.downlink.status else None,
             # Raw (seq, stamp, arrival) records for offline analysis (the experiment joins them
@@ -78,6 +80,8 @@ def print_summary(console: Console, summary: dict[str, Any]) -> None:
         console.print(f"{drone}: setpoints sent {d['setpoints_sent']}, frames {d['frames']} "
                       f"({d['frames_complete']} whole), largest distance from the path "
                       f"{d['max_path_error_m']:.2f} m (mean {d['mean_path_error_m']:.2f} m, against its own path)")
+        for alert in d.get("alerts", []):
+            console.print(f"{drone}: {alert}")
         if d.get("downlink"):
             asked = {k: v for k, v in summary.get("downlink_asked", {}).items() if v is not None}
             console.print(f"{drone}: downlink asked {asked}: {d['downlink']['status']} {d['downlink']['detail']}")

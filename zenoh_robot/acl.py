@@ -76,6 +76,7 @@ _ALL = ["put", "delete", "declare_subscriber", "query", "declare_queryable", "re
 _GRAPH_READ = ["declare_liveliness_subscriber", "liveliness_query"]
 # Key families the library and apps use besides topics (each one's writer is restricted below).
 _GRAPH = "@zr/lv"            # graph tokens: @zr/lv/<kind>/<zid>/<gid>/<namespace>/<node>/...
+_CLAIM = "@zr/claim/*"       # node name claims: @zr/claim/<scope>/<namespace>/<node>/<zid>/<since>/<state>
 _ALIVE = "@zr/alive"         # MANUAL_BY_TOPIC / leased publishers' heartbeats: @zr/alive/<topic key>
 _CONTROL = "zr_gcs"          # a GCS's liveliness token zr_gcs/<client id> (drone_contract.messages)
 _LINK = "zr_link"            # loss-feedback probes every node sends and hears (_wire/feedback.LINK_TOPIC)
@@ -115,7 +116,7 @@ def acl_config(nodes: dict[str, NodeEntry], domain: int = 0) -> dict[str, Any]:
     everything = [f"{p}**", f"{p}@srv/**", f"{p}@srv/**/@rq", f"{p}@srv/**/@rp/*", f"{p}@zr/**"]
     egress = rule("egress_all", _ALL, everything, ["egress"])
     # Every node keeps the graph (node list, matching, QoS checks, duplicate-name refusal).
-    graph_read = rule("graph_read", _GRAPH_READ, [f"{p}{_GRAPH}/**"])
+    graph_read = rule("graph_read", _GRAPH_READ, [f"{p}{_GRAPH}/**", f"{p}{_CLAIM}/**"])
     # Loss feedback: every node probes the link and reports the loss it hears, so every node
     # sends and hears probes. A node with a valid certificate can report false loss; the worst
     # it gets is its peers' copies raised to the repeat plan's bound (docs/security.md).
@@ -147,7 +148,7 @@ def _drone_rules(rule: Any, p: str, name: str) -> list[str]:
         rule(f"drone_{name}_srv_requests", ["declare_subscriber"], [f"{p}@srv/{name}/**/@rq"]),
         rule(f"drone_{name}_srv_replies", ["put"], [f"{p}@srv/{name}/**/@rp/*"]),
         # Graph tokens only for nodes in its own namespace.
-        rule(f"drone_{name}_graph", ["liveliness_token"], [f"{p}{_GRAPH}/*/*/*/{name}/**"]),
+        rule(f"drone_{name}_graph", ["liveliness_token"], [f"{p}{_GRAPH}/*/*/*/{name}/**", f"{p}{_CLAIM}/{name}/**"]),
         # Heartbeats of its own publishers, and the GCS's heartbeats on its setpoint subscription.
         rule(f"drone_{name}_alive", ["put", "declare_subscriber"], [f"{p}{_ALIVE}/{name}/**"]),
         # The companion watches which GCSs are alive (control passes on when the holder's token goes).
@@ -177,7 +178,8 @@ def _gcs_rules(rule: Any, p: str, node: NodeEntry) -> list[str]:
         # Statistics of its root-namespace nodes' other subscriptions (statistics/zr_link, ...).
         rule(f"gcs_{name}_root_statistics", ["put"], [f"{p}statistics/**"]),
         # Graph tokens of its nodes: root namespace (gcs, gcs_cmd) or its own.
-        rule(f"gcs_{name}_graph", ["liveliness_token"], [f"{p}{_GRAPH}/*/*/*/%/**", f"{p}{_GRAPH}/*/*/*/{name}/**"]),
+        rule(f"gcs_{name}_graph", ["liveliness_token"], [f"{p}{_GRAPH}/*/*/*/%/**", f"{p}{_GRAPH}/*/*/*/{name}/**",
+                                                         f"{p}{_CLAIM}/%/**", f"{p}{_CLAIM}/{name}/**"]),
         # The liveliness token by which drones know it is alive (zr_gcs/<client id>), and the others'.
         # The client id is free text: any authorised GCS may use any id (docs/security.md, limits).
         rule(f"gcs_{name}_control", ["liveliness_token", *_GRAPH_READ], [f"{p}{_CONTROL}/*", f"{p}{_CONTROL}/**"]),

@@ -76,6 +76,40 @@ class MatchedInfo(_Counted):
     current_count_change: int
 
 
+@dataclass(frozen=True)
+class SilentStreamInfo:
+    """A matched publisher sent nothing for ``window_s`` (``silent``), or samples came again (zenoh_robot.silence)."""
+    silent: bool
+    window_s: float
+    publishers: int                # matched publishers now
+    for_s: float                   # silent for (recovered: how long it was silent)
+    total_count: int               # silent episodes so far
+    ever_received: bool            # a sample arrived before the silence began
+
+    def describe(self, topic: str) -> str:
+        if not self.silent:
+            return f"{topic}: samples again after {self.for_s:.1f} s of silence"
+        who = "publisher seen" if self.publishers == 1 else f"{self.publishers} publishers seen"
+        return f"{topic}: {who}, 0 samples in {self.window_s:g} s"
+
+
+@dataclass(frozen=True)
+class DuplicateNodeInfo:
+    """Another session holds this node's fully qualified name too (``zenoh_robot.claim``); ``alive`` False:
+    it no longer does. Both sides get the same verdict: the later claim (``since``, then the zid) ``yields``."""
+    fqn: str
+    other_zid: str
+    other_since_ns: int
+    yields: bool
+    alive: bool = True
+
+    def describe(self) -> str:
+        if not self.alive:
+            return f"node {self.fqn}: the other session holding this name (zid {self.other_zid}) is gone"
+        verdict = "this one started later and must stop" if self.yields else "the other started later and must stop"
+        return f"node {self.fqn} is also running in session zid {self.other_zid}: {verdict}"
+
+
 Callback = Callable[[Any], None] | None
 
 
@@ -96,6 +130,7 @@ class SubscriptionEventCallbacks:
     message_lost: Callback = None        # QoSMessageLostInfo
     incompatible_type: Callback = None   # IncompatibleTypeInfo
     matched: Callback = None             # MatchedInfo
+    silent_stream: Callback = None       # SilentStreamInfo; set, it turns the watch on (zenoh_robot.silence)
 
 
 def check_callbacks(callbacks: Any, cls: type) -> Any:

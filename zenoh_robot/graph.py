@@ -368,8 +368,9 @@ def ensure_unique_node(session: zenoh.Session, namespace: str, node_name: str, g
                        timeout: float = 0.5) -> None:
     """Refuse a second node of the same name: two ``--id uav1`` companions would merge silently.
 
-    Best effort: it sees the nodes this session can reach when it starts (two processes starting
-    in the same instant both pass).
+    One query, answered at once with what this session's routing already knows: right after
+    ``open`` that is often nothing (issue #42). It stays as the quick check against nodes that hold
+    no claim (another wire format's peers); ``zenoh_robot.claim`` is the race-free one.
     """
     owners = live_node_owners(session, namespace, node_name, graph_format, timeout)
     if not owners:

@@ -26,6 +26,7 @@ from .context import EntityContext
 from .graph import ANY_TYPE_HASH, TopicEndpointInfo
 from .qos import LivelinessPolicy, QoSProfile
 from .qos_compat import check_compatibility
+from .silence import SilenceWatch, silence_window
 
 log = logging.getLogger("zenoh_robot.qos_events")
 
@@ -242,6 +243,7 @@ class SubscriptionEvents(_EntityEvents):
         self.blocked: frozenset[int] = frozenset()   # read per sample on the executor: swapped, never mutated
         self._incompatible: dict[int, set[TopicEndpointInfo]] = {}   # gid -> its incompatible claims
         self.message_lost_total = 0
+        self._expected_period_s: float | None = None
         self.lifespans_ns: dict[int, int] = {}     # offered lifespan of each matched publisher
         self.alive_count = 0
         self.not_alive_count = 0
@@ -249,8 +251,22 @@ class SubscriptionEvents(_EntityEvents):
         self.leased_writers = False     # any matched publisher with a lease: samples then assert it
         self._hb_sub: Any = None
         self._registered = False
-        if sub.qos.deadline is not None:
+        self._matched_at: float | None = None     # when the newest publisher matched (the silence watch)
+        self._silence = SilenceWatch(silence_window(None, sub.qos.deadline)) \
+            if self.callbacks.silent_stream is not None else None
+        if sub.qos.deadline is not None or self._silence is not None:
             self._register()
+
+    @property
+    def expected_period_s(self) -> float | None:
+        return self._expected_period_s if self._silence is not None else None
+
+    @expected_period_s.setter
+    def expected_period_s(self, period: float | None) -> None:
+        """The stream's period, where the QoS has no deadline to say it: silence is 5 of them (silence.py)."""
+        self._expected_period_s = period
+        if self._silence is not None:
+            self._silence.window_s = silence_window(period, self.qos.deadline)
 
     def _register(self) -> None:
         # Again on every new leased writer: the monitor re-reads tick_period, which may have shrunk.
@@ -295,6 +311,7 @@ class SubscriptionEvents(_EntityEvents):
             return
         if result is None:
             return
+        self._matched_at = time.monotonic()
         q = info.qos_profile
         lease = q.liveliness_lease_duration
         manual = q.liveliness is LivelinessPolicy.MANUAL_BY_TOPIC
@@ -358,6 +375,10 @@ class SubscriptionEvents(_EntityEvents):
         new = self._deadline_missed(self.sub.last_sample_mono, now)
         if new:
             self.fire("deadline", ev.QoSRequestedDeadlineMissedInfo(self.deadline_total, new))
+        if self._silence is not None:
+            silent = self._silence.check(now, self.current_count, self._matched_at, self.sub.last_sample_mono)
+            if silent is not None:
+                self.fire("silent_stream", silent)
         changes: list[tuple[int, int]] = []
         with self._lock:
             for w in self._writers.values():
