@@ -13,12 +13,13 @@ import logging
 import threading
 from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Any, TypeVar, overload
+from typing import TYPE_CHECKING, Any, TypeVar, overload
 
 import zenoh
 
 from . import names
 from ._wire.repeater import Repeater
+from .claim import NodeClaim, start_claim
 from .context import Endpoint, EntityContext
 from .executor import Executor, Timer
 from .graph import EndpointType, Graph, GraphCache, TopicEndpointInfo, ensure_unique_node
@@ -43,6 +44,9 @@ from .services.service import Handler
 from .session_config import SessionConfig, open_session
 from .subscription import RawMessage, Subscription
 from .wire import ENVELOPE, WireFormat
+
+if TYPE_CHECKING:
+    from .actions import ActionClient, ActionServer
 
 M = TypeVar("M", bound=Message)
 Req = TypeVar("Req", bound=Message)
@@ -73,9 +77,13 @@ class Node:
                  executor: Executor | None = None,
                  parameter_overrides: dict[str, Any] | None = None,
                  enable_topic_statistics: Any = False,
-                 wire: WireFormat = ENVELOPE) -> None:
+                 wire: WireFormat = ENVELOPE, settle_name: bool = False) -> None:
         """``wire``: how this node's samples become bytes and keys, and how it announces itself in
-        the graph (``zenoh_robot.wire``); nodes of other formats neither hear it nor see it."""
+        the graph (``zenoh_robot.wire``); nodes of other formats neither hear it nor see it.
+        ``settle_name``: before holding its name, wait until the network's claims have arrived (0.25-2 s,
+        claim.py), so a name already held elsewhere is refused at start whatever order sessions came up
+        in. For names that must never run twice (a drone's companion); every node's claim is watched
+        after its start either way, and ROS 2 itself does not refuse a duplicate name at all."""
         self.name = names.validate_node_name(name)
         self.namespace = names.normalize_namespace(namespace)
         self.executor = executor or Executor()
@@ -90,12 +98,15 @@ class Node:
         self.enable_topic_statistics = enable_topic_statistics
         self.wire = wire
         self._graph: Graph | None = None
+        self._claim: NodeClaim | None = None
         self._context = EntityContext(self.session, self.executor, self._logger, self.namespace, self.name,
                                       self._declare_endpoint, wire)
         self._services = Services(self._context)
         self._parameters = ParameterStore(parameter_overrides)
         try:
-            ensure_unique_node(self.session, self.namespace, self.name, wire.graph)
+            ensure_unique_node(self.session, self.namespace, self.name, wire.graph)   # also a node with no claim
+            self._claim = start_claim(self.session, wire.graph, self.namespace, self.name, self.executor,
+                                      self.fully_qualified_name, settle=settle_name)
             self._graph = Graph(self.session, self.namespace, self.name, wire.graph)
             self._parameter_service = ParameterService(self._parameters, self._services.create_service)
         except BaseException:
@@ -243,6 +254,13 @@ class Node:
         return self._the_graph.cache
 
     @property
+    def claim(self) -> NodeClaim:
+        """This node's hold on its name (claim.py): ``claim.on_duplicate(cb)`` hears of a second process holding it."""
+        if self._claim is None:
+            raise RuntimeError(f"node {self.fully_qualified_name} has no claim (closed while starting)")
+        return self._claim
+
+    @property
     def zid(self) -> str:
         return self._the_graph.zid
 
@@ -317,6 +335,23 @@ class Node:
 
     def destroy_client(self, client: Client[Any, Any]) -> None:
         self._services.destroy_client(client)
+
+    # -- actions (zenoh_robot.actions; loaded on first use, with the ros2 extra's types) ----------
+    def create_action_server(self, action_type: Any, name: str, execute_callback: Callable[[Any], Any],
+                             **kwargs: Any) -> ActionServer:
+        """rclpy's ``ActionServer(node, ...)``: ``goal_callback``, ``cancel_callback``, ``max_goals``,
+        ``max_results``, ``result_timeout`` (zenoh_robot.actions.server)."""
+        from .actions import ActionServer
+
+        self._context.check_open()
+        return ActionServer(self, action_type, name, execute_callback, **kwargs)
+
+    def create_action_client(self, action_type: Any, name: str, **kwargs: Any) -> ActionClient:
+        """rclpy's ``ActionClient(node, ...)``: ``goal_timeout``, ``result_poll_s``, ``retry``."""
+        from .actions import ActionClient
+
+        self._context.check_open()
+        return ActionClient(self, action_type, name, **kwargs)
 
     # -- parameters ------------------------------------------------------------------------
     def declare_parameter(self, name: str, default: Any = None, description: str = "",
@@ -415,6 +450,8 @@ class Node:
             entity.destroy()
         if self._graph is not None:
             self._graph.close()
+        if self._claim is not None:
+            self._claim.close()
         self.session.close()
 
     destroy_node = close

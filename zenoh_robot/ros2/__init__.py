@@ -5,12 +5,14 @@ validated like any other) whose type name and hash are ROS 2's (``std_msgs/msg/S
 ``RIHS01_…``) and which carries its CDR codec. Definitions come from rosbags' typestore (the
 standard packages) or from ``.msg`` text (:func:`load_ros2_msg`): no ROS install, no build step.
 ``ros2_service_type("example_interfaces/srv/AddTwoInts")`` is a service's two halves, hash and name
-(services.py). Needs the ``ros2`` extra (rosbags); ``import zenoh_robot`` never loads this package.
+(services.py); ``ros2_action_type("example_interfaces/action/Fibonacci")`` every type an action
+derives (actions.py). Needs the ``ros2`` extra (rosbags); ``import zenoh_robot`` never loads this package.
 See docs/ros2.md.
 
 Modules, one job each: types (message classes, CDR codec, RIHS01 hashing, definitions), services
-(.srv -> request/response types and the service hash).
+(.srv -> request/response types and the service hash), actions (.action -> the derived messages and services).
 """
+from .actions import KNOWN_ACTIONS, Ros2ActionType, action_definition, ros2_action_type
 from .services import (
     KNOWN_SERVICES,
     Ros2ServiceType,
@@ -32,6 +34,25 @@ from .types import (
     typestore,
 )
 
-__all__ = ["KNOWN_SERVICES", "Ros2Codec", "Ros2ServiceType", "Ros2TypeError", "cdr_codec", "decode_cdr",
-           "dependencies", "encode_cdr", "is_ros2_type", "load_ros2_msg", "msg_definition", "rihs01",
-           "ros2_service_type", "ros2_type", "service_type_of", "typestore"]
+__all__ = [
+    "KNOWN_ACTIONS",
+    "KNOWN_SERVICES",
+    "Ros2ActionType",
+    "Ros2Codec",
+    "Ros2ServiceType",
+    "Ros2TypeError",
+    "action_definition",
+    "cdr_codec",
+    "decode_cdr",
+    "dependencies",
+    "encode_cdr",
+    "is_ros2_type",
+    "load_ros2_msg",
+    "msg_definition",
+    "rihs01",
+    "ros2_action_type",
+    "ros2_service_type",
+    "ros2_type",
+    "service_type_of",
+    "typestore",
+]

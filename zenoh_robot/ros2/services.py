@@ -28,6 +28,12 @@ KNOWN_SERVICES: dict[str, str] = {
     "std_srvs/srv/SetBool": "bool data\n---\nbool success\nstring message\n",
     "std_srvs/srv/Trigger": "---\nbool success\nstring message\n",
     "std_srvs/srv/Empty": "---\n",
+    # What every action's cancel_goal service is (action_msgs, as ROS 2 Kilted ships it; constants do not
+    # enter the hash).
+    "action_msgs/srv/CancelGoal": (
+        "GoalInfo goal_info\n---\n"
+        "int8 ERROR_NONE=0\nint8 ERROR_REJECTED=1\nint8 ERROR_UNKNOWN_GOAL_ID=2\nint8 ERROR_GOAL_TERMINATED=3\n"
+        "int8 return_code\nGoalInfo[] goals_canceling\n"),
 }
 
 
@@ -100,16 +106,35 @@ def ros2_service_type(name: str, definition: str | None = None) -> Ros2ServiceTy
             raise Ros2TypeError(f"{name}: a .srv definition has one '---' line between request and response")
         req_text, resp_text = (h.strip("\n") for h in halves)
         try:
-            srv_hash = _register(name, req_text, resp_text)
-            srv = Ros2ServiceType(name, srv_hash, ros2_type(name + "_Request"), ros2_type(name + "_Response"))
-        except Ros2TypeError:
-            raise
+            halves_defs = {**parse_definition(req_text, name + "_Request"),
+                           **parse_definition(resp_text, name + "_Response")}
         except Exception as exc:
             raise Ros2TypeError(f"{name}: {exc}") from None
-        _types[name] = srv
-        _by_message[srv.request] = srv
-        _by_message[srv.response] = srv
-        return srv
+        return _made(name, halves_defs)
+
+
+def service_from_definitions(name: str, halves: dict[str, Any]) -> Ros2ServiceType:
+    """The service type ``name`` (``pkg/srv/S``, or an action's ``pkg/action/A_SendGoal``) from field
+    definitions already parsed (``name_Request``, ``name_Response`` and any type they add): what an
+    action's derived services are made of. Made once per name."""
+    with _lock:
+        known = _types.get(name)
+        return known if known is not None else _made(name, halves)
+
+
+def _made(name: str, halves: dict[str, Any]) -> Ros2ServiceType:
+    """Register and generate a service type (the caller holds ``_lock``)."""
+    try:
+        srv_hash = _register(name, halves)
+        srv = Ros2ServiceType(name, srv_hash, ros2_type(name + "_Request"), ros2_type(name + "_Response"))
+    except Ros2TypeError:
+        raise
+    except Exception as exc:
+        raise Ros2TypeError(f"{name}: {exc}") from None
+    _types[name] = srv
+    _by_message[srv.request] = srv
+    _by_message[srv.response] = srv
+    return srv
 
 
 def service_type_of(request_type: type, response_type: type) -> Ros2ServiceType | None:
@@ -119,13 +144,11 @@ def service_type_of(request_type: type, response_type: type) -> Ros2ServiceType 
     return srv if srv is not None and srv.request is request_type and srv.response is response_type else None
 
 
-def _register(name: str, req_text: str, resp_text: str) -> str:
+def _register(name: str, halves: dict[str, Any]) -> str:
     """Register the service's four types (halves, event, service) in the typestore; its RIHS01 hash."""
     from rosbags.interfaces import Nodetype
 
-    typs: dict[str, Any] = {}
-    for suffix, text in (("_Request", req_text), ("_Response", resp_text)):
-        typs.update(parse_definition(text, name + suffix))
+    typs: dict[str, Any] = dict(halves)
     typs[name + "_Event"] = ([], [
         ("info", (Nodetype.NAME, SERVICE_EVENT_INFO)),
         ("request", (Nodetype.SEQUENCE, ((Nodetype.NAME, name + "_Request"), 1))),

@@ -60,6 +60,7 @@ Resp = TypeVar("Resp", bound=Message)
 log = logging.getLogger("zenoh_robot.services")
 
 HUMBLE_HASH = "TypeHashNotSupported"          # what Humble's rmw_zenoh puts where the type hash goes
+ZENOH_TIMEOUT = "Timeout"                     # the error reply Zenoh itself gives a query that runs out of time
 MAX_REQUEST_BYTES = 16 << 20
 
 
@@ -384,7 +385,10 @@ class Ros2Client(_Ros2Endpoint, Generic[Req, Resp]):
                 return
             if reply.ok is None:
                 err = reply.err
-                errors.append(err.payload.to_bytes().decode("utf-8", "replace") if err is not None else "error")
+                text = err.payload.to_bytes().decode("utf-8", "replace") if err is not None else "error"
+                if text == ZENOH_TIMEOUT:
+                    return      # Zenoh's own: the query ran out of time (a ServiceTimeout), not the server's error
+                errors.append(text)
                 return
             sample = reply.ok
             attachment = sample.attachment

@@ -35,7 +35,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     o.add_argument("type", help="Setpoint, std_msgs/String, zenoh_robot/GetParameters (a service), or FILE.msg")
     o.add_argument("--no-expand", action="store_true", help="do not expand nested message types")
     o.add_argument("--ros2", action="store_true",
-                   help="a ROS 2 type (std_msgs/msg/String, example_interfaces/srv/AddTwoInts), as ROS 2 nodes send it")
+                   help="a ROS 2 type (std_msgs/msg/String, example_interfaces/srv/AddTwoInts, "
+                        "example_interfaces/action/Fibonacci), as ROS 2 nodes send it")
     p.set_defaults(func=run)
 
 
@@ -103,7 +104,8 @@ def _show(args: argparse.Namespace) -> int:
 
 
 def _ros2_lines(name: str, expand: bool) -> list[str]:
-    """A ROS 2 message type's fields, or a service's request ``---`` response (its type hash last)."""
+    """A ROS 2 message type's fields, a service's request ``---`` response (its type hash last), or an
+    action's goal ``---`` result ``---`` feedback (its parts' hashes last)."""
     from zenoh_robot.message import type_support
 
     if "/srv/" in name:
@@ -114,6 +116,17 @@ def _ros2_lines(name: str, expand: bool) -> list[str]:
         except Ros2TypeError as exc:
             raise CliError(str(exc)) from None
         return [*render(srv.request, expand), "---", *render(srv.response, expand), f"# {srv.hash}"]
+    if "/action/" in name:
+        from zenoh_robot.ros2 import Ros2TypeError, ros2_action_type
+
+        try:
+            action = ros2_action_type(name)
+        except Ros2TypeError as exc:
+            raise CliError(str(exc)) from None
+        # As ros2 interface show: goal --- result --- feedback; then the hashes its parts travel with.
+        return [*render(action.goal, expand), "---", *render(action.result, expand), "---",
+                *render(action.feedback, expand), f"# send_goal {action.send_goal.hash}",
+                f"# get_result {action.get_result.hash}", f"# feedback {type_support(action.feedback_message).hash}"]
     cls = ros2_lookup(name)
     return [*render(cls, expand), f"# {type_support(cls).hash}"]
 

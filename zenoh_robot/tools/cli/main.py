@@ -22,7 +22,7 @@ from importlib.metadata import entry_points
 from typing import TYPE_CHECKING, Any, TypeAlias, cast
 
 # Others (security: keys, router) append theirs; a module that does not exist yet is skipped.
-SUBCOMMANDS = ["topic", "node", "interface", "stats", "param", "service", "launch", "doctor", "completion",
+SUBCOMMANDS = ["topic", "node", "interface", "stats", "param", "service", "action", "launch", "doctor", "completion",
                "bench", "keys", "router", "bag", "foxglove",
                "linkshim"]
 EXIT_USER_ERROR = 1

@@ -2,7 +2,8 @@
 
 Nodes, publishers and subscriptions come from the graph's liveliness tokens (zenoh_robot.graph);
 services from the ``zr_describe`` answer every server gives (services.describe_services), which
-names the serving node. Clients announce nothing on the network, so ``info`` cannot list them
+names the serving node; actions from their feedback topics (action.py), their five parts not listed
+one by one. Clients announce nothing on the network, so ``info`` cannot list them
 (it says so rather than print an empty list that would look like "none").
 """
 from __future__ import annotations
@@ -12,6 +13,7 @@ from typing import TYPE_CHECKING
 
 from zenoh_robot.session_args import add_session_arguments
 
+from .action import ACTION_INFIX
 from .common import HIDDEN_PREFIX, cli_node, did_you_mean, is_ros2, quiet_exit
 from .main import CliError
 from .reader import shown_type
@@ -84,21 +86,36 @@ def _info(node: "Node", args: argparse.Namespace) -> int:
         raise CliError(f"node {target} not found" + did_you_mean(target, node_names(node, args.all)))
     pubs, subs = _endpoints_of(node, target)
     print(target)
-    _section("Subscribers", [f"{e.topic_name}: {shown_type(e.topic_type)}" for e in subs])
-    _section("Publishers", [f"{e.topic_name}: {shown_type(e.topic_type)}" for e in pubs])
+    # An action's five parts are shown as the action (ros2 node info hides them likewise).
+    _section("Subscribers", [f"{e.topic_name}: {shown_type(e.topic_type)}" for e in subs if not _hidden(e.topic_name)])
+    _section("Publishers", [f"{e.topic_name}: {shown_type(e.topic_type)}" for e in pubs if not _hidden(e.topic_name)])
     if is_ros2(node):      # ROS 2 nodes announce servers and clients (SS/SC tokens), not parameters here
         from .ros2_service import node_services
 
         servers, clients = node_services(node, target)
-        _section("Service Servers", servers)
-        _section("Service Clients", clients)
+        _section("Service Servers", [s for s in servers if not _hidden(s)])
+        _section("Service Clients", [c for c in clients if not _hidden(c)])
+        _actions(node, target)
         return 0
     _section("Service Servers", [f"{s['service']}: {s['request']} -> {s['response']}"
-                                 for s in _services_of(node, target, args.timeout)])
+                                 for s in _services_of(node, target, args.timeout) if not _hidden(s["service"])])
     print("  Service Clients: not announced on the network")
+    _actions(node, target)
     if not args.no_params:
         print(f"  Parameters: {_parameter_count(node, target, args.timeout)}")
     return 0
+
+
+def _hidden(name: str) -> bool:
+    return ACTION_INFIX in name
+
+
+def _actions(node: "Node", target: str) -> None:
+    from .action import node_actions
+
+    servers, clients = node_actions(node, target)
+    _section("Action Servers", servers)
+    _section("Action Clients", clients)
 
 
 def _section(title: str, lines: list[str]) -> None:

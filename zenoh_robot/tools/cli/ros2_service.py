@@ -53,6 +53,8 @@ def _list(node: "Node", args: argparse.Namespace) -> int:
     prefix = "/" + args.prefix.strip("/") if args.prefix.strip("/") else ""
     shown: set[tuple[str, str]] = set()
     for info in servers(node, args.timeout):
+        if "/_action/" in info.service_name and not args.include_hidden_services:
+            continue    # an action's part: `action list` shows the action
         if prefix and not (info.service_name == prefix or info.service_name.startswith(prefix + "/")):
             continue
         shown.add((info.service_name, info.service_type))

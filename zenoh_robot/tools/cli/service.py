@@ -13,7 +13,7 @@ from typing import Any
 from zenoh_robot.services import SERVICE_PREFIX, ServiceCallError, call_dict, describe_services, service_key
 from zenoh_robot.session_args import add_session_arguments
 
-from .common import did_you_mean, lookup_type, session_config, wire_of
+from .common import did_you_mean, lookup_type, session_config, warn_unreached, wire_of
 from .main import CliError
 from .topic import GRAPH_QUIET, discover_graph
 from .values import build_message, parse_values, render_data
@@ -26,6 +26,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     o = ops.add_parser("list", help="services on the network, with their types")
     o.add_argument("prefix", nargs="?", default="", help="only services under this name, e.g. /uav1")
     o.add_argument("-t", "--show-types", action="store_true", help="show request/response types")
+    o.add_argument("--include-hidden-services", action="store_true",
+                   help="also the services of actions (<action>/_action/send_goal, ...), as ros2 service list")
     o.add_argument("--timeout", type=float, default=1.5, help="seconds to collect answers (default 1.5)")
     o = ops.add_parser("call", help="call a service with a YAML request")
     o.add_argument("service", help="absolute service name, e.g. /uav1/command (see `service list`)")
@@ -46,6 +48,7 @@ def run(args: argparse.Namespace) -> int:
 
     wire = wire_of(args)
     with Node(f"_zr_service_{secrets.token_hex(3)}", config=session_config(args), wire=wire) as node:
+        warn_unreached(node, args)
         if wire.name == "ros2":
             from .ros2_service import OPS
 
@@ -61,11 +64,18 @@ def _list(node: Any, args: argparse.Namespace) -> int:
         except ValueError as exc:
             raise CliError(str(exc)) from None
     for info in _others(node, pattern, args.timeout):
+        if hidden_service(str(info["service"])) and not args.include_hidden_services:
+            continue
         if args.show_types:
             print(f"{info['service']} [{info['request']} -> {info['response']}]")
         else:
             print(info["service"])
     return 0
+
+
+def hidden_service(name: str) -> bool:
+    """An action's part (``<action>/_action/send_goal``): ``action list`` shows the action instead."""
+    return "/_action/" in name
 
 
 def service_type(info: dict[str, Any]) -> str:
