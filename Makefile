@@ -54,9 +54,10 @@ test: install sysdeps lint
 	[ $$rc = 0 ] || [ $$rc = 5 ]
 
 # The fast tier (docs/testing.md): in-process tests only (no process, no socket beyond in-process Zenoh
-# sessions), on two workers, one test at a time each; no lint. Under 2 minutes.
+# sessions), on $(WORKERS) workers (they wait on sessions more than they compute), one test at a time each;
+# no lint. Under 2 minutes.
 test-fast: install
-	$(BIN)/python -m pytest -q -n 2 -m fast $(ARGS)
+	$(BIN)/python -m pytest -q -n $(WORKERS) -m fast $(ARGS)
 
 bench: install
 	$(BIN)/zenoh-robot bench $(ARGS)

@@ -17,7 +17,7 @@ import ipaddress
 from collections.abc import Callable
 from typing import Any
 
-from .session_config import MAX_DOMAIN, MODES, SECURE_PROTOCOLS, SessionConfig, resolve_domain
+from .session_config import MAX_DOMAIN, MODES, SECURE_PROTOCOLS, SessionConfig, SessionConfigError, resolve_domain
 from .wire import ENVELOPE, WireFormat, ros2_wire
 
 
@@ -68,7 +68,10 @@ def session_config_from_args(args: argparse.Namespace,
     """
     path = getattr(args, "zenoh", None)
     if path:
-        config = SessionConfig.from_file(path)
+        try:
+            config = SessionConfig.from_file(path)
+        except SessionConfigError as exc:   # the flag too: a user may not know where the file came from
+            raise SessionConfigError(f"--zenoh {exc}") from None
     elif callable(default):
         config = default()
     else:
@@ -81,14 +84,15 @@ def session_config_from_args(args: argparse.Namespace,
     connect = list(config.connect) + list(getattr(args, "connect", None) or [])
     secure = getattr(args, "secure", None)
     if secure:
-        listen = [e for e in (_secure_twin(x) for x in listen) if e] or ["tls/0.0.0.0:0"]
-        connect = [e for e in (_secure_twin(x) for x in connect) if e]
+        listen = [e for e in (secure_twin(x) for x in listen) if e] or ["tls/0.0.0.0:0"]
+        connect = [e for e in (secure_twin(x) for x in connect) if e]
         changes.update(secure=secure, name=getattr(args, "cert_name", None) or name, shared_memory=False)
     changes.update(listen=listen, connect=connect)
     return dataclasses.replace(config, **changes)
 
 
-def _secure_twin(endpoint: str) -> str | None:
+def secure_twin(endpoint: str) -> str | None:
+    """The TLS/QUIC endpoint ``--secure`` turns ``endpoint`` into; None for a multicast one (no secure twin)."""
     proto, _, rest = endpoint.partition("/")
     if proto in SECURE_PROTOCOLS:
         return endpoint

@@ -108,6 +108,87 @@ class SessionConfigError(ValueError):
     """A session configuration that cannot work; the message names the bad part."""
 
 
+# Zenoh's errors arrive as Rust's Debug text: the source file and line of the Rust code that raised them
+# (" at /root/.cargo/.../lib.rs:1484."), serde's Message { msg: ..., location: ... } wrapping, and for a
+# JSON5 syntax error pest's multi-line caret picture, whose "expected boolean or null" points wherever the
+# parser gave up, not at the missing "}". zenoh_problem() turns that into one line a user can act on.
+_RUST_SOURCE = re.compile(r"\s+at\s+/\S+?\.rs:\d+\.?")
+_SERDE = re.compile(r'msg: "(?P<msg>(?:[^"\\]|\\.)*)", location: '
+                    r'(?:Some\(Location \{ line: (?P<line>\d+), column: (?P<col>\d+) \}\)|None)')
+_PEST = re.compile(r"-->\s*(?P<line>\d+):(?P<col>\d+).*?=\s*(?P<expected>[^\n]+)", re.S)
+_PAIRS = {"{": "}", "[": "]"}
+
+
+def zenoh_problem(exc: BaseException, text: str | None = None) -> str:
+    """One line for a Zenoh config error, with no Rust source paths; ``text``: the JSON5 it came from,
+    to name an unbalanced bracket where the parser's own position would mislead."""
+    raw = _RUST_SOURCE.sub("", str(exc))
+    m = _SERDE.search(raw)
+    if m:
+        msg = re.sub(r"\\(.)", lambda e: "\n" if e[1] == "n" else e[1], m["msg"])   # Rust's Debug escapes
+        if _PEST.search(msg):
+            return _syntax_problem(msg, text)
+        # Without ``text`` the location is inside a value handed over in code, not in a file a user wrote.
+        where = f"line {m['line']}, column {m['col']}: " if m["line"] and text is not None else ""
+        return where + msg
+    if _PEST.search(raw):
+        return _syntax_problem(raw, text)
+    unreached = re.search(r"Unable to connect to any of \[(.*?)\]", raw)
+    if unreached:   # a client whose router is not there
+        endpoints = re.findall(r"Single\(([^)]*)\)", unreached[1]) or [unreached[1]]
+        return f"cannot reach {', '.join(endpoints)} (is a router running there?)"
+    unknown = re.fullmatch(r'\s*Str\("(.*)"\)\s*', raw)
+    if unknown:
+        return unknown[1]
+    return " ".join(raw.split())
+
+
+def _syntax_problem(pest: str, text: str | None) -> str:
+    unbalanced = _bracket_problem(text) if text is not None else None
+    if unbalanced:
+        return unbalanced
+    m = _PEST.search(pest)
+    assert m is not None
+    expected = m["expected"].strip().removeprefix("expected ")
+    if expected in ("null", "boolean or null"):    # pest's guess at a bare word: a value it cannot read
+        expected = "a value: a quoted string, a number, true, false, null, {...} or [...]"
+    return f"JSON5 syntax error at line {m['line']}, column {m['col']}: expected {expected}"
+
+
+def _bracket_problem(text: str) -> str | None:
+    """The first unbalanced ``{}``/``[]`` of JSON5 ``text`` (strings and comments skipped), or None."""
+    def at(i: int) -> str:
+        return f"line {text.count(chr(10), 0, i) + 1}, column {i - text.rfind(chr(10), 0, i)}"
+
+    stack: list[tuple[str, int]] = []
+    i, n = 0, len(text)
+    while i < n:
+        c = text[i]
+        if c in "\"'":
+            i += 1
+            while i < n and text[i] != c:
+                i += 2 if text[i] == "\\" else 1
+        elif text.startswith("//", i):
+            i = text.find("\n", i)
+            i = n if i < 0 else i
+        elif text.startswith("/*", i):
+            i = text.find("*/", i + 2)
+            i = n if i < 0 else i + 1
+        elif c in _PAIRS:
+            stack.append((c, i))
+        elif c in "}]":
+            if not stack:
+                return f"{at(i)}: {c!r} closes nothing (one too many)"
+            opener, where = stack.pop()
+            if _PAIRS[opener] != c:
+                return f"{at(i)}: {c!r} where {_PAIRS[opener]!r} was expected (to close the {opener!r} of {at(where)})"
+        i += 1
+    if stack:
+        opener, where = stack[-1]
+        return f"the {opener!r} of {at(where)} is never closed (a {_PAIRS[opener]!r} is missing)"
+    return None
+
+
 def validate_endpoint(endpoint: str) -> str:
     m = _ENDPOINT.match(endpoint.strip()) if isinstance(endpoint, str) else None
     if not m:
@@ -286,14 +367,14 @@ class SessionConfig:
             try:
                 conf = zenoh.Config.from_file(self.source)
             except Exception as exc:
-                raise SessionConfigError(f"{self.source}: {exc}") from None
+                raise SessionConfigError(f"{self.source}: {zenoh_problem(exc, _read_text(self.source))}") from None
         else:
             conf = zenoh.Config()
         for key, value in self._values().items():
             try:
                 conf.insert_json5(key, json.dumps(value))
             except Exception as exc:
-                raise SessionConfigError(f"zenoh config {key}={value!r}: {exc}") from None
+                raise SessionConfigError(f"zenoh config {key}={value!r}: {zenoh_problem(exc)}") from None
         return conf
 
     def _values(self) -> dict[str, Any]:
@@ -344,7 +425,7 @@ class SessionConfig:
         try:
             conf = zenoh.Config.from_file(str(path))
         except Exception as exc:
-            raise SessionConfigError(f"{path}: {exc}") from None
+            raise SessionConfigError(f"{path}: {zenoh_problem(exc, _read_text(path))}") from None
 
         def get(key: str, default: Any) -> Any:
             try:
@@ -368,17 +449,27 @@ class SessionConfig:
         raw_connect = get("connect/endpoints", [])
         groups = [e for e in (raw_connect if isinstance(raw_connect, list) else []) if isinstance(e, dict)]
         text = path.read_text()
-        return cls(
-            mode=mode,
-            listen=endpoints("listen/endpoints"),
-            connect=endpoints("connect/endpoints"),
-            multicast_scouting=bool(get("scouting/multicast/enabled", True)),
-            # Zenoh fills every key with its default, so "was it in the file" needs the text.
-            shared_memory=get("transport/shared_memory/enabled", None) if "shared_memory" in text else None,
-            max_links=int(get("transport/unicast/max_links", 2)) if "max_links" in text else 2,
-            source=str(path),
-            extra={"connect/endpoints": raw_connect} if groups else {},
-        )
+        try:
+            return cls(
+                mode=mode,
+                listen=endpoints("listen/endpoints"),
+                connect=endpoints("connect/endpoints"),
+                multicast_scouting=bool(get("scouting/multicast/enabled", True)),
+                # Zenoh fills every key with its default, so "was it in the file" needs the text.
+                shared_memory=get("transport/shared_memory/enabled", None) if "shared_memory" in text else None,
+                max_links=int(get("transport/unicast/max_links", 2)) if "max_links" in text else 2,
+                source=str(path),
+                extra={"connect/endpoints": raw_connect} if groups else {},
+            )
+        except SessionConfigError as exc:   # a bad endpoint or mode: which file it is in
+            raise SessionConfigError(f"{path}: {exc}") from None
+
+
+def _read_text(path: str | Path) -> str | None:
+    try:
+        return Path(path).read_text(errors="replace")
+    except OSError:
+        return None
 
 
 def resolve_domain(domain: int | str | None) -> int:
@@ -404,7 +495,7 @@ def open_session(config: SessionConfig | str | Path | None = None) -> zenoh.Sess
         session = zenoh.open(zconf)
     except Exception as exc:
         raise SessionConfigError(f"cannot open Zenoh session ({config.mode}, listen={config.listen}, "
-                                 f"connect={config.connect}): {exc}") from None
+                                 f"connect={config.connect}): {zenoh_problem(exc)}") from None
     if config.multicast:
         _MULTICAST_ZIDS[str(session.zid())] = None
         while len(_MULTICAST_ZIDS) > _MAX_TRACKED:

@@ -21,9 +21,16 @@ TALKER = TOPIC_TALKER   # conftest's talker fixture runs it (test_cli_topic's ta
 
 
 def test_echo_field_prints_one_value_per_message(talker):
+    # One line per message, no `---` between them (issue #39): what a shell loop or `sort` reads.
     out = cli("topic", "echo", f"/{talker}/setpoint", "--field", "x", "--count", "2")
     assert out.returncode == 0, out.stderr
-    assert out.stdout == "1.5\n---\n1.5\n---\n"
+    assert out.stdout == "1.5\n1.5\n"
+    out = cli("topic", "echo", f"/{talker}/chatter", "--field", "data", "--count", "2")
+    assert out.returncode == 0, out.stderr
+    assert re.fullmatch(r"hello \d+\nhello \d+\n", out.stdout), out.stdout     # no YAML `...`, no `---`
+    out = cli("topic", "echo", f"/{talker}/setpoint", "--field", "header", "--once")
+    assert out.returncode == 0, out.stderr
+    assert re.fullmatch(r"\{stamp: \d+, frame_id: '', seq: \d+\}\n", out.stdout), out.stdout   # a structure: one line
     out = cli("topic", "echo", f"/{talker}/setpoint", "--field", "header.nope", "--once")
     assert out.returncode == 1 and "header.nope" in out.stderr, out
 

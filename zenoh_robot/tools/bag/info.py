@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from mcap.exceptions import McapError
-from mcap.records import Channel, Chunk, Message, Metadata, Schema
+from mcap.records import Channel, Chunk, Header, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 
 from . import schemas
@@ -60,6 +60,40 @@ class BagInfo:
         return (self.end_ns - self.start_ns) / 1e9 if self.messages else 0.0
 
 
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+class NotMcapError(ValueError):
+    """A file that cannot be read as MCAP at all, not even as a recording cut short (one line: why)."""
+
+
+def check_mcap(path: str | Path) -> None:
+    """Raise NotMcapError unless ``path`` begins as an MCAP file does (its magic, then a Header record).
+
+    iter_records stops quietly where a file stops making sense, which is right for a recording cut
+    short, but would show a text file, an empty file or a missing one as an empty recording."""
+    p = Path(path)
+    if not p.exists():
+        raise NotMcapError(f"{p}: no such file")
+    if p.is_dir():
+        raise NotMcapError(f"{p} is a directory, not an MCAP file")
+    with open(p, "rb") as f:
+        head = f.read(len(MCAP_MAGIC))
+        if not head:
+            raise NotMcapError(f"{p} is empty: not an MCAP file")
+        if head != MCAP_MAGIC:
+            if MCAP_MAGIC.startswith(head):
+                raise NotMcapError(f"{p} is cut short inside MCAP's magic bytes: nothing to read")
+            raise NotMcapError(f"{p} is not an MCAP file (it does not begin with MCAP's magic bytes)")
+        f.seek(0)
+        try:
+            first = next(StreamReader(f, skip_magic=False, emit_chunks=False).records, None)
+        except Exception:   # the mcap package raises several kinds for bytes that are not a record
+            first = None
+    if not isinstance(first, Header):
+        raise NotMcapError(f"{p} is cut short before its first MCAP record (its header): nothing to read")
+
+
 def iter_records(path: str | Path) -> Iterator[Record | Metadata]:
     """Every message (and metadata record) in file order; stops quietly where a cut file ends."""
     schemas_by_id: dict[int, Schema] = {}
@@ -98,7 +132,9 @@ def has_summary(path: str | Path) -> bool:
 
 
 def read_info(path: str | Path) -> BagInfo:
+    """The recording's summary; NotMcapError for a file that is not one (check_mcap)."""
     p = Path(path)
+    check_mcap(p)
     info = BagInfo(p, p.stat().st_size, has_summary(p))
     for item in iter_records(p):
         if isinstance(item, Metadata):

@@ -38,7 +38,7 @@ from zenoh_robot.qos_mapping import declare_publisher
 from zenoh_robot.wire import ENVELOPE, MalformedSample, Ros2WireFormat, ros2_wire
 
 from .encodings import CDR, RAW_ENVELOPE_SCHEMA, unwrap_envelope
-from .info import Record, iter_records
+from .info import Record, check_mcap, iter_records
 from .play_ros2 import Ros2Sender, Unplayable, describe, node_token
 
 if TYPE_CHECKING:
@@ -81,6 +81,7 @@ class BagPlayer:
         self.passes = passes
         self.node = node
         self.path = Path(path)
+        check_mcap(self.path)
         self.topics = {"/" + t.strip("/") for t in topics} if topics else None
         self.rate = rate
         self.loop = loop

@@ -123,12 +123,14 @@ def _record(args: argparse.Namespace) -> int:
 
 def _info(args: argparse.Namespace) -> int:
     _need_logs_extra()
-    from zenoh_robot.tools.bag.info import dumps, format_info, read_info
+    from zenoh_robot.tools.bag.info import NotMcapError, dumps, format_info, read_info
 
     try:
         info = read_info(args.file)
-    except OSError as exc:
+    except NotMcapError as exc:
         raise CliError(str(exc)) from None
+    except OSError as exc:
+        raise CliError(f"{args.file}: {exc.strerror or exc}") from None
     print(dumps(info) if args.json else format_info(info, show_raw=args.raw))
     return 0
 
@@ -136,10 +138,17 @@ def _info(args: argparse.Namespace) -> int:
 @quiet_exit
 def _play(args: argparse.Namespace) -> int:
     _need_logs_extra()
+    from zenoh_robot.tools.bag.info import NotMcapError, check_mcap
     from zenoh_robot.tools.bag.play import BagPlayer
 
     if not args.rate > 0:
         raise CliError(f"--rate must be > 0, got {args.rate:g}")
+    try:   # before the session opens: a wrong file is known at once
+        check_mcap(args.file)
+    except NotMcapError as exc:
+        raise CliError(str(exc)) from None
+    except OSError as exc:
+        raise CliError(f"{args.file}: {exc.strerror or exc}") from None
     with cli_node("bag_play", args) as node:
         try:
             player = BagPlayer(node, args.file, args.topics or None, rate=args.rate, loop=args.loop,

@@ -97,9 +97,24 @@ def cli_node(kind: str, args: argparse.Namespace) -> Iterator["Node"]:
     except SessionConfigError as exc:
         raise CliError(one_line(str(exc))) from None
     try:
+        warn_unreached(node, args)
         yield node
     finally:
         _close_uninterrupted(node)
+
+
+def warn_unreached(node: "Node", args: argparse.Namespace) -> None:
+    """One line on stderr per ``-e`` endpoint nothing answers: a peer opens without it, and a command
+    would otherwise list an empty network and exit 0 as if all were well."""
+    from zenoh_robot.endpoint_reach import unreached_endpoints
+    from zenoh_robot.session_args import secure_twin
+
+    endpoints: list[str] = list(getattr(args, "connect", None) or [])
+    if getattr(args, "secure", None):
+        endpoints = [e for e in (secure_twin(x) for x in endpoints) if e]
+    for endpoint in unreached_endpoints(node.session, endpoints):
+        print(f"zenoh-robot {getattr(args, 'command', '')}: cannot reach {endpoint} (is a router running there?)",
+              file=sys.stderr, flush=True)
 
 
 def _close_uninterrupted(node: "Node") -> None:
@@ -159,8 +174,14 @@ def topic_key(topic: str) -> str:
 
 
 def did_you_mean(name: str, known: Iterable[str]) -> str:
-    """`` (did you mean /uav1/setpoint?)`` for a near miss, else ''."""
-    close = difflib.get_close_matches(name, list(known), n=3, cutoff=0.6)
+    """`` (did you mean /uav1/setpoint?)`` for a near miss, else ''. Never the name itself (nor it with
+    another leading or trailing ``/``): a topic seen only through its subscribers is "known" yet not
+    found, and suggesting what the user typed reads as a contradiction."""
+    def same(a: str) -> str:
+        return a.strip("/")
+
+    others = [k for k in dict.fromkeys(known) if same(k) != same(name)]
+    close = difflib.get_close_matches(name, others, n=3, cutoff=0.6)
     return f" (did you mean {' or '.join(close)}?)" if close else ""
 
 

@@ -22,7 +22,7 @@ from zenoh_robot.parameters import (
 from zenoh_robot.services import ServiceCallError, ServiceTimeout
 from zenoh_robot.session_args import add_session_arguments
 
-from .common import session_config
+from .common import session_config, warn_unreached
 from .main import CliError
 
 _LABEL = {ParameterType.BOOL: "Boolean", ParameterType.INTEGER: "Integer", ParameterType.DOUBLE: "Double",
@@ -75,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
 
     target = _node_name(args.node)
     with Node(f"_zr_param_{secrets.token_hex(3)}", config=session_config(args)) as node:
+        warn_unreached(node, args)
         try:
             client = ParameterClient(node, target, timeout=args.timeout, client_id=args.client_id)
         except ValueError as exc:

@@ -96,6 +96,8 @@ def wait_for_publishers(node: "Node", key: str, deadline: float | None) -> list[
 
 def _did_you_mean(node: "Node", key: str) -> str:
     from .common import did_you_mean
+    if node.get_subscriptions_info_by_topic("/" + key):
+        return " (only subscriptions so far)"
     return did_you_mean("/" + key, known_topics(node))
 
 

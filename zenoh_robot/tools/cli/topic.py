@@ -36,7 +36,7 @@ from .fields import Filter, csv_value, flatten, get_path
 from .main import CliError
 from .qos_args import add_qos_args, qos_from_args
 from .reader import RawSample, adapted_qos, open_reader, shown_type  # noqa: F401
-from .values import build_message, flow, parse_values, render_data, render_sample, to_data  # noqa: F401
+from .values import build_message, flow, parse_values, render_data, render_line, render_sample, to_data  # noqa: F401
 
 if TYPE_CHECKING:
     from zenoh_robot.graph import TopicEndpointInfo
@@ -55,6 +55,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     o = _op_parser(ops, "list", "topics on the network")
     _graph_args(o)
     o.add_argument("-t", "--show-types", action="store_true", help="show each topic's type")
+    o.add_argument("--include-hidden-topics", action="store_true",
+                   help="also the topics of actions (<action>/_action/feedback, status), as ros2 topic list")
     o = _op_parser(ops, "info", "a topic's type, publishers, subscriptions, QoS and their compatibility")
     o.add_argument("topic", help="absolute topic name, e.g. /uav1/setpoint")
     _graph_args(o)
@@ -175,6 +177,8 @@ def _list(args: argparse.Namespace) -> int:
     with cli_node("topic", args) as node:
         discover_graph(node, args.timeout)
         for name, _types in node.get_topic_names_and_types():
+            if "/_action/" in name and not args.include_hidden_topics:
+                continue    # an action's parts: `action list` shows the action
             pubs, subs = _endpoints(node, name, args.all)
             if not (pubs or subs):
                 continue
@@ -286,6 +290,8 @@ def _find(args: argparse.Namespace) -> int:
         found = False
         all_types: set[str] = set()
         for name, _types in node.get_topic_names_and_types():
+            if "/_action/" in name and not args.include_hidden_topics:
+                continue    # an action's parts: `action list` shows the action
             pubs, subs = _endpoints(node, name, args.all)
             seen = {e.topic_type for e in pubs + subs}
             all_types |= seen
@@ -335,8 +341,8 @@ def _echo(args: argparse.Namespace) -> int:
                 columns = list(flat)
                 out.print(",".join(csv_value(c) for c in columns))
             out.print(",".join(csv_value(flat.get(c)) for c in columns))
-        elif args.field and not isinstance(data, (dict, list)):
-            out.print(f"{render_data(data)}\n---" if isinstance(data, str) else f"{data}\n---")
+        elif args.field:
+            out.print(render_line(data, args.no_arr))
         else:
             out.print(f"{render_data(data, args.no_arr)}\n---")
         printed += 1

@@ -5,6 +5,7 @@ anything else building a message from text go through :func:`build_message`.
 """
 from __future__ import annotations
 
+import json
 from typing import Any
 
 import yaml
@@ -34,6 +35,17 @@ def _plain(value: Any, no_arr: bool) -> Any:
     if value is None or isinstance(value, (bool, int, float, str)):
         return value
     return repr(value)     # anything else (a numpy scalar, say) would stop safe_dump
+
+
+def render_line(data: Any, no_arr: bool = False) -> str:
+    """One value on one line (``echo --field``): a string as it is, a structure in YAML's flow style.
+    A line per message needs no ``---`` between messages, and a shell loop or ``sort`` reads it as is."""
+    if isinstance(data, str):
+        return data if "\n" not in data and data.strip() == data else json.dumps(data)
+    if isinstance(data, (dict, list, tuple, bytes, bytearray, memoryview)):
+        return yaml.safe_dump(_plain(data, no_arr), sort_keys=False, allow_unicode=True, default_flow_style=True,
+                              width=1 << 16).strip()
+    return f"{data}"
 
 
 def render_sample(value: Any, no_arr: bool = False) -> str:
