@@ -316,7 +316,7 @@ def test_nav_takeoff_in_flight_never_restarts_from_the_ground_like_px4() -> None
         assert sim.mode in ("AUTO.TAKEOFF", "AUTO.LOITER")
         time.sleep(1.5)
         assert sim.altitude > 5.3, sim.altitude
-        assert "Already higher than takeoff altitude" in _statustexts(events)
+        assert wait_for(lambda: "Already higher than takeoff altitude" in _statustexts(events), 3)
         assert_no_px4_failsafe(sim)
 
 
