@@ -69,6 +69,16 @@ def _init_zenoh_logging() -> None:
             _zenoh_log_done = True
 
 
+def _service_halves(srv_type: Any, where: str) -> tuple[Any, Any]:
+    """rclpy's service type (``Request``/``Response``) or ours (``request``/``response``)."""
+    req = getattr(srv_type, "Request", None) or getattr(srv_type, "request", None)
+    resp = getattr(srv_type, "Response", None) or getattr(srv_type, "response", None)
+    if not (isinstance(req, type) and isinstance(resp, type)):
+        raise TypeError(f"{where}: the first argument is a service name (str) or a service type with Request "
+                        f"and Response (rclpy's form), got {srv_type!r}")
+    return req, resp
+
+
 class Node:
     """``with Node("gcs", namespace="uav1") as node: ...`` - always closes its session."""
 
@@ -319,16 +329,45 @@ class Node:
         """The Zenoh key of service ``name``: ``arm`` in ``uav1`` -> ``@srv/uav1/arm``."""
         return self._services.resolve_service_name(name)
 
+    @overload
     def create_service(self, name: str, request_type: type[Req], response_type: type[Resp],
-                       handler: Handler[Req, Resp]) -> Service[Req, Resp]:
-        """``handler(request)`` returns the response, or a ``concurrent.futures.Future`` of it to answer
-        later without holding the executor (services/service.py)."""
-        return self._services.create_service(name, request_type, response_type, handler)
+                       handler: Handler[Req, Resp]) -> Service[Req, Resp]: ...
 
+    @overload
+    def create_service(self, name: Any, request_type: str, response_type: Callable[[Any, Any], Any]
+                       ) -> Service[Any, Any]: ...
+
+    def create_service(self, name: Any, request_type: Any, response_type: Any,
+                       handler: Any = None) -> Service[Any, Any]:
+        """``create_service(name, Req, Resp, handler)``: ``handler(request)`` returns the response, or a
+        ``concurrent.futures.Future`` of it to answer later without holding the executor
+        (services/service.py). rclpy's form works too, so ROS 2 code ports by changing its imports:
+        ``create_service(srv_type, name, callback)``, ``callback(request, response)`` filling and
+        returning a fresh ``srv_type.Response()``; ``srv_type`` has ``Request``/``Response`` (or
+        ``request``/``response``, as ``ros2_service_type``'s)."""
+        if isinstance(name, str):
+            return self._services.create_service(name, request_type, response_type, handler)
+        req, resp = _service_halves(name, "create_service")
+        callback = response_type
+        if not callable(callback):
+            raise TypeError("create_service(srv_type, name, callback): callback is not callable")
+        return self._services.create_service(request_type, req, resp, lambda request: callback(request, resp()))
+
+    @overload
     def create_client(self, name: str, request_type: type[Req], response_type: type[Resp],
-                      retry: Any = _DEFAULT_RETRY) -> Client[Req, Resp]:
-        """``retry``: a services.RetryPolicy or None; default: retried on multicast sessions (services.py)."""
-        return self._services.create_client(name, request_type, response_type, retry=retry)
+                      retry: Any = _DEFAULT_RETRY) -> Client[Req, Resp]: ...
+
+    @overload
+    def create_client(self, name: Any, request_type: str) -> Client[Any, Any]: ...
+
+    def create_client(self, name: Any, request_type: Any, response_type: Any = None,
+                      retry: Any = _DEFAULT_RETRY) -> Client[Any, Any]:
+        """``create_client(name, Req, Resp)``, or rclpy's ``create_client(srv_type, name)``. ``retry``: a
+        services.RetryPolicy or None; default: retried on multicast sessions (services.py)."""
+        if isinstance(name, str):
+            return self._services.create_client(name, request_type, response_type, retry=retry)
+        req, resp = _service_halves(name, "create_client")
+        return self._services.create_client(request_type, req, resp, retry=retry)
 
     def destroy_service(self, srv: Service[Any, Any]) -> None:
         self._services.destroy_service(srv)

@@ -50,6 +50,14 @@ class Ros2ServiceType:
     response: type[Message]
 
     @property
+    def Request(self) -> type[Message]:   # noqa: N802  (rclpy's spelling: ``AddTwoInts.Request(a=1, b=2)``)
+        return self.request
+
+    @property
+    def Response(self) -> type[Message]:   # noqa: N802
+        return self.response
+
+    @property
     def dds_name(self) -> str:
         """The key's type chunk: rmw_zenoh cuts the ``Request_`` suffix of the request's DDS name."""
         pkg, kind, short = self.name.split("/")

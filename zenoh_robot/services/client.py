@@ -264,8 +264,11 @@ class Client(Generic[Req, Resp]):
         except Exception:
             return False
 
-    def wait_for_service(self, timeout: float | None = None) -> bool:
-        """Block until a server is known (True) or ``timeout`` seconds pass (False); None waits forever."""
+    def wait_for_service(self, timeout: float | None = None, *, timeout_sec: float | None = None) -> bool:
+        """Block until a server is known (True) or ``timeout`` seconds pass (False); None waits forever.
+        ``timeout_sec`` is rclpy's name for it."""
+        if timeout_sec is not None:
+            timeout = timeout_sec
         deadline = None if timeout is None else time.monotonic() + timeout
         while not self.service_is_ready():
             if self.context.closed:
