@@ -11,6 +11,7 @@ import argparse
 import logging
 import math
 import os
+import signal
 import sys
 import threading
 import time
@@ -174,6 +175,7 @@ class GcsRun:
 def run(args: argparse.Namespace) -> int:
     if args.gcs_action == "cmd":
         return run_command(args)
+    _sigterm_as_ctrl_c()
     try:
         gcs_run = parse_run(args)
         log_startup_line(log, gcs_run.session, gcs_run.keyring, gcs_run.link_encrypt)
@@ -182,6 +184,17 @@ def run(args: argparse.Namespace) -> int:
         print(f"gcs: {exc}", file=sys.stderr)
         return 2
     return serve(gcs_run)
+
+
+def _sigterm_as_ctrl_c() -> None:
+    """SIGTERM (systemd, `kill`, a launch's second try) stops the GCS as Ctrl-C does: the mission stops as it
+    is, the summary says what each drone is doing and how to land it; by default SIGTERM ends the process
+    at once, silently, leaving the operator with neither."""
+    def interrupt(_signum: int, _frame: object) -> None:
+        raise KeyboardInterrupt
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, interrupt)
 
 
 def parse_run(args: argparse.Namespace) -> GcsRun:

@@ -1,6 +1,13 @@
 """``python -m px4_link.sim``: see px4_link.sim.cli for the options."""
 import sys
 
-from .cli import main
+if __name__ == "__main__":
+    # Ctrl-C, or a launch stopping its processes, can come while the imports below still run (a second
+    # or more on a loaded machine): an interrupted start-up ends quietly, exit 130, as a run does.
+    try:
+        from .cli import main
 
-sys.exit(main())
+        code = main()
+    except KeyboardInterrupt:
+        code = 130
+    sys.exit(code)

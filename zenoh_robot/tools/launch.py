@@ -25,6 +25,11 @@ Format (every key but ``processes`` optional; unknown keys are errors)::
 Substitutions: ``$(arg NAME)``, ``$(env NAME)`` / ``$(env NAME DEFAULT)``, ``$(python)``
 (this interpreter), ``$(dirname)`` (the launch file's directory).
 
+Relative paths are the launch file's: an argument of ``cmd``/``exec``/``args`` (or a ``--flag=value``'s
+value) naming something beside the launch file, and not in the working directory, is passed as that
+absolute path, so a launch file finds its neighbours (``--zenoh client.json5``, ``--secure keys``)
+wherever it is started from; ``cwd`` and ``include`` are relative to it as well.
+
 Stopping (Ctrl-C, SIGTERM, ``duration`` or a required process exiting) goes in reverse
 dependency order: dependents first (a companion commands HOLD while its simulator still
 runs), and each group is stopped before what it depends on is signalled. Per group:
@@ -67,6 +72,23 @@ TOP_KEYS = {"args", "include", "processes"}
 _ZENOH_ROBOT = [sys.executable, "-c", "import sys; from zenoh_robot.tools.cli.main import main; sys.exit(main())"]
 _SUBST = re.compile(r"\$\((\w+)(?:\s+([^)\s]+))?(?:\s+([^)]*))?\)")
 _NAME = re.compile(r"^[A-Za-z0-9_.\-]+$")
+# What a Python process is started as (a spec's argv stays as written: it is what the log shows). A stop
+# (SIGINT) can come while the process is still importing, a second or more on a loaded machine, before any
+# handler of its own: these end it quietly, exit 130, where Python would print a KeyboardInterrupt traceback.
+_GUARDED_ZENOH_ROBOT = [sys.executable, "-c", "import sys\ntry:\n    from zenoh_robot.tools.cli.main import main\n"
+                        "except KeyboardInterrupt:\n    sys.exit(130)\nsys.exit(main())"]
+_GUARDED_MODULE = ("import runpy, sys\nmodule = sys.argv.pop(1)\ntry:\n"
+                   "    runpy.run_module(module, run_name='__main__', alter_sys=True)\n"
+                   "except KeyboardInterrupt:\n    sys.exit(130)\n")
+
+
+def _guarded(argv: list[str]) -> list[str]:
+    """``argv`` as started: ``python -m M`` and ``zenoh-robot`` quiet when stopped during their imports."""
+    if argv[:3] == _ZENOH_ROBOT:
+        return _GUARDED_ZENOH_ROBOT + argv[3:]
+    if len(argv) >= 3 and argv[0] == sys.executable and argv[1] == "-m":
+        return [sys.executable, "-c", _GUARDED_MODULE, *argv[2:]]
+    return argv
 
 
 @dataclass
@@ -155,6 +177,24 @@ def _as_argv(value: Any, where: str) -> list[str]:
     raise LaunchError(f"{where}: expected a command line string or a list of arguments, got {value!r}")
 
 
+def _beside(word: str, here: Path, cwd: Path) -> str:
+    """``word`` (an argument, or ``--flag=value``'s value) made absolute when it is a relative path to
+    something beside the launch file (``here``) and not in the process's working directory ``cwd``: a
+    launch file names its own neighbours (a Zenoh config, a keys directory, a mission) wherever it is
+    started from; a path the process finds where it runs is left to it, as is every other word."""
+    flag, eq, value = word.partition("=") if word.startswith("-") else ("", "", word)
+    if word.startswith("-") and not eq:
+        return word
+    if not value or "://" in value or Path(value).is_absolute():
+        return word
+    try:
+        if (cwd / value).exists() or not (here / value).exists():
+            return word
+    except OSError:     # a name too long for a path, say: not a path
+        return word
+    return f"{flag}{eq}{os.path.normpath(here / value)}"
+
+
 def _number(value: Any, where: str) -> float:
     try:
         v = float(value)
@@ -193,19 +233,27 @@ def _process(entry: Any, ctx: _Context, where: str) -> ProcessSpec:
                           + (f" (has {', '.join(commands)})" if commands else ""))
     kind = commands[0]
     raw = ctx.value(entry[kind], f"{where}.{kind}")
+    words: list[str] = []       # what the file wrote: its relative paths are the file's (_beside)
     if kind == "module":
         if not isinstance(raw, str) or not raw.strip():
             raise LaunchError(f"{where}.module: expected a Python module name, got {raw!r}")
         argv = [sys.executable, "-m", raw.strip()]
     else:
-        argv = _as_argv(raw, f"{where}.{kind}")
-        if not argv:
+        words = _as_argv(raw, f"{where}.{kind}")
+        if not words:
             raise LaunchError(f"{where}.{kind}: empty command")
+        argv = []
         if kind == "exec":
             # The venv's own entry point, whether or not `zenoh-robot` is on PATH.
-            argv = _ZENOH_ROBOT + (argv[1:] if argv[0] == "zenoh-robot" else argv)
+            argv = list(_ZENOH_ROBOT)
+            words = words[1:] if words[0] == "zenoh-robot" else words
     if "args" in entry:
-        argv += _as_argv(ctx.value(entry["args"], f"{where}.args"), f"{where}.args")
+        words += _as_argv(ctx.value(entry["args"], f"{where}.args"), f"{where}.args")
+    cwd = entry.get("cwd")
+    if cwd is not None:
+        cwd_path = Path(str(ctx.value(cwd, f"{where}.cwd")))
+        cwd = str(cwd_path if cwd_path.is_absolute() else ctx.path.parent / cwd_path)
+    argv += [_beside(w, ctx.path.parent, Path(cwd) if cwd else Path.cwd()) for w in words]
     params = entry.get("params") or {}
     if not isinstance(params, dict):
         raise LaunchError(f"{where}.params: expected a mapping of parameter names to values")
@@ -229,10 +277,6 @@ def _process(entry: Any, ctx: _Context, where: str) -> ProcessSpec:
         raise LaunchError(f"{where}.env: expected a mapping of variable names to values")
     env = {str(k): str(ctx.value(v, f"{where}.env.{k}")) if not isinstance(v, bool) else ("1" if v else "0")
            for k, v in env.items()}
-    cwd = entry.get("cwd")
-    if cwd is not None:
-        cwd_path = Path(str(ctx.value(cwd, f"{where}.cwd")))
-        cwd = str(cwd_path if cwd_path.is_absolute() else ctx.path.parent / cwd_path)
     deps = entry.get("depends_on")
     if deps is not None:
         deps = ctx.value(deps, f"{where}.depends_on")
@@ -361,7 +405,14 @@ _COLORS = ["cyan", "magenta", "green", "yellow", "blue", "bright_cyan", "bright_
 def _die_with_parent() -> None:
     # Linux: the child gets SIGTERM if the runner dies without stopping it (e.g. SIGKILL).
     try:
-        ctypes.CDLL(None).prctl(1, signal.SIGTERM)   # PR_SET_PDEATHSIG
+        libc = ctypes.CDLL(None)
+        libc.prctl(1, signal.SIGTERM)   # PR_SET_PDEATHSIG
+        # A launch stops its processes with SIGINT; started from a shell's background job (`&`), SIGINT
+        # comes ignored, and an ignored SIGINT stays ignored across exec: the process would not stop
+        # until SIGTERM or SIGKILL, without its summary. (libc's, not Python's signal(): this runs
+        # between fork and exec, maybe off the main thread.)
+        libc.signal.argtypes = [ctypes.c_int, ctypes.c_void_p]
+        libc.signal(signal.SIGINT, None)   # SIG_DFL
     except Exception:
         pass
 
@@ -458,7 +509,7 @@ class LaunchRunner:
         env = dict(os.environ, PYTHONUNBUFFERED="1", **spec.env)
         proc.starts += 1
         try:
-            proc.popen = subprocess.Popen(spec.argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+            proc.popen = subprocess.Popen(_guarded(spec.argv), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                           stdin=subprocess.DEVNULL, env=env, cwd=spec.cwd,
                                           start_new_session=True, preexec_fn=_die_with_parent)
         except OSError as exc:

@@ -52,6 +52,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     o.add_argument("--action", metavar="FILE", dest="action_file", help="the .action of a type not known here")
     o.add_argument("--timeout", type=float, default=10.0,
                    help="seconds to wait for a server and for the goal's acceptance (default 10)")
+    for op in ops.choices.values():   # the session flags after the operation too, as `topic` takes them
+        add_session_arguments(op)
     p.set_defaults(func=run)
 
 

@@ -112,6 +112,8 @@ def warn_unreached(node: "Node", args: argparse.Namespace) -> None:
     endpoints: list[str] = list(getattr(args, "connect", None) or [])
     if getattr(args, "secure", None):
         endpoints = [e for e in (secure_twin(x) for x in endpoints) if e]
+    if not endpoints:
+        return
     for endpoint in unreached_endpoints(node.session, endpoints):
         print(f"zenoh-robot {getattr(args, 'command', '')}: cannot reach {endpoint} (is a router running there?)",
               file=sys.stderr, flush=True)

@@ -150,6 +150,13 @@ def user_error(exc: BaseException) -> str | None:
 
 
 def main(argv: list[str] | None = None, parser: argparse.ArgumentParser | None = None) -> int:
+    try:
+        return _run_main(argv, parser)
+    except KeyboardInterrupt:   # before the command's own Ctrl-C handling: importing, parsing, opening
+        return 130
+
+
+def _run_main(argv: list[str] | None, parser: argparse.ArgumentParser | None) -> int:
     parser = parser or build_parser()
     args = parser.parse_args(argv)
     verbose = bool(getattr(args, "verbose", False))
@@ -176,16 +183,22 @@ def main(argv: list[str] | None = None, parser: argparse.ArgumentParser | None =
 if __name__ == "__main__":
     # Run as `python -m zenoh_robot.tools.cli.main`, this file is `__main__`, a second copy of the
     # module: subcommands raise the CliError of `zenoh_robot.tools.cli.main`, so call that copy's main.
-    from zenoh_robot.tools.cli.main import main as _main
+    try:   # a stop while the package still imports: quietly, as main() does later
+        from zenoh_robot.tools.cli.main import main as _main
+    except KeyboardInterrupt:
+        sys.exit(130)
     sys.exit(_main())
 
 
 def run_single(register: Callable[[SubParsers], None], command: str, prog: str,
                argv: list[str] | None = None) -> int:
     """Run one plugin subcommand as its own program (``python -m gcs`` == ``zenoh-robot gcs``)."""
-    parser = Parser(prog=prog)
-    _common_flags(parser)
-    # Parser subclasses ArgumentParser; the stubs make the action invariant in it.
-    sub = cast(SubParsers, parser.add_subparsers(dest="command", required=True))
-    register(sub)
+    try:
+        parser = Parser(prog=prog)
+        _common_flags(parser)
+        # Parser subclasses ArgumentParser; the stubs make the action invariant in it.
+        sub = cast(SubParsers, parser.add_subparsers(dest="command", required=True))
+        register(sub)
+    except KeyboardInterrupt:   # Ctrl-C (or a launch stopping us) while still starting: quietly
+        return 130
     return main([command, *(sys.argv[1:] if argv is None else argv)], parser=parser)

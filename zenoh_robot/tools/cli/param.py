@@ -60,6 +60,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     o = ops.add_parser("delete", help="undeclare a parameter (the node's on-set callbacks must agree)")
     o.add_argument("node")
     o.add_argument("name")
+    for op in ops.choices.values():   # the session flags after the operation too, as `topic` takes them
+        add_session_arguments(op)
     p.set_defaults(func=run)
 
 

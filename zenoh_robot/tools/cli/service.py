@@ -40,6 +40,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     o = ops.add_parser("find", help="services of a type")
     o.add_argument("type", help="service type (zenoh_robot/GetParameters, GetParameters) or its request type")
     o.add_argument("--timeout", type=float, default=1.5, help="seconds to collect answers (default 1.5)")
+    for op in ops.choices.values():   # the session flags after the operation too, as `topic` takes them
+        add_session_arguments(op)
     p.set_defaults(func=run)
 
 
