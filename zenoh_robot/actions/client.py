@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any
 from ..ros2.actions import Ros2ActionType
 from ..services.errors import ServiceTimeout, ServiceUnavailable
 from ..services.retry import _DEFAULT
+from ..services.ros2 import complete_future
 from ..services.scheduler import _scheduler
 from .server import FEEDBACK_QOS, STATUS_QOS
 from .types import (
@@ -157,7 +158,7 @@ class ActionClient:
                 response = call.result()
             except BaseException as exc:  # noqa: BLE001  (the caller hears every failure)
                 self._forget(goal_id)
-                _complete(out, exc=exc)
+                complete_future(out, exc=exc)
                 return
             handle = ClientGoalHandle(self, goal_id, response.accepted, response.stamp)
             with self._lock:
@@ -168,7 +169,7 @@ class ActionClient:
                         handle._status = tracked.status
             if not response.accepted:
                 self._forget(goal_id)
-            _complete(out, result=handle)
+            complete_future(out, result=handle)
         self._send.call_async(request, self.goal_timeout).add_done_callback(decided)
         return out
 
@@ -204,7 +205,7 @@ class ActionClient:
                 self._result.call_async(request, self.result_poll_s).add_done_callback(
                     lambda call: answered(call, started))
             except BaseException as exc:  # noqa: BLE001
-                _complete(out, exc=exc)
+                complete_future(out, exc=exc)
 
         def answered(call: Future[Any], started: float) -> None:
             try:
@@ -213,17 +214,17 @@ class ActionClient:
                 # Not an answer: the goal still runs, or the reply was lost; asked again, off Zenoh's thread
                 # and never faster than REASK_S. A server that is gone is an answer: the caller hears it.
                 if not self._result.service_is_ready():
-                    _complete(out, exc=ServiceUnavailable(f"action {self.action_name}: no server for "
+                    complete_future(out, exc=ServiceUnavailable(f"action {self.action_name}: no server for "
                                                           f"goal {handle.goal_id_text}'s result"))
                     return
                 _scheduler.at(max(time.monotonic(), started + REASK_S), ask)
                 return
             except BaseException as exc:  # noqa: BLE001
-                _complete(out, exc=exc)
+                complete_future(out, exc=exc)
                 return
             if response.status in (s.value for s in GoalStatus):
                 handle._status = GoalStatus(response.status)
-            _complete(out, result=response)
+            complete_future(out, result=response)
         ask()
         return out
 
@@ -262,13 +263,3 @@ class ActionClient:
             self.node.destroy_client(client)
         for sub in (self._feedback_sub, self._status_sub):
             self.node.destroy_subscription(sub)
-
-
-def _complete(future: Future[Any], result: Any = None, exc: BaseException | None = None) -> None:
-    try:
-        if exc is not None:
-            future.set_exception(exc)
-        else:
-            future.set_result(result)
-    except Exception:
-        pass   # completed already

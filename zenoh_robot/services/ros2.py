@@ -401,15 +401,16 @@ class Ros2Client(_Ros2Endpoint, Generic[Req, Resp]):
                 self.bad_replies += 1
                 errors.append(f"bad reply: {exc}")
                 return
-            _complete(future, result=result)
+            complete_future(future, result=result)
 
         def on_done() -> None:
             if future.done():
                 return
             if errors:
-                _complete(future, exc=ServiceError(f"service {self.service_name}: {errors[-1]}", "handler"))
+                complete_future(future, exc=ServiceError(f"service {self.service_name}: {errors[-1]}", "handler"))
             else:
-                _complete(future, exc=ServiceTimeout(f"service {self.service_name}: no reply within {timeout:g} s"))
+                complete_future(future, exc=ServiceTimeout(
+                    f"service {self.service_name}: no reply within {timeout:g} s"))
 
         self.attempts += 1
         try:
@@ -420,7 +421,7 @@ class Ros2Client(_Ros2Endpoint, Generic[Req, Resp]):
                                      target=zenoh.QueryTarget.ALL_COMPLETE,
                                      consolidation=zenoh.ConsolidationMode.NONE)
         except Exception as exc:
-            _complete(future, exc=ServiceCallError(f"service {self.service_name}: cannot send: {exc}"))
+            complete_future(future, exc=ServiceCallError(f"service {self.service_name}: cannot send: {exc}"))
         return future
 
     def destroy(self) -> None:
@@ -431,7 +432,8 @@ class Ros2Client(_Ros2Endpoint, Generic[Req, Resp]):
                 pass
 
 
-def _complete(future: Future[Any], result: Any = None, exc: BaseException | None = None) -> None:
+def complete_future(future: Future[Any], result: Any = None, exc: BaseException | None = None) -> None:
+    """Set ``future``'s result or exception unless a racing path (reply, timeout) already did."""
     try:
         if exc is not None:
             future.set_exception(exc)
