@@ -40,6 +40,10 @@ DEFAULT_PX4 = "udpin:127.0.0.1:14540"
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("companion", help="drone side: PX4 <-> Zenoh, camera, commands, link-loss failsafe")
+    p.add_argument("--config-file", type=Path, metavar="YAML",
+                   help="the drone's settings: each key a flag's long name (id, px4, profile, iface, link-keys, "
+                        "camera, sensor-rate, ...), each value what the flag takes; a flag on the command line "
+                        "wins (docs/hardware.md)")
     p.add_argument("--id", default="uav1", help="drone id, the namespace of its topics (default uav1)")
     p.add_argument("--px4", default=DEFAULT_PX4,
                    help=f"PX4 MAVLink connection (default {DEFAULT_PX4}, where PX4 SITL sends): a serial or USB "

@@ -159,6 +159,13 @@ def main(argv: list[str] | None = None, parser: argparse.ArgumentParser | None =
 def _run_main(argv: list[str] | None, parser: argparse.ArgumentParser | None) -> int:
     parser = parser or build_parser()
     args = parser.parse_args(argv)
+    if getattr(args, "config_file", None) is not None:
+        from .config_file import ConfigFileError, apply_config_file
+        try:
+            args = apply_config_file(parser, args, argv)
+        except ConfigFileError as exc:
+            print(f"zenoh-robot {args.command}: {exc}", file=sys.stderr)
+            return 2
     verbose = bool(getattr(args, "verbose", False))
     logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
