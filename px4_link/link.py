@@ -98,6 +98,10 @@ class Px4Link(VehicleLinkBase[LinkCore]):
     def stats(self) -> LinkStats:
         return self._core.stats
 
+    def not_connected_reason(self) -> str:
+        """Why no vehicle is connected: the wire's state first (a port gone, a wrong baud rate)."""
+        return self._core.not_connected_reason()
+
     def backend_summary(self) -> dict[str, Any]:
         """For the companion's summary (``vehicle.VehicleLink``)."""
         return {"backend": "mavlink", "connection": self.connection}

@@ -16,6 +16,7 @@ import statistics
 import sys
 import time
 from dataclasses import dataclass
+from importlib.metadata import entry_points
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -46,13 +47,29 @@ class Check:
         return f"{self.verdict.upper():4} {self.name}: {self.detail}"
 
 
+def _plugins() -> list[Any]:
+    """Installed packages' checks (entry point group ``zenoh_robot.doctor``: a module with
+    ``register(parser)`` and ``checks(args) -> [(name, verdict, detail)]``), e.g. px4_link's flight
+    controller link: the doctor itself knows no MAVLink. A broken plugin is skipped, not fatal."""
+    found = []
+    for ep in sorted(entry_points(group="zenoh_robot.doctor"), key=lambda e: e.name):
+        try:
+            found.append(ep.load())
+        except (ImportError, AttributeError):
+            continue
+    return found
+
+
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    p = sub.add_parser("doctor", help="check the Zenoh session, peers, clocks, MTU, shared memory and domain")
+    p = sub.add_parser("doctor", help="check the Zenoh session, peers, clocks, MTU, shared memory and domain "
+                                      "(and, with --px4, the flight controller's link)")
     add_session_arguments(p)
     p.add_argument("--report", "-r", action="store_true", help="also print platform, session config and graph")
     p.add_argument("--timeout", type=float, default=2.0, help="seconds to learn the graph (default 2)")
     p.add_argument("--no-clock", action="store_true", help="skip sampling topics for the clock offset")
-    p.set_defaults(func=run)
+    for plugin in _plugins():
+        plugin.register(p)
+    p.set_defaults(func=run, doctor_plugins=_plugins)
 
 
 @quiet_exit
@@ -80,6 +97,10 @@ def run(args: argparse.Namespace) -> int:
     except CliError as exc:
         checks.append(Check("session", "fail", f"cannot open: {exc}"))
         print(checks[-1].line())
+    for plugin in args.doctor_plugins():
+        for name, verdict, detail in plugin.checks(args):
+            checks.append(Check(name, verdict, detail))
+            print(checks[-1].line(), flush=True)
     fails = sum(c.verdict == "fail" for c in checks)
     warns = sum(c.verdict == "warn" for c in checks)
     print(f"{len(checks)} checks: {len(checks) - fails - warns} ok, {warns} warn, {fails} fail")

@@ -1,0 +1,56 @@
+"""``zenoh-robot doctor --px4 DEVICE``: can this machine reach its flight controller over that port?
+
+A plugin of the doctor (entry point ``zenoh_robot.doctor``: the doctor itself knows no MAVLink). Its
+checks, one verdict each: the connection's form; for a serial port, that the device exists, is a tty
+and this user may open it (the ``dialout`` group); then the link itself: PX4's heartbeats within the
+wait, or why not (nothing arrives; bytes arrive but no frame parses at this baud, with the rate to try).
+"""
+from __future__ import annotations
+
+import argparse
+
+from .connection_url import Px4UrlError, check_serial_device, parse_px4_url
+from .link import Px4Link
+
+WAIT_S = 4.0   # PX4 sends a heartbeat a second; a wrong baud's garbage needs ~2 kB to be named
+
+Check = tuple[str, str, str]    # name, ok | warn | fail, detail
+
+
+def register(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--px4", metavar="URL",
+                        help="also check the flight controller's link: a serial device with an optional baud "
+                             "(/dev/ttyACM0, /dev/serial0:921600), or any --px4 form the companion takes")
+
+
+def checks(args: argparse.Namespace) -> list[Check]:
+    spec = getattr(args, "px4", None)
+    if not spec:
+        return []
+    try:
+        url = parse_px4_url(spec)
+    except Px4UrlError as exc:
+        return [("px4", "fail", str(exc))]
+    out: list[Check] = []
+    if url.is_serial:
+        try:
+            check_serial_device(url)
+        except Px4UrlError as exc:
+            return [("px4 device", "fail", str(exc))]
+        out.append(("px4 device", "ok", f"{url.device}: a serial device this user may open"))
+    where = f"{url.device} at {url.baud} baud" if url.is_serial else spec
+    try:
+        with Px4Link(spec, heartbeat_timeout=WAIT_S) as link:
+            if link.wait_connected(WAIT_S):
+                s = link.state
+                out.append(("px4 link", "ok", f"heartbeats from system {s.system_id} component {s.component_id} "
+                                              f"on {where}, mode {s.mode}{', ARMED' if s.armed else ''}"))
+            else:
+                why = link.not_connected_reason()
+                if why == "no vehicle connected":
+                    why = (f"no MAVLink heartbeat on {where} in {WAIT_S:g} s: is PX4 powered, and does the port "
+                           "run MAVLink (MAV_1_CONFIG on TELEM2)?")
+                out.append(("px4 link", "fail", why))
+    except (OSError, ValueError) as exc:
+        out.append(("px4 link", "fail", f"cannot open {where}: {exc}"))
+    return out
