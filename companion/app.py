@@ -98,10 +98,10 @@ class Companion:
         self.camera = (CameraStreamer(node, image.name, q[image.name], live, self.sent["image"],
                                       self.sent["image_strip"]) if config.camera else None)
         # Loss feedback (loss_feedback.py): image parity follows the loss the GCS measures.
-        self.link_monitor = LossMonitor(node, "drone") if config.profile.loss_feedback else None
+        self.loss_monitor = LossMonitor(node, "drone") if config.profile.loss_feedback else None
         set_image_loss = self.camera.set_loss() if self.camera is not None else None
-        if self.link_monitor is not None and set_image_loss is not None:
-            self.link_monitor.adapt(set_image_loss)
+        if self.loss_monitor is not None and set_image_loss is not None:
+            self.loss_monitor.adapt(set_image_loss)
         setpoint = wired("setpoint", UP)
         self.setpoint_sub = node.create_subscription(
             message_of(setpoint), setpoint.name, self.gate.on_setpoint,
@@ -110,8 +110,8 @@ class Companion:
             topic_statistics=with_cpu_budget(node.enable_topic_statistics, SETPOINT_CPU_BUDGET_PCT))
         self.setpoint_sub.superseded = self.gate.on_superseded   # latest wins: still recorded as arrived
         command_srv = node.create_service(COMMAND_SERVICE, Command, CommandResult, self.desk.on_command)
-        if self.link_monitor is not None:   # reply copies sized from the measured loss (services.py)
-            self.link_monitor.adapt(command_srv.set_loss)
+        if self.loss_monitor is not None:   # reply copies sized from the measured loss (services/service.py)
+            self.loss_monitor.adapt(command_srv.set_loss)
         node.create_timer(1.0 / config.state_rate_hz, self._publish_state)
         # The QoS deadline event is the trigger; this watchdog is its backstop, checked at 20 Hz,
         # so the failsafe never depends on one mechanism alone. It also checks the invariants.
@@ -231,8 +231,8 @@ class Companion:
 
     def close(self) -> None:
         # Runs before the node's publishers go: the link's thread must stop using them first.
-        if self.link_monitor is not None:
-            self.link_monitor.close()
+        if self.loss_monitor is not None:
+            self.loss_monitor.close()
         self.telemetry.close()
         if self.camera is not None:
             self.camera.close()

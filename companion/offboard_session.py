@@ -24,9 +24,9 @@ import enum
 import logging
 import threading
 from collections.abc import Callable
-from typing import Protocol
 
 from px4_link.targets import Target, TargetRefused
+from px4_link.vehicle import VehicleLink
 
 log = logging.getLogger("companion.offboard")   # the name it logged under before the rename, kept
 
@@ -40,39 +40,11 @@ class OffboardState(enum.StrEnum):
     FAILSAFE_HOLD = "failsafe_hold"
 
 
-class Offboard(Protocol):
-    """What the lifecycle needs of px4_link's ``link.offboard``."""
-
-    @property
-    def streaming(self) -> bool: ...
-    def set_setpoint(self, sp: Target, sent_at: float | None = ...) -> None: ...
-    def start(self) -> object: ...
-    def stop(self, mode: str | None = ...) -> object: ...
-    def stop_stream(self) -> None: ...
-
-
-class Action(Protocol):
-    def set_mode(self, name: str) -> object: ...
-
-
-class Vehicle(Protocol):
-    """What the session drives: the part of px4_link.Px4Link it needs."""
-
-    @property
-    def mode(self) -> str: ...
-    @property
-    def connected(self) -> bool: ...
-    @property
-    def offboard(self) -> Offboard: ...
-    @property
-    def action(self) -> Action: ...
-
-
 Transition = Callable[[OffboardState, OffboardState, str], None]
 
 
 class OffboardLifecycle:
-    def __init__(self, link: Vehicle, on_transition: Transition) -> None:
+    def __init__(self, link: VehicleLink, on_transition: Transition) -> None:
         self.link = link
         self._on_transition = on_transition
         self._state = OffboardState.IDLE

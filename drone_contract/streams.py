@@ -77,7 +77,7 @@ class StreamProfile:
     image_mode: str = "raw"                 # an ImageMode: raw (rgb8 Image), jpeg (one JPEG Image), sliced
                                             # (JPEG strips), fec (one JPEG in shares + parity): zenoh_robot.image
     jpeg_quality: int = 70
-    # Each end measures the loss it sees and tells the other (_wire/feedback.LossMonitor): setpoint
+    # Each end measures the loss it sees and tells the other (zenoh_robot/loss_feedback.LossMonitor): setpoint
     # copies and image parity follow it instead of being sized for the worst case.
     loss_feedback: bool = False
     # SessionConfig keyword overrides: what the transport needs to live through loss.

@@ -136,7 +136,8 @@ class DroneView:
                                piece=self.streams["image_strip"].record)
         self.frames = image_receiver(cfg.profile.image_mode, node, f"{ns}/{image.name}", q[image.name],
                                      records=records, topic_statistics=budget["image"])
-        # Retried with one request id until the deadline; the companion runs each call once (services.py).
+        # Retried with one request id until the deadline; the companion runs each call once
+        # (zenoh_robot/services/idempotency.py).
         self.commands = node.create_client(f"{ns}/{COMMAND_SERVICE}", Command, CommandResult, retry=command_retry(node))
         presence = wired("presence", UP)
         self.presence_pub = node.create_publisher(message_of(presence), f"{ns}/{presence.name}", q[presence.name])
@@ -297,10 +298,10 @@ class Gcs:
         node.create_timer(1.0 / config.rate_hz, self._stream)
         node.create_timer(PRESENCE_PERIOD_S, self._presence)
         # Loss feedback (loss_feedback.py): setpoint copies follow the loss the drones measure.
-        self.link_monitor = LossMonitor(node, "gcs") if config.profile.loss_feedback else None
-        if self.link_monitor is not None:
-            self.link_monitor.adapt(self._adapt_copies)
-            node.add_on_close(self.link_monitor.close)
+        self.loss_monitor = LossMonitor(node, "gcs") if config.profile.loss_feedback else None
+        if self.loss_monitor is not None:
+            self.loss_monitor.adapt(self._adapt_copies)
+            node.add_on_close(self.loss_monitor.close)
         self._saver: threading.Thread | None = None
         self.saved_images: dict[str, Path] = {}
         if config.save_image:
@@ -317,12 +318,12 @@ class Gcs:
         # heard), not the adapter's worst of all: one drone in a fade must not raise every drone's copies
         # on a shared radio channel. Never NaN here: the monitor adapts only once a peer is heard.
         # Fades: copies sized for the loss that follows a loss too (loss_feedback.BurstEstimate).
-        monitor = self.link_monitor
+        monitor = self.loss_monitor
         if monitor is None:
             return
         for drone_id, d in list(self.drones.items()):
             loss = monitor.outgoing_loss(drone_id)
-            d.commands.set_loss(loss)    # command retries and reply copies sized from it (services.py)
+            d.commands.set_loss(loss)    # command retries and reply copies sized from it (services/retry.py)
             if d.setpoint_pub.qos.repeat and d.setpoint_pub.qos.deadline:
                 apply_repeat_plan(d.setpoint_pub, loss, monitor.burst(drone_id), 1.0 / self.config.rate_hz)
 

@@ -193,7 +193,7 @@ class Mission:
 
     def _send(self, name: str, value: float = 0.0) -> CommandResult:
         # One call: the client retries it under one request id and the companion runs it once
-        # (services.py); a second call is a new command, made only after a refusal (start_offboard).
+        # (zenoh_robot/services/retry.py); a second call is a new command, made only after a refusal (start_offboard).
         t0 = time.monotonic()
         res = self.drone.command(name, value)
         self.out.setdefault("commands", []).append({"command": name, "ok": res.success,

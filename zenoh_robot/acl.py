@@ -79,7 +79,7 @@ _GRAPH = "@zr/lv"            # graph tokens: @zr/lv/<kind>/<zid>/<gid>/<namespac
 _CLAIM = "@zr/claim/*"       # node name claims: @zr/claim/<scope>/<namespace>/<node>/<zid>/<since>/<state>
 _ALIVE = "@zr/alive"         # MANUAL_BY_TOPIC / leased publishers' heartbeats: @zr/alive/<topic key>
 _CONTROL = "zr_gcs"          # a GCS's liveliness token zr_gcs/<client id> (drone_contract.messages)
-_LINK = "zr_link"            # loss-feedback probes every node sends and hears (_wire/feedback.LINK_TOPIC)
+_LINK = "zr_link"            # loss-feedback probes every node sends and hears (loss_feedback.LINK_TOPIC)
 # Nodes a GCS runs in the root namespace (gcs app, `gcs cmd`): their parameter services live at
 # @srv/<node>/... whatever the certificate's name.
 _GCS_NODES = ("gcs", "gcs_cmd")
@@ -112,7 +112,7 @@ def acl_config(nodes: dict[str, NodeEntry], domain: int = 0) -> dict[str, Any]:
                       "key_exprs": keys})
         return rid
 
-    # '**' never matches a verbatim '@' chunk: the put-carried service keys are named (services.py).
+    # '**' never matches a verbatim '@' chunk: the put-carried service keys are named (services/keys.py).
     everything = [f"{p}**", f"{p}@srv/**", f"{p}@srv/**/@rq", f"{p}@srv/**/@rp/*", f"{p}@zr/**"]
     egress = rule("egress_all", _ALL, everything, ["egress"])
     # Every node keeps the graph (node list, matching, QoS checks, duplicate-name refusal).
@@ -170,7 +170,7 @@ def _gcs_rules(rule: Any, p: str, node: NodeEntry) -> list[str]:
         # Its own topics and services; its root-namespace nodes' parameter services.
         rule(f"gcs_{name}_own", ["put", "delete", "declare_queryable", "reply", "query"],
              [f"{p}{name}/**", *own_srv]),
-        # Put-carried service calls (services.py): its own services' requests and replies, and the
+        # Put-carried service calls (services/multicast.py): its own services' requests and replies, and the
         # replies addressed to its clients ('**' never matches the verbatim '@rq'/'@rp' chunks).
         rule(f"gcs_{name}_srv_requests", ["declare_subscriber"], [f"{k}/@rq" for k in own_srv]),
         rule(f"gcs_{name}_srv_replies", ["put"], [f"{k}/@rp/*" for k in own_srv]),

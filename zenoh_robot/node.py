@@ -363,7 +363,7 @@ class Node:
     def create_client(self, name: Any, request_type: Any, response_type: Any = None,
                       retry: Any = _DEFAULT_RETRY) -> Client[Any, Any]:
         """``create_client(name, Req, Resp)``, or rclpy's ``create_client(srv_type, name)``. ``retry``: a
-        services.RetryPolicy or None; default: retried on multicast sessions (services.py)."""
+        services.RetryPolicy or None; default: retried on multicast sessions (services/retry.py)."""
         if isinstance(name, str):
             return self._services.create_client(name, request_type, response_type, retry=retry)
         req, resp = _service_halves(name, "create_client")

@@ -172,7 +172,7 @@ class Publisher(Generic[M]):
         """Adapt the copies per sample to the measured loss (only for a QoS with ``repeat``: subscribers
         deduplicate only when the QoS says copies follow). Clamped to 1..64. With a deadline, ``window``
         (clamped to 0.8 x the deadline) sets how long the copies are spread over: copies / window is
-        the packet rate while samples keep coming (``_wire/feedback.repeat_plan``)."""
+        the packet rate while samples keep coming (``loss_feedback.repeat_plan``)."""
         if not self.qos.repeat:
             raise ValueError(f"publisher on {self.topic!r} has no repeat in its QoS")
         with self._lock:

@@ -204,7 +204,7 @@ def test_repeat_plan_follows_loss_and_bounds_cost() -> None:
     assert plans[0.9][0] == 64 and plans[0.9][1] < 0.4            # 64 copies, packed closer
 
 
-def test_link_monitor_measures_silence_and_adapts_a_publisher(ns: str) -> None:
+def test_loss_monitor_measures_silence_and_adapts_a_publisher(ns: str) -> None:
     """Two nodes probe each other: no loss measured; when one goes silent the other sees ~100 %,
     and the adapter re-sizes a real deadline publisher's copies from it."""
     from zenoh_robot.loss_feedback import LossMonitor, apply_repeat_plan
@@ -244,7 +244,7 @@ def _reference_loss(arrivals: list[float], first_seen: float, period: float, now
     return worst
 
 
-def test_link_monitor_running_counts_measure_the_same_loss_as_a_rescan(monkeypatch) -> None:
+def test_loss_monitor_running_counts_measure_the_same_loss_as_a_rescan(monkeypatch) -> None:
     """A synthetic probe pattern (clean, 30 % random loss, a 95 % burst, silence, a peer joining late):
     at every 20 Hz tick the monitor's per-window counts give the loss a full rescan gives."""
     from conftest import bare_loss_monitor

@@ -166,7 +166,7 @@ def test_the_gcs_sizes_each_drone_from_its_own_probes(monkeypatch) -> None:
             self.commands = SimpleNamespace(loss=None)
             self.commands.set_loss = lambda p: setattr(self.commands, "loss", p)
     views = {"uav1": View(), "uav2": View()}
-    gcs = SimpleNamespace(link_monitor=m, drones=views, config=SimpleNamespace(rate_hz=10.0))
+    gcs = SimpleNamespace(loss_monitor=m, drones=views, config=SimpleNamespace(rate_hz=10.0))
     Gcs._adapt_copies(gcs, m.outgoing_loss())     # type: ignore[arg-type]
     one, two = views["uav1"], views["uav2"]
     assert one.commands.loss < 0.05 < 0.3 < two.commands.loss

@@ -11,7 +11,7 @@ shown frame is always entirely fresh.
 ``n`` follows the loss: the smallest n with P(>= k of n arrive) >= ``target`` under
 independent loss p (binomial tail), clamped to ``max_expansion`` x k (a bandwidth ceiling)
 and zfec's 256. p is a configured value or the receiver's measurement fed back
-(``_wire/feedback.LossMonitor``: ``monitor.adapt(image_pub.set_loss)``).
+(``loss_feedback.LossMonitor``: ``monitor.adapt(image_pub.set_loss)``).
 
 Usage::
 

@@ -245,7 +245,7 @@ class Client(Generic[Req, Resp]):
         self._link = service_seal(context.wire, key, self._req, self._resp)
 
     def set_loss(self, loss: float) -> None:
-        """The link's measured loss (0..1), e.g. ``link_monitor.adapt(client.set_loss)``."""
+        """The link's measured loss (0..1), e.g. ``loss_monitor.adapt(client.set_loss)``."""
         self.loss = float(loss)
 
     # -- discovery -------------------------------------------------------------------

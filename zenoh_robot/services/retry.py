@@ -51,7 +51,7 @@ class AdaptiveRetry:
 
     Request copies go out every ``plan.step_s`` (10-50 ms) until a reply or the deadline; on a
     multicast session the request asks the server for ``plan.reply_copies`` spread reply copies.
-    The estimate comes from ``client.set_loss`` (e.g. ``link_monitor.adapt(client.set_loss)``);
+    The estimate comes from ``client.set_loss`` (e.g. ``loss_monitor.adapt(client.set_loss)``);
     without one the plan is sized for 50 % loss each way.
     """
 

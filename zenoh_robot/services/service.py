@@ -97,7 +97,7 @@ class Service(Generic[Req, Resp]):
         return self.cache.evictions
 
     def set_loss(self, loss: float) -> None:
-        """This node's measured loss (0..1, e.g. ``link_monitor.adapt(service.set_loss)``): sizes reply copies."""
+        """This node's measured loss (0..1, e.g. ``loss_monitor.adapt(service.set_loss)``): sizes reply copies."""
         self._loss = float(loss)
 
     # Zenoh's thread: only hand over.
