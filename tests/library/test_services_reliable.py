@@ -240,7 +240,12 @@ def test_put_carried_call_sends_the_asked_reply_copies_once_per_burst(ns, monkey
         assert client.attempts >= 3 and service.duplicates >= 2       # retries went out and joined
         assert wait_for(lambda: len(seen) >= copies, 2.0)
         time.sleep(0.2)
-        assert len(seen) == copies == service.reply_copies, (seen, service.reply_copies)
+        # One burst of `copies` for the request and every duplicate that joined it. A retry copy that a
+        # loaded machine delivered after the reply went out gets a burst of its own (by design: it may be
+        # the only copy that reached the server); a burst per joined duplicate would be `duplicates` more.
+        bursts, rest = divmod(len(seen), copies)
+        assert rest == 0 and len(seen) == service.reply_copies, (seen, service.reply_copies)
+        assert 1 <= bursts <= service.duplicates, (bursts, service.duplicates)
         assert seen[-1] - seen[0] >= cp.REPLY_SPACING_S   # spread: not one datagram (4 copies span 15 ms)
         sub.undeclare()
 
