@@ -207,8 +207,11 @@ def test_router_cell_from_a_lossy_start(tmp_path: Path) -> None:
     # The window opens `warmup` s after the companion's session opened; the GCS starts a drone's
     # setpoints once it has heard its state, which across 30 % loss on TCP took up to 3.3 s (a CI
     # run: its window opened 1.2 s before the first setpoint, read as a 1.2 s gap). 4 s as the sweep.
+    # A client's TCP handshake with the router across 30 % loss backs off as TCP does (1, 2, 4, 8 s...): its
+    # session opened 19.6 s after launch in a CI rehearsal with a neighbouring flight. What is asserted
+    # starts once the session has formed; the time to form it is the sweep's figure (docs/lossy-link.md).
     r = run_cell(CellSpec("resilient", 30, "startup", duration=3.0, warmup=4.0, transport="router",
-                          startup_timeout=20.0), tmp_path / "cell")
+                          startup_timeout=45.0), tmp_path / "cell")
     assert not r.get("error"), r.get("error")
     assert "invalid" not in r, r["invalid"]
     assert r["exit_codes"] == {"router": 0, "drone": 0, "gcs": 0}, r["exit_codes"]

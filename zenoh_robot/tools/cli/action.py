@@ -189,10 +189,12 @@ def _send_goal(node: "Node", args: argparse.Namespace) -> int:
             raise CliError(f"action {name}: no server within {args.timeout:g} s")
     show("Sending goal", goal.to_dict())
     announced = threading.Event()     # feedback may come before the acceptance: shown after it
+    finished = threading.Event()      # ... and none after the result
 
     def on_feedback(msg: Any) -> None:
         announced.wait(args.timeout)
-        show("Feedback", msg.feedback.to_dict())
+        if not finished.is_set():
+            show("Feedback", msg.feedback.to_dict())
     feedback = on_feedback if args.feedback else None
     try:
         handle = client.send_goal_async(goal, feedback_callback=feedback).result(args.timeout + 2.0)
@@ -207,11 +209,30 @@ def _send_goal(node: "Node", args: argparse.Namespace) -> int:
         raise CliError(str(exc)) from None
     except TimeoutError:
         raise CliError(f"action {name}: no answer to the goal within {args.timeout:g} s") from None
+    # The result's reply completes on a Zenoh thread, the feedback on the executor: feedback that arrived
+    # before the result is queued there already, so calls queued behind it mark where it ends (a few
+    # rounds: a subscription's drain may hand the rest of its samples back to the end of the queue).
+    _after_queued_work(node, rounds=3, timeout=2.0)
+    with printed:
+        finished.set()
     show("Result", response.result.to_dict())
     status = GoalStatus(response.status).name.removeprefix("STATUS_") \
         if response.status in {s.value for s in GoalStatus} else str(response.status)
     print(f"Goal finished with status: {status}")
     return 0 if response.status == GoalStatus.STATUS_SUCCEEDED else 1
+
+
+def _after_queued_work(node: Any, rounds: int, timeout: float) -> None:
+    """Return once the node's executor has run what was queued before, ``rounds`` times over."""
+    done = threading.Event()
+    left = [rounds]
+
+    def mark() -> None:
+        left[0] -= 1
+        if left[0] <= 0 or not node.executor.call_soon(mark):
+            done.set()
+    if node.executor.call_soon(mark):
+        done.wait(timeout)
 
 
 def _indented(text: str) -> str:
