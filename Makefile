@@ -39,7 +39,9 @@ lint: install
 # 2. the `serial` tests (loss in network namespaces, swarms): two modules at a time.
 # 3. the `alone` tests (CPU hogs, 0.3 s leases, ROS 2 peers, 3 ms spacing): nothing beside them.
 # Exit code 5 (ARGS selected nothing in a pass) is no failure.
-WORKERS ?= 4
+# Three: on four the machine is full (pass 1 in 490-500 s) and a publisher that never matched (#42) failed
+# one test in one of three plain rehearsals; on two, 43 % of the machine is used (pass 1 in 800-880 s).
+WORKERS ?= 3
 # Compiled modules are kept (in .venv, out of the tree) even where the environment turns them off
 # (PYTHONDONTWRITEBYTECODE): without them every companion, GCS and CLI process the tests start compiles
 # the project again (0.3-0.4 s of CPU each) and every pass re-rewrites the tests' asserts (12 s each).
