@@ -39,9 +39,10 @@ lint: install
 # 2. the `serial` tests (loss in network namespaces, swarms): two modules at a time.
 # 3. the `alone` tests (CPU hogs, 0.3 s leases, ROS 2 peers, 3 ms spacing): nothing beside them.
 # Exit code 5 (ARGS selected nothing in a pass) is no failure.
-# Three: on four the machine is full (pass 1 in 490-500 s) and a publisher that never matched (#42) failed
-# one test in one of three plain rehearsals; on two, 43 % of the machine is used (pass 1 in 800-880 s).
-WORKERS ?= 3
+# Two, for now: on three and four workers (pass 1 in 490-600 s instead of 800-880 s) four of five CI
+# rehearsals failed a test the load starved (a simulator silent for 3 s, a publisher that never matched:
+# docs/testing.md); `WORKERS=4 make test` where speed matters more than that risk.
+WORKERS ?= 2
 # Compiled modules are kept (in .venv, out of the tree) even where the environment turns them off
 # (PYTHONDONTWRITEBYTECODE): without them every companion, GCS and CLI process the tests start compiles
 # the project again (0.3-0.4 s of CPU each) and every pass re-rewrites the tests' asserts (12 s each).
