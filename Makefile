@@ -39,7 +39,7 @@ lint: install
 # 2. the `serial` tests (loss in network namespaces, swarms): two modules at a time.
 # 3. the `alone` tests (CPU hogs, 0.3 s leases, ROS 2 peers, 3 ms spacing): nothing beside them.
 # Exit code 5 (ARGS selected nothing in a pass) is no failure.
-# Two, for now: on three and four workers (pass 1 in 490-600 s instead of 800-880 s) four of five CI
+# Two, for now: on three and four workers (pass 1 in 490-600 s instead of 800-880 s) three of five CI
 # rehearsals failed a test the load starved (a simulator silent for 3 s, a publisher that never matched:
 # docs/testing.md); `WORKERS=4 make test` where speed matters more than that risk.
 WORKERS ?= 2
