@@ -67,9 +67,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--report", "-r", action="store_true", help="also print platform, session config and graph")
     p.add_argument("--timeout", type=float, default=2.0, help="seconds to learn the graph (default 2)")
     p.add_argument("--no-clock", action="store_true", help="skip sampling topics for the clock offset")
-    for plugin in _plugins():
+    plugins = _plugins()
+    for plugin in plugins:
         plugin.register(p)
-    p.set_defaults(func=run, doctor_plugins=_plugins)
+    p.set_defaults(func=run, doctor_plugins=plugins)
 
 
 @quiet_exit
@@ -97,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
     except CliError as exc:
         checks.append(Check("session", "fail", f"cannot open: {exc}"))
         print(checks[-1].line())
-    for plugin in args.doctor_plugins():
+    for plugin in args.doctor_plugins:
         for name, verdict, detail in plugin.checks(args):
             checks.append(Check(name, verdict, detail))
             print(checks[-1].line(), flush=True)
