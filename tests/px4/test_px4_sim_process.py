@@ -34,7 +34,11 @@ def test_simulator_killed_and_restarted_link_reconnects() -> None:
         second = sim_process(7, link.local_port)   # new process, new ephemeral source port
         try:
             assert link.wait_connected(15)
-            assert link.stats.reconnects == 1 and events.count("connected") == 2
+            # A starved start-up can go silent past the 1 s watchdog once more and come back: every
+            # reconnect is a "connected" event, and there is at least the one the restart caused.
+            assert link.stats.reconnects >= 1
+            # (the event is emitted just after the state changes: wait for it)
+            assert wait_for(lambda: events.count("connected") == link.stats.reconnects + 1, 3)
             # A restarted PX4 is disarmed; and our commands reach the NEW process.
             assert link.wait_until(lambda: not link.state.armed, 3)
             wait_armable(link)
