@@ -47,6 +47,7 @@ from .config import CompanionConfig
 from .control import ControlArbiter
 from .events import EventReporter
 from .failsafe import DeadlineFailsafe
+from .flight_actions import FlightActions
 from .offboard_session import SAFE_MODE, OffboardLifecycle, OffboardState
 from .params import CompanionParameters
 from .px4_worker import Px4Worker
@@ -60,6 +61,16 @@ log = logging.getLogger("companion")
 # a loaded host and still flags a slow callback or a flood.
 SETPOINT_CPU_BUDGET_PCT = 1.5
 WATCHDOG_PERIOD_S = 0.05
+
+
+def flight_actions(node: Node, desk: CommandDesk, link: VehicleLink) -> FlightActions | None:
+    """The drone's actions, when the ``ros2`` extra (their types) is installed; else said once."""
+    try:
+        return FlightActions(node, desk, link)
+    except ImportError as exc:
+        log.warning("the drone's actions (takeoff, goto, land) are off: their ROS 2 types need the ros2 extra "
+                    "(%s); the command service works as ever", exc)
+        return None
 
 
 class Companion:
@@ -110,6 +121,7 @@ class Companion:
             topic_statistics=with_cpu_budget(node.enable_topic_statistics, SETPOINT_CPU_BUDGET_PCT))
         self.setpoint_sub.superseded = self.gate.on_superseded   # latest wins: still recorded as arrived
         command_srv = node.create_service(COMMAND_SERVICE, Command, CommandResult, self.desk.on_command)
+        self.actions = flight_actions(node, self.desk, link)   # takeoff, goto, land as ROS 2 actions
         if self.loss_monitor is not None:   # reply copies sized from the measured loss (services/service.py)
             self.loss_monitor.adapt(command_srv.set_loss)
         node.create_timer(1.0 / config.state_rate_hz, self._publish_state)
@@ -236,6 +248,8 @@ class Companion:
         self.telemetry.close()
         if self.camera is not None:
             self.camera.close()
+        if self.actions is not None:
+            self.actions.close()
         self.worker.shutdown()
         self._tokens.undeclare()
 

@@ -299,6 +299,16 @@ def _ros2_streams(args: argparse.Namespace, session: Any, link: VehicleLink, com
     streams = Ros2Streams(link, args.id, getattr(args, "ros_domain_id", None), session)
     if companion.camera is not None:
         companion.camera.frame_listeners.append(streams.on_frame)
+    if companion.actions is not None and companion.node.wire is ENVELOPE:
+        # The drone's actions for ROS 2 clients too, beside the topics. Not on a sealed companion: ROS 2's
+        # wire carries no seal, and nothing unsealed may command a sealed drone.
+        from .flight_actions import FlightActions
+        actions = FlightActions(streams.node, companion.desk, link)
+        streams.node.add_on_close(actions.close)
+        threading.Thread(target=streams.node.spin, name="ros2-actions-spin", daemon=True).start()
+    elif companion.actions is not None and args.link_keys:
+        log.info("the drone's actions are not offered on ROS 2's wire: this companion's link is sealed "
+                 "(--link-keys) and ROS 2's wire is not")
     return streams
 
 

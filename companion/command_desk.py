@@ -34,6 +34,7 @@ from drone_contract.commands import COMMAND_SPECS, COMMANDS, CommandName, comman
 from drone_contract.messages import Command, CommandResult, valid_client_id
 from px4_link.commands import CommandError
 from px4_link.targets import TargetRefused
+from px4_link.telemetry import GlobalPosition, LocalPosition
 from px4_link.vehicle import VehicleLink
 
 from .config import CompanionConfig
@@ -48,6 +49,7 @@ from .setpoint_gate import SetpointGate
 log = logging.getLogger("companion")   # the app's logger: log lines keep the name they always had
 
 Handler = Callable[[Command], str | None]   # runs on the PX4 worker; a str is the reply's message
+EARTH_RADIUS_M = 6378137.0     # WGS-84 equatorial radius: PX4's own flat-earth projection (lib/geo)
 
 
 def command_policy(cmd: Command, config: CompanionConfig, landed: bool | None) -> str:
@@ -154,15 +156,57 @@ class CommandDesk:
         if why:
             return self._refuse(why)
         handler = self._handlers[name]
+        return self._submit(name.value, client, lambda: handler(cmd))
+
+    def _submit(self, what: str, client: str, work: Callable[[], str | None]) -> CommandResult | Future[CommandResult]:
+        """``work`` on the PX4 worker's command lane; the reply when it is done (or refused at once: busy)."""
         try:
-            job = self._worker.submit(name.value, lambda: handler(cmd), self.TIMEOUT_S)
+            job = self._worker.submit(what, work, self.TIMEOUT_S)
         except WorkerBusy as exc:
             self._events.refused("command_refused", client if valid_client_id(client) else "", "busy",
-                                 f"command {name} from {client}: busy: {exc}")
+                                 f"command {what} from {client}: busy: {exc}")
             return self._refuse(f"busy: {exc}")
         reply: Future[CommandResult] = Future()
         job.add_done_callback(lambda done: reply.set_result(self._outcome(done)))
         return reply
+
+    def goto(self, client: str, north: float, east: float, altitude: float) -> CommandResult | Future[CommandResult]:
+        """The goto action's command (flight_actions.py): the control gate of every command, then the
+        companion's geofence and a flying drone, then PX4's DO_REPOSITION on the worker."""
+        who = client if valid_client_id(client) else f"<invalid {client[:64]!r}>"
+        log.info("goto N %.1f E %.1f at %.1f m from %s", north, east, altitude, who)
+        ok, why, previous = self._control.admit(client, "goto", claim=True)
+        if not ok:
+            self._events.refused("control_refused", client if valid_client_id(client) else "", "goto",
+                                 f"goto from {client or '<no id>'}: {why}")
+            return self._refuse(why)
+        if previous:
+            self._events.event("control_lost", f"{client} took control from {previous}", "", previous)
+        why = self._goto_policy(north, east, altitude)
+        if why:
+            log.warning("goto from %s refused: %s", who, why)
+            return self._refuse(why)
+        return self._submit("goto", client, lambda: self._goto(client, north, east, altitude))
+
+    def stop_goto(self, client: str) -> CommandResult | Future[CommandResult]:
+        """A canceled goto: hold where the drone is now (a switch to Hold would keep flying to the point)."""
+        ok, why, _ = self._control.admit(client, "goto cancel")
+        if not ok:
+            return self._refuse(why)
+        return self._submit("goto cancel", client, self._hold_here)
+
+    def _goto_policy(self, north: float, east: float, altitude: float) -> str:
+        if not all(math.isfinite(v) for v in (north, east, altitude)):
+            return f"goto refused: non-finite target ({north}, {east}, {altitude})"
+        if not 0.5 <= altitude <= 120:
+            return f"goto refused: altitude {altitude:g} m outside 0.5..120"
+        outside = self._config().geofence().violation(north, east, -altitude)
+        if outside:
+            return f"goto refused: the target is outside the geofence: {outside}"
+        vehicle = self._link.state
+        if not vehicle.armed or vehicle.landed is not False:
+            return "goto refused: the drone is not flying (take off first)"
+        return ""
 
     def _outcome(self, done: Future[Any]) -> CommandResult:
         """The reply for a finished (or abandoned) handler: on the thread that settled it, so short."""
@@ -274,6 +318,24 @@ class CommandDesk:
         if self._lifecycle.in_session:
             self._lifecycle.leave(SAFE_MODE, f"takeoff by {cmd.client_id}")
         self._link.action.takeoff(cmd.value or 5.0)
+
+    def _goto(self, client: str, north: float, east: float, altitude: float) -> str:
+        """PX4 worker: leave an offboard session for Hold, then DO_REPOSITION to the point's latitude and
+        longitude, from where the drone is now in both frames (flat earth: a goto stays within the fence)."""
+        here, there = self._link.telemetry.latest(LocalPosition), self._link.telemetry.latest(GlobalPosition)
+        if here is None or there is None:
+            raise CommandError(0, None, "goto: no position from PX4 yet (LOCAL_POSITION_NED, GLOBAL_POSITION_INT)")
+        if self._lifecycle.in_session:
+            self._failsafe.clear()
+            self._lifecycle.leave(SAFE_MODE, f"goto by {client}")
+        lat = there.lat_deg + math.degrees((north - here.x) / EARTH_RADIUS_M)
+        lon = there.lon_deg + math.degrees((east - here.y) / (EARTH_RADIUS_M * math.cos(math.radians(there.lat_deg))))
+        self._link.action.goto_location(lat, lon, there.alt_m - there.relative_alt_m + altitude)
+        return f"going to N {north:.1f} E {east:.1f} at {altitude:.1f} m"
+
+    def _hold_here(self) -> str:
+        self._link.action.hold_here()
+        return "holding where it is"
 
     def _set_param(self, cmd: Command) -> str | None:
         r = self._link.param.set(cmd.text, cmd.value)

@@ -39,6 +39,7 @@ from .dashboard import RateMeter, plain_lines, render
 from .discovery import discover_drones
 from .extras import ExtrasOptions, GcsExtras
 from .formation import FORMATIONS, resolve
+from .goto import parse_target, send_goto
 from .mavlink_out import parse_udpout
 from .mission import ON_FAILURE, run_mission, run_swarm_mission
 from .patterns import PATTERNS
@@ -57,9 +58,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     c = actions.add_parser("cmd", help="send one command to a drone, or to all: arm, takeoff 5, land, hold, ...")
     c.add_argument("drone", help="a drone id, or 'all': every drone of --drones, else every drone heard "
                                  "within --discover s")
-    c.add_argument("command", choices=CLI_COMMANDS)
-    c.add_argument("value", nargs="?", help="takeoff altitude, NAME=VALUE for set_param, or the GCS id to "
-                                           "hand control over to (hand_over, release_control)")
+    c.add_argument("command", choices=(*CLI_COMMANDS, "goto"))
+    c.add_argument("value", nargs="?", help="takeoff altitude, NAME=VALUE for set_param, the GCS id to "
+                                           "hand control over to (hand_over, release_control), or goto's "
+                                           "NORTH,EAST,ALTITUDE in metres (the drone's goto action)")
     c.add_argument("--force", action="store_true",
                    help="disarm: in flight (the companion refuses unless started with --allow-force-disarm); "
                         "take_control: take over from another GCS")
@@ -429,6 +431,7 @@ class CommandRun:
     session: SessionConfig
     wire: WireFormat
     keyring: Keyring | None
+    target: tuple[float, float, float] | None = None    # goto's point
 
 
 def run_command(args: argparse.Namespace) -> int:
@@ -442,14 +445,23 @@ def run_command(args: argparse.Namespace) -> int:
 
 
 def parse_command(args: argparse.Namespace) -> CommandRun:
-    name = str(resolve_cli_name(args.command))
-    value, text = _command_argument(name, args.value)
+    target = None
+    if args.command == "goto":
+        name, value, text = "goto", 0.0, ""
+        try:
+            target = parse_target(args.value)
+        except ValueError as exc:
+            raise UsageError(str(exc)) from None
+    else:
+        name = str(resolve_cli_name(args.command))
+        value, text = _command_argument(name, args.value)
     client_id = _client_id(args.gcs_id)
     session = session_config_from_args(args, name="gcs")
     wire, keyring = _link(args.link_keys, client_id, encrypt=False)
     drones = [d for d in (args.drones or "").split(",") if d] if args.drone == "all" else [args.drone]
     return CommandRun(name=name, value=value, text=text, force=args.force, client_id=client_id, drones=drones,
-                      discover_s=args.discover, timeout=args.timeout, session=session, wire=wire, keyring=keyring)
+                      discover_s=args.discover, timeout=args.timeout, session=session, wire=wire, keyring=keyring,
+                      target=target)
 
 
 def _command_argument(name: str, arg: str | None) -> tuple[float, str]:
@@ -478,6 +490,8 @@ def _command_argument(name: str, arg: str | None) -> tuple[float, str]:
 
 def send_command(cmd: CommandRun) -> int:
     with Node("gcs_cmd", config=cmd.session, wire=cmd.wire) as node:
+        if cmd.target is not None:     # an action: its feedback and status arrive through the executor
+            threading.Thread(target=node.spin, name="gcs-cmd-spin", daemon=True).start()
         targets = cmd.drones or discover_drones(node, cmd.discover_s)
         if not targets:
             print(f"gcs cmd: all: no drone heard within {cmd.discover_s:g} s (give --drones)", file=sys.stderr)
@@ -498,6 +512,12 @@ def _send_to_each(node: Node, cmd: CommandRun, targets: list[str]) -> tuple[dict
     name = cmd.name
 
     def one(drone: str) -> None:
+        if cmd.target is not None:
+            ok, line = send_goto(node, drone, cmd.client_id, cmd.target, cmd.timeout)
+            results[drone] = line
+            if not ok:
+                failed.append(drone)
+            return
         client = node.create_client(f"/{drone}/{COMMAND_SERVICE}", Command, CommandResult,
                                     retry=command_retry(node))
         try:

@@ -61,6 +61,22 @@ class Action:
         return core.send_command(mavlink2.MAV_CMD_NAV_TAKEOFF, -1, 0, 0, math.nan, math.nan,
                                  math.nan, amsl)
 
+    def goto_location(self, lat_deg: float, lon_deg: float, amsl_m: float, yaw_rad: float = math.nan) -> CommandAck:
+        """MAV_CMD_DO_REPOSITION, as MAVSDK's ``goto_location``: PX4 switches to Hold and flies there at
+        MPC_XY_CRUISE, only when armed, not at all outside its geofence (it ACKs first either way).
+        param2 = MAV_DO_REPOSITION_FLAGS_CHANGE_MODE: PX4 refuses any other value as UNSUPPORTED. Sent as
+        COMMAND_LONG, whose float32 lat/lon put the point within ~0.2 m (over PX4's Zenoh module, float64)."""
+        if not (math.isfinite(lat_deg) and math.isfinite(lon_deg) and math.isfinite(amsl_m)
+                and -90 <= lat_deg <= 90 and -180 <= lon_deg <= 180):
+            raise ValueError(f"goto_location: lat {lat_deg}, lon {lon_deg}, AMSL {amsl_m} is not a position")
+        return self._core.send_command(mavlink2.MAV_CMD_DO_REPOSITION, -1, 1, 0, yaw_rad, lat_deg, lon_deg, amsl_m)
+
+    def hold_here(self) -> CommandAck:
+        """DO_REPOSITION with no point: PX4 stops where it is and holds (navigator_main.cpp: all NaN pauses
+        the vehicle). Unlike a switch to Hold, this also ends a reposition already under way in Hold."""
+        return self._core.send_command(mavlink2.MAV_CMD_DO_REPOSITION, -1, 1, 0, math.nan, math.nan, math.nan,
+                                       math.nan)
+
     def land(self) -> CommandAck:
         return self._core.send_command(mavlink2.MAV_CMD_NAV_LAND, 0, 0, 0, math.nan, math.nan,
                                        math.nan, math.nan)

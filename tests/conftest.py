@@ -73,7 +73,7 @@ LONGEST_FIRST = (
     "test_px4_realism.py", "test_control_lifecycle.py", "test_sim_failsafes.py", "test_px4_link.py",
     "test_system.py", "test_fence.py", "test_bench_smoke.py", "test_fuzz_storm.py", "test_cli_node.py",
     "test_cli_topic.py", "test_companion_params.py", "test_cli_more.py", "test_control_handover.py",
-    "test_cli_demo.py", "test_sim_faults.py", "test_failsafe_lane.py", "test_secure_apps.py",
+    "test_cli_demo.py", "test_flight_actions.py", "test_sim_faults.py", "test_failsafe_lane.py", "test_secure_apps.py",
     "test_ros2_graph_listings.py", "test_secure_launch.py", "test_cli_errors.py", "test_companion_serial.py",
     "test_bag_gcs_e2e.py", "test_px4_zenoh_realism.py", "test_pubsub.py", "test_bag_replay.py", "test_bag_ros2.py",
     "test_px4_streams.py", "test_parameters.py", "test_sealed_link.py", "test_px4_zenoh_sim.py", "test_bag.py",

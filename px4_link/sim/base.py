@@ -65,6 +65,7 @@ class SimulatorBase:
         # estimator_warmup_s: boot -> pre-arm checks pass (PX4 SITL: 4.1 s); shorten it only where
         # arming is not what is tested.
         self.commander = Commander(self.params, self.vehicle, self._boot, home_alt=home[2],
+                                   home_latlon=(home[0], home[1]),
                                    estimator_warmup_s=estimator_warmup_s,
                                    offboard_loss_latency_s=offboard_loss_latency_s)
         self.failsafes = Failsafes(self.params, self.commander)

@@ -46,11 +46,13 @@ from .params import ParamStore
 from .physics import Limits, PointMassQuad, Target
 
 ACCEPTED, TEMPORARILY_REJECTED, DENIED, UNSUPPORTED, FAILED = 0, 1, 2, 3, 4
+EARTH_RADIUS_M = 6378137.0   # the simulators' flat-earth projection around home (protocol.py, uorb_out.py)
 
 CMD_NAV_RETURN_TO_LAUNCH = 20
 CMD_NAV_LAND = 21
 CMD_NAV_TAKEOFF = 22
 CMD_DO_SET_MODE = 176
+CMD_DO_REPOSITION = 192
 CMD_DO_FLIGHTTERMINATION = 185
 CMD_COMPONENT_ARM_DISARM = 400
 
@@ -154,6 +156,7 @@ class Commander:
     last_setpoint: ReceivedSetpoint | None = None
     statustexts: list[tuple[int, str]] = field(default_factory=list)  # (severity, text) to send
     home_alt: float = 488.0  # AMSL altitude of home, for NAV_TAKEOFF's AMSL param7
+    home_latlon: tuple[float, float] = (47.397742, 8.545594)   # for DO_REPOSITION's lat/lon
     failsafe_log: list[FailsafeEvent] = field(default_factory=list)
     outgoing: list[OutgoingCommand] = field(default_factory=list)
     landed_at: float | None = None           # last auto/commanded disarm on the ground
@@ -175,6 +178,7 @@ class Commander:
         self._landed_since: float | None = self.now
         self._hold_pos = np.zeros(3)
         self._hold_yaw: float | None = None
+        self._repositioning = False       # the hold point is a DO_REPOSITION's (flown at cruise speed)
         self._takeoff_alt = 0.0
         self._rtl_phase = ""
         self._pending: tuple[float, str] | None = None   # delayed failsafe action (at, mode)
@@ -197,6 +201,7 @@ class Commander:
 
     def _enter(self, mode: str) -> None:
         v = self.vehicle
+        self._repositioning = False
         if mode in HOLDING_MODES:
             self._hold_pos = v.pos.copy()
             self._hold_yaw = v.yaw
@@ -341,6 +346,8 @@ class Commander:
                 if r.result == ACCEPTED:
                     self._set_takeoff_altitude(p[6])
                 return r
+            if command == CMD_DO_REPOSITION:
+                return self._reposition(p)
             if command == CMD_NAV_LAND:
                 # Commander.cpp NAV_LAND: forced, always available ("emergency mode"); only
                 # TERMINATION is never left (UserModeIntention.cpp).
@@ -376,6 +383,36 @@ class Commander:
             alt = current
         self._takeoff_alt = alt
         self._enter("AUTO.TAKEOFF")
+
+    def _reposition(self, p: list[float]) -> CommandResult:
+        """Commander.cpp DO_REPOSITION: param2 must be exactly MAV_DO_REPOSITION_FLAGS_CHANGE_MODE (1),
+        anything else is UNSUPPORTED; then Hold is asked as for a mode switch. navigator_main.cpp flies to
+        param5/6 (lat/lon, else here) at param7 (AMSL, else the current altitude) only when armed, and
+        not at all when the point is outside the geofence ("Reposition is outside geofence")."""
+        flags = int_param(p[1])
+        if flags != 1:
+            return CommandResult(UNSUPPORTED)
+        r = self._request_mode("AUTO.LOITER", "command")
+        if r.result != ACCEPTED or not self.armed:
+            return r
+        v = self.vehicle
+        north, east = float(v.pos[0]), float(v.pos[1])
+        if math.isfinite(p[4]) and math.isfinite(p[5]):
+            lat0, lon0 = self.home_latlon
+            north = math.radians(p[4] - lat0) * EARTH_RADIUS_M
+            east = math.radians(p[5] - lon0) * EARTH_RADIUS_M * math.cos(math.radians(lat0))
+        down = -(p[6] - self.home_alt) if math.isfinite(p[6]) else float(v.pos[2])
+        # geofence.cpp checkPointAgainstAllGeofences: the max distance and altitude from home (> 0 = on)
+        hor, ver = float(self.params["GF_MAX_HOR_DIST"]), float(self.params["GF_MAX_VER_DIST"])
+        fenced = int(self.params["GF_ACTION"]) not in (0, 1)     # NONE and WARN do not refuse
+        if fenced and ((hor > 0 and math.hypot(north, east) > hor) or (ver > 0 and -down > ver)):
+            self._say("Reposition is outside geofence", 2)
+            return r
+        self._hold_pos = np.array([north, east, down])
+        self._repositioning = True
+        if math.isfinite(p[3]):
+            self._hold_yaw = p[3]
+        return r
 
     def _request_mode(self, mode: str, reason: str) -> CommandResult:
         """commander/UserModeIntention.cpp change(): always allowed while disarmed, else the mode
@@ -586,7 +623,9 @@ class Commander:
         if mode in HOLDING_MODES:
             if self.landed_state == ON_GROUND:
                 return Target(position=np.array([v.pos[0], v.pos[1], 0.0]), yaw=self._hold_yaw)
-            return Target(position=self._hold_pos, yaw=self._hold_yaw)
+            # Loiter flies to a reposition point at MPC_XY_CRUISE (navigator: cruising_speed -1 = default)
+            cruise = float(self.params["MPC_XY_CRUISE"]) if self._repositioning else None
+            return Target(position=self._hold_pos, yaw=self._hold_yaw, max_xy=cruise)
         if mode == "AUTO.TAKEOFF":
             tko = float(self.params["MPC_TKO_SPEED"])
             if abs(v.pos[2] - self._hold_pos[2]) < max(0.1 * self._takeoff_alt, 0.2):

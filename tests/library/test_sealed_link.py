@@ -627,3 +627,38 @@ def test_commands_are_sealed_per_sender_and_forged_or_replayed_calls_refused(tra
             s.still_flowing()
         finally:
             tap.undeclare()
+
+
+def test_an_action_goal_is_bound_to_its_sealing_gcs_as_a_command_is(fleet: Path) -> None:
+    """A goal's client_id sits inside the SendGoal request (goal_id, goal): the seal checks it there, so a
+    GCS key cannot send a goal in another GCS's name (the drone's takeoff/goto/land actions)."""
+    from drone_contract.actions import action_types
+    from zenoh_robot.services import ServiceCallError
+    from zenoh_robot.wire.sealed import claim_index
+
+    takeoff = action_types().takeoff
+    assert claim_index(type_support(takeoff.send_goal.request)) == (1, 0)
+    assert claim_index(type_support(takeoff.get_result.request)) is None
+    with system("router", fleet) as s:
+        ran: list[str] = []
+
+        def execute(handle: Any) -> Any:
+            ran.append(handle.request.client_id)
+            handle.succeed()
+            return takeoff.Result(success=True, message="ok")
+        s.drone.create_action_server(takeoff, "takeoff", execute)
+        own = s.gcs.create_action_client(takeoff, "/uav1/takeoff")
+        assert own.wait_for_server(10.0)
+        res = own.send_goal(takeoff.Goal(client_id="gcs1", altitude_m=3.0), timeout=10.0)
+        assert res is not None and res.result.success and ran == ["gcs1"]
+        forged = s.drone.wire.snapshot()["forged_claim"]  # type: ignore[attr-defined]
+        with Node("gcs2", namespace="uav1", config=s.configs[2],
+                  wire=sealed(ENVELOPE, Keyring(s.fleet, "gcs2"))) as gcs2:
+            threading.Thread(target=gcs2.spin, daemon=True).start()
+            other = gcs2.create_action_client(takeoff, "/uav1/takeoff", goal_timeout=2.0)
+            assert other.wait_for_server(10.0)
+            with pytest.raises((ServiceCallError, TimeoutError)):   # no reply: the request never opened
+                other.send_goal_async(takeoff.Goal(client_id="gcs1", altitude_m=3.0)).result(4.0)
+            assert s.refused(s.drone, "forged_claim", forged)
+            assert other.send_goal(takeoff.Goal(client_id="gcs2", altitude_m=3.0), timeout=10.0) is not None
+        assert ran == ["gcs1", "gcs2"]

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from .services import Ros2ServiceType, Ros2TypeError, ros2_service_type, service_from_definitions
-from .types import parse_definition, register_definitions, rihs01, ros2_type
+from .types import ask_provider, parse_definition, register_definitions, rihs01, ros2_type
 
 UUID = "unique_identifier_msgs/msg/UUID"
 TIME = "builtin_interfaces/msg/Time"
@@ -77,6 +77,15 @@ class Ros2ActionType:
 
 _lock = threading.Lock()
 _types: dict[str, Ros2ActionType] = {}
+_provided: dict[str, str] = {}      # .action texts installed packages provide (provide_action)
+
+
+def provide_action(name: str, definition: str) -> None:
+    """An installed package's ``.action`` text for ``name``, from its ``zenoh_robot.ros2_types`` entry
+    point (named after the ROS package): ``ros2_action_type(name)`` then needs no text, so the tools
+    (``zenoh-robot action send_goal``) call the drone's actions without importing the drone wing."""
+    with _lock:
+        _provided[name] = definition
 
 
 def _split(name: str, text: str) -> tuple[str, str, str]:
@@ -99,10 +108,17 @@ def ros2_action_type(name: str, definition: str | None = None) -> Ros2ActionType
         known = _types.get(name)
         if known is not None:
             return known
-        text = definition if definition is not None else KNOWN_ACTIONS.get(name)
+        text = definition if definition is not None else KNOWN_ACTIONS.get(name, _provided.get(name))
+    if text is None:
+        ask_provider(parts[0])        # outside the lock: the provider calls provide_action
+        text = _provided.get(name)
+    with _lock:
+        known = _types.get(name)
+        if known is not None:
+            return known
         if text is None:
             raise Ros2TypeError(f"no definition for action type {name}: give its .action text "
-                                f"(known here: {', '.join(sorted(KNOWN_ACTIONS))})")
+                                f"(known here: {', '.join(sorted({*KNOWN_ACTIONS, *_provided}))})")
         try:
             action = _make(name, *_split(name, text))
         except Ros2TypeError:

@@ -219,7 +219,7 @@ def ros2_type(name: str) -> type[Message]:
         cls = _TYPES.get(key)
         if cls is None:
             if key not in typestore().fielddefs:
-                _ask_provider(key.split("/", 1)[0])
+                ask_provider(key.split("/", 1)[0])
             cls = _TYPES[key] = _generate(key)
         return cls
 
@@ -227,7 +227,7 @@ def ros2_type(name: str) -> type[Message]:
 _ASKED: set[str] = set()
 
 
-def _ask_provider(package: str) -> None:
+def ask_provider(package: str) -> None:
     """Let an installed package provide the ROS package ``package``'s definitions (entry-point group
     ``zenoh_robot.ros2_types``, named after the ROS package, a callable that registers them): so the
     tools decode ``px4_msgs`` without importing the drone wing. Asked once per package; a provider

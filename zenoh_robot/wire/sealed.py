@@ -306,7 +306,8 @@ class _Opener:
     repeats) from one cached entry; any other sender, a keyring reload or the refresh timer takes
     :meth:`_lookup`, which also keeps the per-key epoch LRU in order (only a switch changes it)."""
 
-    def __init__(self, fmt: SealedWireFormat, inner: Decoder, key_expr: str, claim_index: int | None) -> None:
+    def __init__(self, fmt: SealedWireFormat, inner: Decoder, key_expr: str,
+                 claim_index: tuple[int, ...] | None) -> None:
         self._fmt = fmt
         self._inner = inner
         self._key_expr = key_expr.encode()
@@ -338,9 +339,9 @@ class _Opener:
 
     def check_claim(self, header: Header, key: LinkKey) -> None:
         if self._claim_index is not None and key.role == "gcs":
-            body = header[5]
-            claimed = body[self._claim_index] if isinstance(body, (list, tuple)) and len(body) > self._claim_index \
-                else None
+            claimed: Any = header[5]
+            for i in self._claim_index:     # the body's field lists, down to client_id (an action's goal.client_id)
+                claimed = claimed[i] if isinstance(claimed, (list, tuple)) and len(claimed) > i else None
             if claimed != key.sender:
                 raise self._refuse("forged_claim", f"client_id {str(claimed)[:64]!r} under {key.sender!r}'s key")
 
@@ -440,12 +441,27 @@ class _Opener:
         return inner, key
 
 
-def claim_index(type_support: TypeSupport | None) -> int | None:
-    """Where a type's ``client_id`` field sits in its body (None: no such field)."""
+def claim_index(type_support: TypeSupport | None) -> tuple[int, ...] | None:
+    """Where a type's ``client_id`` field sits in its body, as field indexes from the top (None: no such
+    field): a field of the type itself, else of a nested message field, e.g. an action's SendGoal request
+    (``goal_id``, ``goal``: its ``client_id``), so a goal is checked as a command is."""
     if type_support is None or not dataclasses.is_dataclass(type_support.msg_type):
         return None
-    names = [f.name for f in dataclasses.fields(type_support.msg_type)]
-    return names.index(CLAIM_FIELD) if CLAIM_FIELD in names else None
+    return _claim_path(type_support.msg_type, depth=2)
+
+
+def _claim_path(msg_type: type, depth: int) -> tuple[int, ...] | None:
+    names = [f.name for f in dataclasses.fields(msg_type)]
+    if CLAIM_FIELD in names:
+        return (names.index(CLAIM_FIELD),)
+    if depth <= 1:
+        return None
+    for i, spec in enumerate(getattr(msg_type, "_fields_spec", ())):
+        if spec.array is None and isinstance(spec.base, type) and dataclasses.is_dataclass(spec.base):
+            inner = _claim_path(spec.base, depth - 1)
+            if inner is not None:
+                return (i, *inner)
+    return None
 
 
 class SealedWireFormat:
