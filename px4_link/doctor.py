@@ -3,7 +3,8 @@
 A plugin of the doctor (entry point ``zenoh_robot.doctor``: the doctor itself knows no MAVLink). Its
 checks, one verdict each: the connection's form; for a serial port, that the device exists, is a tty
 and this user may open it (the ``dialout`` group); then the link itself: PX4's heartbeats within the
-wait, or why not (nothing arrives; bytes arrive but no frame parses at this baud, with the rate to try).
+wait, or why not (nothing arrives; bytes arrive but no frame parses at this baud, with the rate to try);
+then PX4's firmware version (AUTOPILOT_VERSION).
 """
 from __future__ import annotations
 
@@ -45,6 +46,10 @@ def checks(args: argparse.Namespace) -> list[Check]:
                 s = link.state
                 out.append(("px4 link", "ok", f"heartbeats from system {s.system_id} component {s.component_id} "
                                               f"on {where}, mode {s.mode}{', ARMED' if s.armed else ''}"))
+                version = link.firmware_version(WAIT_S)
+                out.append(("px4 firmware", "ok", f"PX4 {version}") if version is not None else
+                           ("px4 firmware", "warn", "no AUTOPILOT_VERSION within "
+                                                    f"{WAIT_S:g} s (MAV_CMD_REQUEST_MESSAGE 148 unanswered)"))
             else:
                 why = link.not_connected_reason()
                 if why == "no vehicle connected":

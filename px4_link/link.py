@@ -9,9 +9,11 @@ vehicle_core.py for the threading contract.
 """
 from __future__ import annotations
 
+import threading
 from typing import Any
 
 from .action import Action
+from .commands import CommandError
 from .core import LinkCore
 from .offboard import VELOCITY_TIMEOUT_S, Offboard
 from .param import Param
@@ -74,6 +76,9 @@ class Px4Link(VehicleLinkBase[LinkCore]):
                               command_retries=command_retries, signing_key=key, baud=baud)
         if on_event is not None:   # first, as before: the user's callback sees each event first
             self._core.add_event_listener(on_event)
+        self._version: Any = None            # the last AUTOPILOT_VERSION (firmware_version asks for it)
+        self._version_seen = threading.Event()
+        self._core.add_message_handler("AUTOPILOT_VERSION", self._on_version)
         self.action = Action(self._core)
         self.offboard = Offboard(self._core, geofence, max_speed, velocity_timeout_s)
         self.param = Param(self._core)
@@ -102,6 +107,41 @@ class Px4Link(VehicleLinkBase[LinkCore]):
         """Why no vehicle is connected: the wire's state first (a port gone, a wrong baud rate)."""
         return self._core.not_connected_reason()
 
+    def firmware_version(self, timeout: float = 3.0) -> str | None:
+        """PX4's firmware as it names itself (AUTOPILOT_VERSION, asked with MAV_CMD_REQUEST_MESSAGE), e.g.
+        ``v1.15.0 (official), git 1a2b3c4d``; None when the vehicle does not answer within ``timeout``."""
+        self._version_seen.clear()
+        try:
+            self.send_command(MAV_CMD_REQUEST_MESSAGE, AUTOPILOT_VERSION_ID, timeout=timeout / 2, retries=1)
+        except CommandError:
+            return None
+        if not self._version_seen.wait(timeout) or self._version is None:
+            return None
+        m = self._version
+        return describe_version(int(m.flight_sw_version), bytes(m.flight_custom_version))
+
+    def _on_version(self, m: Any) -> None:     # the receive thread
+        self._version = m
+        self._version_seen.set()
+
     def backend_summary(self) -> dict[str, Any]:
         """For the companion's summary (``vehicle.VehicleLink``)."""
         return {"backend": "mavlink", "connection": self.connection}
+
+
+MAV_CMD_REQUEST_MESSAGE = 512
+AUTOPILOT_VERSION_ID = 148
+# FIRMWARE_VERSION_TYPE, the low byte of flight_sw_version
+_VERSION_TYPES = {0: "dev", 64: "alpha", 128: "beta", 192: "rc", 255: "official"}
+
+
+def describe_version(sw_version: int, custom: bytes) -> str:
+    """AUTOPILOT_VERSION's flight_sw_version (major, minor, patch, type bytes) and flight_custom_version
+    (PX4: the first 8 bytes of its git hash) as text."""
+    major, minor, patch, kind = (sw_version >> 24) & 0xFF, (sw_version >> 16) & 0xFF, (sw_version >> 8) & 0xFF, \
+        sw_version & 0xFF
+    text = f"v{major}.{minor}.{patch} ({_VERSION_TYPES.get(kind, f'type {kind}')})"
+    if any(custom):   # PX4 copies its git hash's first 16 hex digits as a little-endian uint64
+        text += f", git {custom[:8][::-1].hex()}"
+    return text
+

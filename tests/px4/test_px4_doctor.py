@@ -29,7 +29,18 @@ def test_a_reachable_flight_controller_is_named_with_its_system() -> None:
     device, link = _line(run.stdout, "px4 device"), _line(run.stdout, "px4 link")
     assert device.startswith("OK") and wire.path in device, run.stdout
     assert link.startswith("OK") and "heartbeats from system 3" in link and "921600 baud" in link, run.stdout
+    # The simulator answers MAV_CMD_REQUEST_MESSAGE 148 with flight_sw_version 1.15.0, official.
+    assert _line(run.stdout, "px4 firmware").startswith("OK") and "PX4 v1.15.0 (official)" in run.stdout, run.stdout
     assert "Traceback" not in run.stderr
+
+
+def test_firmware_version_reads_as_px4_writes_it() -> None:
+    from px4_link.link import describe_version
+    # PX4's version.c: major, minor, patch, type; its git hash's first 16 hex digits as a little-endian uint64.
+    git = bytes.fromhex("1a2b3c4d5e6f7081")[::-1]
+    assert describe_version(0x0111_0000, git) == "v1.17.0 (dev), git 1a2b3c4d5e6f7081"
+    assert describe_version(0x010F_02C0, bytes(8)) == "v1.15.2 (rc)"
+    assert describe_version(0x010F_00FF, bytes(8)) == "v1.15.0 (official)"
 
 
 def test_a_missing_device_and_a_wrong_form_fail_in_one_line() -> None:
