@@ -29,6 +29,7 @@ from zenoh_robot.wire import ENVELOPE, WireFormat
 from .app import Companion
 from .config import DEFAULT_PARAM_ALLOW, CompanionConfig
 from .params import PX4_STREAMS, QOS_PARAMS, CompanionParameters, known_names
+from .px4_mode import ModeReadiness
 from .summary import summary_line, write_summary
 
 log = logging.getLogger("companion")
@@ -58,6 +59,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--px4-msgs", type=Path, metavar="DIR",
                    help="with --px4 zenoh*: PX4's msg/ directory, whose definitions (and so type hashes) PX4 was "
                         "built with (default: the bundled px4_msgs of PX4 main 2026-03)")
+    p.add_argument("--px4-mode", metavar="NAME",
+                   help="with --px4 zenoh*: fly as a PX4 external mode named NAME (<= 24 bytes) instead of OFFBOARD: "
+                        "registered with PX4, its arming check answered from the companion's state, selected by "
+                        "the GCS's offboard_start (docs/px4-zenoh.md)")
     p.add_argument("--sysid", type=int, default=1, help="system id of the built-in simulator (with --px4 sim)")
     p.add_argument("--profile", choices=sorted(PROFILES), default="resilient")
     p.add_argument("--config", type=Path, help="QoS YAML overriding streams (setpoint, sensor, state, image, events)")
@@ -107,6 +112,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="sample the vehicle side every 20 ms into FILE (JSONL): PX4's mode, armed, position, the "
                         "offboard session and the source stamp of the target PX4 is given (what the lossy-link "
                         "experiment measures)")
+    p.add_argument("--vehicle-record-max-mb", type=float, default=100.0, metavar="MB",
+                   help="--vehicle-record's size cap: past it FILE becomes FILE.1 (replacing the older one) and "
+                        "a new FILE starts, so at most twice this is on disk (default %(default)g; 0: no cap)")
     p.add_argument("--ros2-topics", action="store_true",
                    help="also publish the drone as standard ROS 2 types on rmw_zenoh's wire (/<id>/imu, pose, fix, "
                         "battery, image/compressed; ROS domain: --ros-domain-id, else env ROS_DOMAIN_ID, else 0); "
@@ -144,9 +152,11 @@ def px4_connection(spec: str, sysid: int) -> Iterator[str]:
 
 
 @contextlib.contextmanager
-def vehicle_link(args: argparse.Namespace, geofence: Geofence) -> Iterator[tuple[VehicleLink, Any, str]]:
+def vehicle_link(args: argparse.Namespace, geofence: Geofence,
+                 readiness: ModeReadiness | None = None) -> Iterator[tuple[VehicleLink, Any, str]]:
     """(link, MAVLink tee or None, what it is connected to): px4_link over MAVLink, or px4_zenoh over PX4's
-    own Zenoh module on a session of its own (never the GCS-facing node's)."""
+    own Zenoh module on a session of its own (never the GCS-facing node's); with ``--px4-mode`` the link's
+    offboard flies through that PX4 external mode, answered by ``readiness``."""
     from .mavlink_tunnel import maybe_tee
     if args.px4 == "zenoh-sim" or args.px4 == "zenoh" or args.px4.startswith("zenoh:"):
         if args.mavlink_tunnel:
@@ -154,7 +164,8 @@ def vehicle_link(args: argparse.Namespace, geofence: Geofence) -> Iterator[tuple
         from px4_zenoh import Px4ZenohLink, parse_px4_spec
         from px4_zenoh.session import Px4Endpoint, free_tcp_endpoint
         where = parse_px4_spec(args.px4) or Px4Endpoint("router", free_tcp_endpoint())
-        with Px4ZenohLink(where, msg_dir=args.px4_msgs, geofence=geofence) as zlink:
+        with Px4ZenohLink(where, msg_dir=args.px4_msgs, geofence=geofence) as zlink, \
+                _external_mode(zlink, getattr(args, "px4_mode", None), readiness):
             if args.px4 != "zenoh-sim":
                 yield zlink, None, str(where)
                 return
@@ -164,9 +175,26 @@ def vehicle_link(args: argparse.Namespace, geofence: Geofence) -> Iterator[tuple
         return
     if args.px4_msgs is not None:
         raise ValueError("--px4-msgs: only with --px4 zenoh, zenoh:<endpoint> or zenoh-sim")
+    if getattr(args, "px4_mode", None):
+        raise ValueError("--px4-mode: only with --px4 zenoh, zenoh:<endpoint> or zenoh-sim (PX4's zenoh module)")
     with px4_connection(args.px4, args.sysid) as px4_conn, maybe_tee(args.mavlink_tunnel, px4_conn) as (tee, conn), \
             Px4Link(conn, geofence=geofence) as link:
         yield link, tee, conn
+
+
+@contextlib.contextmanager
+def _external_mode(zlink: Any, name: str | None, readiness: ModeReadiness | None) -> Iterator[None]:
+    """With a mode name: the link's offboard becomes that PX4 external mode, unregistered on the way out."""
+    if not name:
+        yield
+        return
+    from px4_zenoh.external_mode.offboard import install
+    check = (readiness or ModeReadiness()).check
+    mode = install(zlink, name, check)
+    try:
+        yield
+    finally:
+        mode.close()
 
 
 def _free_udp_port() -> int:
@@ -241,8 +269,9 @@ def run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     from .mavlink_tunnel import MavlinkTunnel
     px4_side = contextlib.ExitStack()
+    readiness = ModeReadiness() if getattr(args, "px4_mode", None) else None
     try:
-        link, tee, connection = px4_side.enter_context(vehicle_link(args, in_force.geofence()))
+        link, tee, connection = px4_side.enter_context(vehicle_link(args, in_force.geofence(), readiness))
     except (ValueError, ConnectionError, FileNotFoundError, KeyError) as exc:
         px4_side.close()
         raise CliError(f"--px4 {args.px4}: {exc}") from None
@@ -254,6 +283,9 @@ def run(args: argparse.Namespace) -> int:
             log.warning("no PX4 heartbeat yet on %s; waiting in the background (the sensor rate is asked "
                         "when PX4 appears)", connection)
         companion = Companion(node, link, config)
+        if readiness is not None:   # PX4's arming checks are answered from the companion's state from now on
+            readiness.bind(companion)
+            log.info("companion %s: flying as PX4 external mode %r (not OFFBOARD)", args.id, args.px4_mode)
         ros2_topics = _ros2_streams(args, session, link, companion)
         if tee is not None:
             MavlinkTunnel(node, tee, allow_control=args.mavlink_tunnel_allow_control)
@@ -267,7 +299,8 @@ def run(args: argparse.Namespace) -> int:
         spinner = threading.Thread(target=node.spin, name="companion-spin", daemon=True)
         spinner.start()
         if args.vehicle_record:
-            threading.Thread(target=_record_vehicle, args=(companion, link, args.vehicle_record, stop),
+            cap = int(args.vehicle_record_max_mb * 1e6) if args.vehicle_record_max_mb > 0 else None
+            threading.Thread(target=_record_vehicle, args=(companion, link, args.vehicle_record, stop, cap),
                              name="vehicle-record", daemon=True).start()
         try:
             stop.wait(timeout=args.duration)
@@ -313,20 +346,28 @@ def _ros2_streams(args: argparse.Namespace, session: Any, link: VehicleLink, com
 
 
 def _record_vehicle(companion: Companion, link: VehicleLink, path: Path, stop: threading.Event,
-                    period_s: float = 0.02) -> None:
+                    max_bytes: int | None = None, period_s: float = 0.02) -> None:
     """One JSON line per ``period_s`` (wall ns ``t``, as the GCS stamps its setpoints): a target's
-    age at the vehicle is ``t - sp_stamp``, sampled, so under by at most one period."""
+    age at the vehicle is ``t - sp_stamp``, sampled, so under by at most one period. Past ``max_bytes``
+    the file becomes ``<path>.1`` and a new one starts: a companion that runs for days fills no disk."""
     import json
+    import os
     import time
 
     from px4_link.telemetry import LocalPosition
-    with path.open("w", buffering=1) as f:     # line-buffered: the process may end before the thread
-        while not stop.wait(period_s):
-            pos = link.telemetry.latest(LocalPosition)
-            last = companion.gate.last_forwarded
-            f.write(json.dumps({
-                "t": time.time_ns(), "mode": link.mode, "armed": link.armed,
-                "session": companion.lifecycle.state.value,
-                "pos": None if pos is None else [round(pos.x, 3), round(pos.y, 3), round(pos.z, 3)],
-                "sp_stamp": None if last is None else last[1], "sp_seq": None if last is None else last[2],
-                "failsafes": companion.failsafe.triggered}) + "\n")
+    while not stop.is_set():
+        written = 0
+        with path.open("w", buffering=1) as f:     # line-buffered: the process may end before the thread
+            while not stop.wait(period_s) and (max_bytes is None or written < max_bytes):
+                pos = link.telemetry.latest(LocalPosition)
+                last = companion.gate.last_forwarded
+                line = json.dumps({
+                    "t": time.time_ns(), "mode": link.mode, "armed": link.armed,
+                    "session": companion.lifecycle.state.value,
+                    "pos": None if pos is None else [round(pos.x, 3), round(pos.y, 3), round(pos.z, 3)],
+                    "sp_stamp": None if last is None else last[1], "sp_seq": None if last is None else last[2],
+                    "failsafes": companion.failsafe.triggered}) + "\n"
+                f.write(line)
+                written += len(line)
+        if not stop.is_set():
+            os.replace(path, path.with_name(path.name + ".1"))
