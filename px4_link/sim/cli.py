@@ -12,6 +12,10 @@ from .faults import parse_ekf_reset, parse_estimate_loss, parse_low_battery
 from .protocol import DEFAULT_RATES_HZ
 from .simulator import Simulator
 
+# One log format for every program of the project (the CLI, companion, GCS and both simulators): a
+# log collector parses them all alike; tests/tools/test_log_format.py holds them to it.
+LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+
 
 def _kv(text: str) -> tuple[str, float]:
     name, sep, value = text.partition("=")
@@ -77,7 +81,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(name)s %(message)s")
+    logging.basicConfig(level=args.log_level.upper(), format=LOG_FORMAT)
     try:
         sim = Simulator(args.sysid, compid=args.compid, port=args.port, bind_host=args.bind,
                         target_host=args.target_host, target_port=args.target_port,

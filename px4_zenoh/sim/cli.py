@@ -17,6 +17,11 @@ DESCRIPTION = ("PX4 SITL stand-in speaking PX4's Zenoh protocol: a Zenoh client 
                "(retrying every 5 s, as PX4 does), publishing /fmu/out/* and obeying /fmu/in/*.")
 
 
+# One log format for every program of the project (the CLI, companion, GCS and both simulators): a
+# log collector parses them all alike; tests/tools/test_log_format.py holds them to it.
+LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m px4_zenoh.sim", description=DESCRIPTION)
     p.add_argument("--connect", default="tcp/127.0.0.1:7447", help="router endpoint (PX4's default)")
@@ -35,7 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    logging.basicConfig(level=args.log_level.upper(), format=LOG_FORMAT)
     sim = ZenohSimulator(args.connect, args.sysid, args.domain, rates=args.rates, params=dict(args.param),
                          msg_dir=args.px4_msgs, seed=args.seed)
     signal.signal(signal.SIGTERM, lambda *_: sim.stop())

@@ -76,6 +76,11 @@ class Parser(argparse.ArgumentParser):
         return ns, extras
 
 
+# One log format for every program of the project (the CLI, companion, GCS and both simulators): a
+# log collector parses them all alike; tests/tools/test_log_format.py holds them to it.
+LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+
+
 def package_version() -> str:
     # The package's own __version__ is the one source (pyproject reads it); installed metadata
     # lags behind an editable checkout until it is reinstalled.
@@ -168,7 +173,7 @@ def _run_main(argv: list[str] | None, parser: argparse.ArgumentParser | None) ->
             return 2
     verbose = bool(getattr(args, "verbose", False))
     logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+                        format=LOG_FORMAT)
     quiet_zenoh_log(verbose)
     if not getattr(args, "func", None):
         parser.print_help()
