@@ -43,6 +43,8 @@ lint: install
 # rehearsals failed a test the load starved (a simulator silent for 3 s, a publisher that never matched:
 # docs/testing.md); `WORKERS=4 make test` where speed matters more than that risk.
 WORKERS ?= 2
+# Each pass ends with its slowest tests, so a CI log says where the time went (docs/testing.md).
+DURATIONS ?= --durations=15
 # Compiled modules are kept (in .venv, out of the tree) even where the environment turns them off
 # (PYTHONDONTWRITEBYTECODE): without them every companion, GCS and CLI process the tests start compiles
 # the project again (0.3-0.4 s of CPU each) and every pass re-rewrites the tests' asserts (12 s each).
@@ -50,10 +52,11 @@ test test-fast: export PYTHONDONTWRITEBYTECODE :=
 test test-fast: export PYTHONPYCACHEPREFIX := $(CURDIR)/$(VENV)/pycache
 test: install sysdeps lint
 	@rc=0; \
-	$(BIN)/python -m pytest -n $(WORKERS) --dist loadscope --no-loadscope-reorder -m "not serial" $(ARGS) || rc=$$?; \
-	$(BIN)/python -m pytest -n 2 --dist loadscope --no-loadscope-reorder -m "serial and not alone" $(ARGS) \
+	$(BIN)/python -m pytest -n $(WORKERS) --dist loadscope --no-loadscope-reorder -m "not serial" $(DURATIONS) $(ARGS) \
+		|| rc=$$?; \
+	$(BIN)/python -m pytest -n 2 --dist loadscope --no-loadscope-reorder -m "serial and not alone" $(DURATIONS) $(ARGS) \
 		|| { r=$$?; [ $$r = 5 ] || rc=$$r; }; \
-	$(BIN)/python -m pytest -m alone $(ARGS) || { r=$$?; [ $$r = 5 ] || rc=$$r; }; \
+	$(BIN)/python -m pytest -m alone $(DURATIONS) $(ARGS) || { r=$$?; [ $$r = 5 ] || rc=$$r; }; \
 	[ $$rc = 0 ] || [ $$rc = 5 ]
 
 # The fast tier (docs/testing.md): in-process tests only (no process, no socket beyond in-process Zenoh
