@@ -41,6 +41,7 @@ ALONE_FILES = frozenset({
 })
 SERIAL_FILES = ALONE_FILES | {
     "test_lossy_link.py", "test_secure_lossy.py", "test_commands_lossy.py",   # netns + nftables loss
+    "test_actions_lossy.py",                                                  # netns + nftables loss (#40)
     "test_bursty_loss.py", "test_session_across_loss.py",                     # netns + nftables loss (#29)
     "test_replay_attack.py",                                                  # netns, two missions
     "test_swarm.py",                               # three companions and simulators: flight quality under load

@@ -10,7 +10,8 @@ Lossy links: a goal keeps its id across resends (the server answers a known id w
 decision and never runs it twice); ``retry`` is passed to the envelope's service clients
 (services.RetryPolicy / AdaptiveRetry, which resend the same bytes). A get_result whose reply does
 not come within ``result_poll_s`` is asked again while a server is there: a goal may run for long,
-and a lost reply must not lose the result; a server gone is a ServiceUnavailable.
+and a lost reply must not lose the result; a server gone (on a multicast session, where
+nothing is discovered: no peer reachable) is a ServiceUnavailable.
 """
 from __future__ import annotations
 
@@ -24,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 
 from ..ros2.actions import Ros2ActionType
 from ..services.errors import ServiceTimeout, ServiceUnavailable
-from ..services.retry import _DEFAULT
+from ..services.retry import _DEFAULT, RetryPolicy
 from ..services.ros2 import complete_future
 from ..services.scheduler import _scheduler
 from .server import FEEDBACK_QOS, STATUS_QOS
@@ -49,6 +50,7 @@ log = logging.getLogger("zenoh_robot.actions")
 
 FeedbackCallback = Callable[[Any], None]
 MAX_TRACKED_GOALS = 1024      # goals whose feedback and status this client follows (oldest finished dropped)
+RESULT_RETRY = RetryPolicy(interval_s=0.05, multiplier=1.5, max_interval_s=1.0)
 REASK_S = 0.5                 # get_result asked again at most this often (a reply that ends at once)
 
 
@@ -119,8 +121,11 @@ class ActionClient:
         self._send = node.create_client(f"{name}/{SEND_GOAL}", a.send_goal.request, a.send_goal.response, retry=retry)
         self._cancel = node.create_client(f"{name}/{CANCEL_GOAL}", a.cancel_goal.request, a.cancel_goal.response,
                                           retry=retry)
+        # A get_result is held open by the server until its goal ends (a goto: minutes), so re-sending it every
+        # 10-50 ms as a command is would cost the radio ~100 copies a second for nothing: the first copies come
+        # quickly (one must cross the loss), then one a second at most.
         self._result = node.create_client(f"{name}/{GET_RESULT}", a.get_result.request, a.get_result.response,
-                                          retry=retry)
+                                          retry=RESULT_RETRY if retry is _DEFAULT else retry)
         self._feedback_sub = node.create_subscription(a.feedback_message, f"{name}/{FEEDBACK}", self._on_feedback,
                                                       FEEDBACK_QOS)
         self._status_sub = node.create_subscription(a.goal_status_array, f"{name}/{STATUS}", self._on_status,
@@ -213,7 +218,7 @@ class ActionClient:
             except ServiceTimeout:
                 # Not an answer: the goal still runs, or the reply was lost; asked again, off Zenoh's thread
                 # and never faster than REASK_S. A server that is gone is an answer: the caller hears it.
-                if not self._result.service_is_ready():
+                if not self._server_reachable():
                     complete_future(out, exc=ServiceUnavailable(f"action {self.action_name}: no server for "
                                                           f"goal {handle.goal_id_text}'s result"))
                     return
@@ -227,6 +232,15 @@ class ActionClient:
             complete_future(out, result=response)
         ask()
         return out
+
+    def _server_reachable(self) -> bool:
+        """Whether a get_result that got no reply may be asked again. On a multicast session nothing is
+        discovered and ``service_is_ready()`` says only that a get_result was answered once, which a
+        goal running longer than ``result_poll_s`` never was: there a server is reachable while the
+        link to a peer is up (its lease ends ~10 s after the peer is gone)."""
+        if getattr(self._result, "discovers_servers", True):
+            return bool(self._result.service_is_ready())
+        return self.node.link_up()
 
     def _cancel_goal_async(self, goal_id: bytes) -> Future[Any]:
         a = self.action
