@@ -154,10 +154,11 @@ def px4_connection(spec: str, sysid: int) -> Iterator[str]:
 @contextlib.contextmanager
 def vehicle_link(args: argparse.Namespace, geofence: Geofence,
                  readiness: ModeReadiness | None = None) -> Iterator[tuple[VehicleLink, Any, str]]:
-    """(link, MAVLink tee or None, what it is connected to): px4_link over MAVLink, or px4_zenoh over PX4's
-    own Zenoh module on a session of its own (never the GCS-facing node's); with ``--px4-mode`` the link's
-    offboard flies through that PX4 external mode, answered by ``readiness``."""
-    from .mavlink_tunnel import maybe_tee
+    """(link, the MAVLink tunnel's end at PX4 or None, what it is connected to): px4_link over MAVLink, or
+    px4_zenoh over PX4's own Zenoh module on a session of its own (never the GCS-facing node's); with
+    ``--px4-mode`` the link's offboard flies through that PX4 external mode, answered by ``readiness``.
+    The tunnel's end is a UDP tee before the link, or on a serial link a tap on it (mavlink_tunnel.py)."""
+    from .mavlink_tunnel import maybe_tap, maybe_tee
     if args.px4 == "zenoh-sim" or args.px4 == "zenoh" or args.px4.startswith("zenoh:"):
         if args.mavlink_tunnel:
             raise ValueError(f"--mavlink-tunnel needs PX4's MAVLink; --px4 {args.px4} has none")
@@ -177,9 +178,11 @@ def vehicle_link(args: argparse.Namespace, geofence: Geofence,
         raise ValueError("--px4-msgs: only with --px4 zenoh, zenoh:<endpoint> or zenoh-sim")
     if getattr(args, "px4_mode", None):
         raise ValueError("--px4-mode: only with --px4 zenoh, zenoh:<endpoint> or zenoh-sim (PX4's zenoh module)")
+    # UDP: the tunnel is a tee in front of the link; a serial port has one holder, the link, so there
+    # the tunnel taps the link itself (mavlink_tunnel.py).
     with px4_connection(args.px4, args.sysid) as px4_conn, maybe_tee(args.mavlink_tunnel, px4_conn) as (tee, conn), \
-            Px4Link(conn, geofence=geofence) as link:
-        yield link, tee, conn
+            Px4Link(conn, geofence=geofence) as link, maybe_tap(args.mavlink_tunnel and tee is None, link) as tap:
+        yield link, tee if tee is not None else tap, conn
 
 
 @contextlib.contextmanager

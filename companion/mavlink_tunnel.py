@@ -1,10 +1,19 @@
 """QGroundControl alongside: PX4's MAVLink bytes over the drone's Zenoh session, and back under a policy.
 
-``companion --mavlink-tunnel`` puts a UDP tee where PX4 sends (its MAVLink port):
-every datagram from PX4 goes on to the companion's own link unchanged and is also
-published on ``<id>/mavlink/down``; datagrams arriving on ``<id>/mavlink/up`` (from
-``gcs --mavlink-out``, i.e. from a QGC on the GCS machine) go to PX4 only as far as the
-command policy lets them through.
+``companion --mavlink-tunnel`` publishes what PX4 sends on ``<id>/mavlink/down`` and forwards what
+arrives on ``<id>/mavlink/up`` (from ``gcs --mavlink-out``, i.e. from a QGC on the GCS machine) to PX4
+only as far as the command policy lets it through. How it reaches PX4's bytes depends on the link:
+
+- UDP (``udpin:HOST:PORT``): a UDP tee (``UdpTee``) sits where PX4 sends (its MAVLink port); every
+  datagram from PX4 goes on to the companion's own link unchanged and is also published as it is.
+- A serial port or USB (``/dev/ttyAMA0:921600``, ``serial:///dev/ttyACM0``): one wire, which the
+  companion's link holds exclusively, so there is nothing to put a tee on; the tunnel taps the link
+  itself (``LinkTap``): px4_link hands it the raw bytes of every frame it accepts from the vehicle,
+  published grouped into datagrams (a few ms of frames, at most ``MAX_DATAGRAM``), and QGC's accepted
+  frames are written through the link (``Px4Link.send_raw``), each whole, between the link's own frames.
+  The serial line is the link's first: a frame from QGC that would hold up the link's own traffic
+  (setpoints, heartbeat) is dropped and counted, never queued. Down, QGC sees the vehicle's frames
+  in the companion's dialect (other systems' frames and message ids unknown to it stay on the wire).
 
 Only what was judged reaches PX4: each datagram from QGC is parsed frame by frame (a fresh
 parser per datagram, so no partial frame carries over into the next), and the frames the policy
@@ -35,11 +44,12 @@ import time
 from collections import Counter
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 from pymavlink.dialects.v20 import common as mavlink2
 
 from drone_contract.tunnel import MAX_DATAGRAM, TUNNEL_DOWN, TUNNEL_QOS, TUNNEL_UP, MavlinkPacket
+from px4_link.connection_url import parse_px4_url
 
 log = logging.getLogger("companion.mavlink_tunnel")
 
@@ -71,6 +81,9 @@ class TunnelCounters:
     up_bad_data: int = 0          # chunks dropped as no frame: bad prefix, failed CRC, bad flags, unknown id
     up_partial: int = 0           # datagrams ending in an incomplete frame (dropped)
     up_dropped_bytes: int = 0     # bytes from QGC that were not a judged frame (bad data, partial frames)
+    up_frames_dropped: int = 0    # accepted frames PX4's side could not take now (serial line busy, PX4
+                                  # not heard yet on UDP): dropped, never queued
+    down_frames_dropped: int = 0  # serial: PX4 frames not published, the publisher fell behind
     refused_by_message: Counter[str] = field(default_factory=Counter)
 
 
@@ -205,6 +218,10 @@ class UdpTee:
         self._px4_side.sendto(data, self.px4_addr)
         return True
 
+    def inject_frames(self, frames: list[bytes]) -> int:
+        """QGC's judged frames to PX4 in one datagram, as QGC sent them together; how many went."""
+        return len(frames) if self.inject(b"".join(frames)) else 0
+
     def _run(self) -> None:
         socks = [self._px4_side, self._link_side]
         while not self._stop.is_set():
@@ -248,10 +265,127 @@ class UdpTee:
             s.close()
 
 
+class RawLink(Protocol):
+    """What the tap needs of the link to PX4 (``px4_link.Px4Link``)."""
+
+    def add_frame_listener(self, listener: Callable[[bytes], None]) -> None: ...
+    def send_raw(self, frame: bytes) -> bool: ...
+
+
+class LinkTap:
+    """PX4 on a serial port: the tunnel's end on the companion's own link (see the module docstring).
+
+    Down: every frame the link accepts from the vehicle is queued here on the link's receive thread
+    (which must never wait on Zenoh) and handed to ``on_down`` by the tap's thread in groups: one group
+    per ``FLUSH_S`` after its first frame, or sooner when it reaches ``MAX_DATAGRAM`` bytes. At most
+    ``MAX_PENDING`` bytes wait; past that frames are dropped and counted (``dropped``, ``on_drop``).
+    Up: ``inject_frames`` writes each frame whole through ``link.send_raw``, which refuses rather than
+    queues when the line is busy.
+    """
+
+    FLUSH_S = 0.004        # a frame waits at most this long for others to share its datagram
+    MAX_PENDING = MAX_DATAGRAM
+
+    def __init__(self, link: RawLink, on_down: Callable[[bytes], None] = lambda d: None) -> None:
+        self.link = link
+        self.on_down = on_down
+        self.on_drop: Callable[[int], None] = lambda n: None   # frames dropped down (publisher behind)
+        self.frames = 0             # frames from PX4 handed to on_down
+        self.datagrams = 0          # groups handed to on_down
+        self.dropped = 0            # frames from PX4 dropped: more than MAX_PENDING bytes waiting
+        self.callback_errors = 0
+        self._pending: list[bytes] = []
+        self._pending_bytes = 0
+        self._first_at = 0.0
+        self._closed = False
+        self._cond = threading.Condition()
+        self._thread = threading.Thread(target=self._run, name="mavlink-tap", daemon=True)
+        self._thread.start()
+        link.add_frame_listener(self._on_frame)
+
+    def _on_frame(self, frame: bytes) -> None:
+        """The link's receive thread: queue, never wait, never raise."""
+        with self._cond:
+            if self._closed:
+                return
+            if self._pending_bytes + len(frame) > self.MAX_PENDING:
+                self.dropped += 1
+                dropped = True
+            else:
+                dropped = False
+                if not self._pending:
+                    self._first_at = time.monotonic()
+                    self._cond.notify()
+                self._pending.append(frame)
+                self._pending_bytes += len(frame)
+                if self._pending_bytes >= MAX_DATAGRAM:
+                    self._cond.notify()   # a full datagram goes now, not at the end of the window
+        if dropped:
+            try:
+                self.on_drop(1)
+            except Exception:
+                self.callback_errors += 1
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                self._cond.wait_for(lambda: bool(self._pending) or self._closed)
+                if self._closed:
+                    return
+                deadline = self._first_at + self.FLUSH_S
+                while self._pending_bytes < MAX_DATAGRAM and not self._closed:
+                    left = deadline - time.monotonic()
+                    if left <= 0:
+                        break
+                    self._cond.wait(left)
+                frames, self._pending, self._pending_bytes = self._pending, [], 0
+            for group in datagrams(frames):
+                self.frames += len(group)
+                self.datagrams += 1
+                try:
+                    self.on_down(b"".join(group))
+                except Exception:
+                    self.callback_errors += 1
+
+    def inject_frames(self, frames: list[bytes]) -> int:
+        """QGC's judged frames to PX4, each whole; how many went (the rest the line had no room for)."""
+        return sum(1 for f in frames if self.link.send_raw(f))
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+        if self._thread.is_alive() and self._thread is not threading.current_thread():
+            self._thread.join(timeout=2.0)
+
+
+def datagrams(frames: list[bytes], limit: int = MAX_DATAGRAM) -> Iterator[list[bytes]]:
+    """``frames`` in order, grouped so no group's bytes exceed ``limit`` (a frame is never split)."""
+    group: list[bytes] = []
+    size = 0
+    for f in frames:
+        if group and size + len(f) > limit:
+            yield group
+            group, size = [], 0
+        group.append(f)
+        size += len(f)
+    if group:
+        yield group
+
+
+class Px4Side(Protocol):
+    """The tunnel's end at PX4: ``UdpTee`` (UDP) or ``LinkTap`` (a serial port)."""
+
+    on_down: Callable[[bytes], None]
+
+    def inject_frames(self, frames: list[bytes]) -> int: ...
+    def close(self) -> None: ...
+
+
 class MavlinkTunnel:
     """The companion side: ``<id>/mavlink/down`` out, ``<id>/mavlink/up`` in through the policy."""
 
-    def __init__(self, node: Any, tee: UdpTee, *, allow_control: bool = False,
+    def __init__(self, node: Any, tee: Px4Side, *, allow_control: bool = False,
                  sysid: int = 1, compid: int = 191) -> None:
         self.node = node
         self.tee = tee
@@ -263,7 +397,10 @@ class MavlinkTunnel:
         self._notice_at = 0.0
         self._logged_at = 0.0
         self._dropped_logged_at = 0.0
+        self._busy_logged_at = 0.0
         tee.on_down = self.publish_down
+        if isinstance(tee, LinkTap):
+            tee.on_drop = self._down_dropped
 
     def publish_down(self, data: bytes) -> None:
         self._down.publish(MavlinkPacket(data))
@@ -285,9 +422,26 @@ class MavlinkTunnel:
             for m in judged.refused:
                 c.refused_by_message[m.get_type()] += 1
             self._report(judged.refused)
-        if judged.accepted and self.tee.inject(b"".join(self.policy.encode(m) for m in judged.accepted)):
+        if not judged.accepted:
+            return
+        sent = self.tee.inject_frames([self.policy.encode(m) for m in judged.accepted])
+        if sent:
             c.up_forwarded += 1
-            c.up_frames_forwarded += len(judged.accepted)
+            c.up_frames_forwarded += sent
+        if sent < len(judged.accepted):
+            c.up_frames_dropped += len(judged.accepted) - sent
+            self._log_busy()
+
+    def _down_dropped(self, n: int) -> None:
+        self.counters.down_frames_dropped += n
+
+    def _log_busy(self) -> None:
+        now = time.monotonic()
+        if now - self._busy_logged_at >= 10.0:
+            self._busy_logged_at = now
+            log.warning("MAVLink from the GCS: %d frames dropped so far, PX4's side could not take them "
+                        "(a serial line busy with the companion's own traffic, or PX4 not heard yet)",
+                        self.counters.up_frames_dropped)
 
     def _log_dropped(self, judged: Judged) -> None:
         now = time.monotonic()
@@ -331,16 +485,25 @@ def tee_connection(connection: str, on_down: Callable[[bytes], None] = lambda d:
     kind, _, rest = connection.partition(":")
     host, _, port = rest.rpartition(":")
     if kind != "udpin" or not port.isdigit():
-        raise ValueError(f"--mavlink-tunnel needs a udpin:HOST:PORT PX4 connection, got {connection!r}")
+        raise ValueError(f"--mavlink-tunnel needs a udpin:HOST:PORT or serial PX4 connection, got {connection!r}")
     link_port = free_udp_port()
     tee = UdpTee((host, int(port)), link_port, on_down).start()
     return tee, f"udpin:127.0.0.1:{link_port}"
 
 
+def is_serial(connection: str) -> bool:
+    """Does ``connection`` name a serial port or USB device (the tunnel taps the link there, no tee)?"""
+    try:
+        return parse_px4_url(connection).is_serial
+    except ValueError:
+        return False
+
+
 @contextlib.contextmanager
 def maybe_tee(enabled: bool, connection: str) -> Iterator[tuple[UdpTee | None, str]]:
-    """``(tee, link connection)`` with a tee on PX4's port when ``enabled``, else ``(None, connection)``."""
-    if not enabled:
+    """``(tee, link connection)`` with a tee on PX4's port when ``enabled``, else ``(None, connection)``;
+    a serial connection gets no tee either: its tunnel is a ``LinkTap`` on the link (``maybe_tap``)."""
+    if not enabled or is_serial(connection):
         yield None, connection
         return
     tee, link_connection = tee_connection(connection)
@@ -348,3 +511,16 @@ def maybe_tee(enabled: bool, connection: str) -> Iterator[tuple[UdpTee | None, s
         yield tee, link_connection
     finally:
         tee.close()
+
+
+@contextlib.contextmanager
+def maybe_tap(enabled: bool, link: RawLink) -> Iterator[LinkTap | None]:
+    """A ``LinkTap`` on ``link`` when ``enabled`` (a serial PX4 with ``--mavlink-tunnel``), else None."""
+    if not enabled:
+        yield None
+        return
+    tap = LinkTap(link)
+    try:
+        yield tap
+    finally:
+        tap.close()

@@ -21,11 +21,20 @@ A transport that loses its wire (a serial device unplugged, PX4 rebooting on USB
 ``down_reason``: the receive thread turns that into ``link_down`` and ``disconnected`` at once (the
 heartbeat watchdog would take ``heartbeat_timeout``), then ``link_up`` when bytes flow again; a
 command meanwhile fails with that reason. On a serial port a ``BaudCheck`` names a wrong rate.
+
+Raw frames (what a MAVLink router does with one port, e.g. the companion's tunnel to a QGC):
+``add_frame_listener`` hands out the bytes of every frame accepted from the vehicle, as received;
+``send_raw`` writes a frame built elsewhere, whole, between the link's own frames (every write, ours
+or raw, is one ``write`` under one lock). On a serial port a raw frame yields to the link's own
+traffic: it is refused (False) when the line is busy, so a chatty GCS delays a setpoint by
+``RAW_BACKLOG_S`` at most.
 """
 from __future__ import annotations
 
 import logging
+import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 from .commands import CommandSender
@@ -47,6 +56,17 @@ MAV_TYPE_ONBOARD_CONTROLLER = 18
 MAV_AUTOPILOT_INVALID = 8
 MAV_MODE_FLAG_SAFETY_ARMED = 128
 MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
+# A raw frame goes out on a serial port only while the line's backlog (what was written and is still
+# being clocked out, modelled from the baud rate) stays under both bounds: a few hundred bytes keep it
+# far from the driver's buffer (4 kB on Linux UARTs), 30 ms keeps what it adds ahead of a setpoint
+# small at any rate (57600 baud: 172 bytes).
+RAW_BACKLOG_BYTES = 1024
+RAW_BACKLOG_S = 0.03
+# After the driver refused bytes (flow control, a stalled line) raw frames wait this long: the line
+# is the link's own until it keeps up again.
+RAW_PAUSE_S = 1.0
+
+FrameListener = Callable[[bytes], None]
 
 
 class LinkCore(VehicleCore):
@@ -67,6 +87,12 @@ class LinkCore(VehicleCore):
         self._boot = BootWatch()
         self._any_handlers: list[MessageHandler] = []
         self._handlers: dict[str, list[MessageHandler]] = {}
+        self._frame_listeners: tuple[FrameListener, ...] = ()   # replaced whole: added while running
+        self._write_lock = threading.Lock()   # one frame at a time on the wire, ours or raw
+        self._line_backlog = 0.0              # serial: bytes still to clock out (modelled), under _write_lock
+        self._line_at = 0.0                   # when _line_backlog was last brought up to date
+        self._raw_paused_until = 0.0
+        self._tx_dropped_seen = 0
 
         self._transport: Transport | None = None
         self._baud_check: BaudCheck | None = None
@@ -87,6 +113,13 @@ class LinkCore(VehicleCore):
             self._any_handlers.append(handler)
         else:
             self._handlers.setdefault(mtype, []).append(handler)
+
+    def add_frame_listener(self, listener: FrameListener) -> None:
+        """``listener(frame)`` on the receive thread with the bytes of every frame accepted from the
+        vehicle, exactly as received (signature included), before any other handling. May be added
+        while the link runs. It must be quick and must not raise (a raise is counted in callback_errors)."""
+        with self._lock:
+            self._frame_listeners = (*self._frame_listeners, listener)
 
     # ----------------------------------------------------------------- lifecycle
     def _open(self) -> None:
@@ -148,10 +181,58 @@ class LinkCore(VehicleCore):
         t = self._transport
         if t is None:
             return
-        t.write(data)
+        with self._write_lock:
+            t.write(data)
+            self._on_line(t, len(data))
         with self._lock:
             self._stats["bytes_sent"] += len(data)
             self._stats["messages_sent"] += 1
+
+    def send_raw(self, frame: bytes) -> bool:
+        """Write ``frame`` (one whole MAVLink frame built elsewhere, e.g. a GCS's) to the vehicle as it
+        is, never interleaved with the link's own frames; thread-safe. False, and nothing written, when
+        it cannot go whole now: no wire (not started, serial device gone) or, on a serial port, a busy
+        line (see ``RAW_BACKLOG_BYTES``): the caller drops it, nothing is queued. Counted in bytes_sent."""
+        t = self._transport
+        if t is None or t.down_reason is not None:
+            return False
+        with self._write_lock:
+            if not isinstance(t, SerialTransport):
+                t.write(frame)
+            elif not self._line_free_for(t, len(frame)):
+                return False
+            else:
+                before = t.tx_dropped
+                t.write(frame)
+                self._on_line(t, len(frame))
+                if t.tx_dropped != before:
+                    return False   # the driver took part of it at most: a broken frame, PX4 resyncs on the next
+        self.count("bytes_sent", len(frame))
+        return True
+
+    def _on_line(self, t: Transport, n: int) -> None:
+        """Under _write_lock, after ``n`` bytes were written: the serial line's modelled backlog."""
+        if isinstance(t, SerialTransport):
+            self._drain_line(t.baud)
+            self._line_backlog += n
+
+    def _drain_line(self, baud: int) -> None:
+        now = time.monotonic()
+        # 10 bits a byte on the wire (start, 8 data, stop)
+        self._line_backlog = max(0.0, self._line_backlog - (now - self._line_at) * baud / 10.0)
+        self._line_at = now
+
+    def _line_free_for(self, t: SerialTransport, n: int) -> bool:
+        """Under _write_lock: may ``n`` raw bytes go on the serial line now without holding up the link's own?"""
+        now = time.monotonic()
+        if t.tx_dropped != self._tx_dropped_seen:   # the driver refused bytes since: the line is behind
+            self._tx_dropped_seen = t.tx_dropped
+            self._raw_paused_until = now + RAW_PAUSE_S
+        if now < self._raw_paused_until:
+            return False
+        self._drain_line(t.baud)
+        # A frame longer than the bound (a 280-byte one at 57600 baud) still goes on an idle line.
+        return self._line_backlog + n <= max(min(RAW_BACKLOG_BYTES, RAW_BACKLOG_S * t.baud / 10.0), n)
 
     def _send_command_long(self, command: int, params: Any, confirmation: int) -> None:
         sysid, compid = self.vehicle_ids()
@@ -236,6 +317,8 @@ class LinkCore(VehicleCore):
             self.rlog.warning("spoof", "px4_link: frame claiming system %d from %s, vehicle is "
                                        "at %s: dropped", m.get_srcSystem(), addr, self._peer.address)
             return
+        for listener in self._frame_listeners:
+            self.safe_call(listener, bytes(m.get_msgbuf()))
         for handler in self._any_handlers:
             handler(m)
         self._handle(m)

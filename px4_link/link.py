@@ -10,6 +10,7 @@ vehicle_core.py for the threading contract.
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from typing import Any
 
 from .action import Action
@@ -97,6 +98,19 @@ class Px4Link(VehicleLinkBase[LinkCore]):
     def vehicle_address(self) -> Address | None:
         """The address the link is locked onto (None before the first autopilot heartbeat)."""
         return self._core.vehicle_address
+
+    # ----------------------------------------------------------------- raw frames
+    def add_frame_listener(self, listener: Callable[[bytes], None]) -> None:
+        """``listener(frame)`` with the bytes of every frame accepted from the vehicle, as received, on the
+        receive thread (quick, never raising); may be added while the link runs. With ``send_raw`` this is
+        what a MAVLink router needs of the link (the companion's tunnel to a QGC on a serial PX4)."""
+        self._core.add_frame_listener(listener)
+
+    def send_raw(self, frame: bytes) -> bool:
+        """Write one whole MAVLink frame built elsewhere to the vehicle, between the link's own frames;
+        thread-safe, never blocks. False (nothing written, nothing queued) when it cannot go now: no wire,
+        or a serial line busy with the link's own traffic, which always comes first."""
+        return self._core.send_raw(frame)
 
     # ----------------------------------------------------------------- state
     @property
