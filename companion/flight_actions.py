@@ -82,7 +82,10 @@ class FlightActions:
         def done() -> bool:
             alt = self._altitude()
             handle.publish_feedback(t.Feedback(altitude_m=alt, remaining_m=max(0.0, target - alt)))
-            mode = self._link.state.mode
+            state = self._link.state
+            mode = state.mode
+            if not state.armed:   # PX4 takes AUTO.TAKEOFF disarmed too, and then never climbs
+                raise Outcome("abort", f"takeoff: the drone is not armed (arm it first); mode {mode}")
             if mode == "AUTO.TAKEOFF":
                 return False
             if mode == "AUTO.LOITER" and alt >= target - max(0.1 * target, 0.5):

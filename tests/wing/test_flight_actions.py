@@ -124,3 +124,12 @@ def test_a_ros2_wire_client_finds_the_actions_beside_the_ros2_topics(ns: str, ow
         res = client.send_goal(TYPES.takeoff.Goal(client_id="", altitude_m=3.0), timeout=30.0)
         assert res is not None and res.status == GoalStatus.STATUS_ABORTED
         assert "client_id" in res.result.message and sim.altitude < 0.3
+
+
+def test_a_takeoff_goal_while_disarmed_aborts_at_once_naming_it(ns: str) -> None:
+    with rig(ns) as r:
+        takeoff = _client(r, "takeoff", TYPES.takeoff)
+        _, _, res = _send(takeoff, TYPES.takeoff.Goal(client_id="op", altitude_m=3.0))
+        out = res.result(30)
+        assert out.status == GoalStatus.STATUS_ABORTED and "not armed" in out.result.message, out.result.message
+        assert r.sim.altitude < 0.3
