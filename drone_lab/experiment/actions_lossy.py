@@ -41,6 +41,7 @@ from concurrent.futures import TimeoutError as FutureTimeout
 from typing import Any
 
 from .commands import SESSION_WAIT_S, _session, _wait_transport
+from .stall_runs import reap, wait_ready
 
 ACTION = "example_interfaces/action/Fibonacci"
 NAME = "exp/fibonacci"
@@ -213,11 +214,10 @@ def run_level(loss_pct: float, goals: int = 20, accept_timeout: float = 5.0, res
                                   stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
             assert server.stdout is not None and server.stdin is not None
-            # Zenoh 1.10 may log a line of its own to stdout first: read up to the READY line.
-            if not any(server.stdout.readline().strip() == "READY" for _ in range(50)):
+            if not wait_ready(server):
                 raise RuntimeError("action server did not start")
             assert sender.stdin is not None and sender.stdout is not None
-            if not any(sender.stdout.readline().strip() == "LINKED" for _ in range(50)):
+            if not wait_ready(sender, word="LINKED"):
                 raise RuntimeError("action client did not start")
             t0_ns = time.time_ns()
             budget = SESSION_WAIT_S + goals * (2 * accept_timeout + result_timeout + 3 * HANG_MARGIN_S) + 30
@@ -231,12 +231,7 @@ def run_level(loss_pct: float, goals: int = 20, accept_timeout: float = 5.0, res
         finally:
             if server.stdin:
                 server.stdin.close()
-            for proc in (sender, server):
-                try:
-                    proc.wait(10)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
-                    proc.wait(10)
+            reap(sender, server)
         applied = link.applied_loss(t0_ns, t1_ns)
     lines = [ln for ln in client_out.splitlines() if ln.startswith("{")]
     if not lines:

@@ -39,6 +39,8 @@ from typing import TYPE_CHECKING, Any
 
 from zenoh_robot import Message, message
 
+from .stall_runs import reap, wait_ready
+
 if TYPE_CHECKING:
     from zenoh_robot import Node, SessionConfig
 
@@ -192,13 +194,12 @@ def run_level(loss_pct: float, calls: int, timeout: float, transport: str = "mul
                                   stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         try:
             assert server.stdout is not None and server.stdin is not None
-            # Zenoh 1.10 may log a line of its own to stdout first: read up to the READY line.
-            if not any(server.stdout.readline().strip() == "READY" for _ in range(50)):
+            if not wait_ready(server):
                 raise RuntimeError("command server did not start")
             assert caller.stdin is not None and caller.stdout is not None
             caller.stdin.write("GO\n")
             caller.stdin.flush()
-            if not any(caller.stdout.readline().strip() == "LINKED" for _ in range(50)):
+            if not wait_ready(caller, word="LINKED"):
                 raise RuntimeError("command caller did not link")
             if start == "after":
                 link.set_loss(loss_pct)
@@ -212,12 +213,7 @@ def run_level(loss_pct: float, calls: int, timeout: float, transport: str = "mul
                 raise RuntimeError("command server ended without its summary")
         finally:
             server.stdin.close() if server.stdin else None
-            for proc in (caller, server):
-                try:
-                    proc.wait(10)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
-                    proc.wait(10)
+            reap(caller, server)
     lines = [ln for ln in client_out.splitlines() if ln.startswith("{")]
     if not lines:
         raise RuntimeError(f"command client failed: {client_err[-2000:]}")

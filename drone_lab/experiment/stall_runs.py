@@ -167,17 +167,27 @@ def _read_json_line(stream: IO[str]) -> dict[str, Any]:
     raise RuntimeError("helper ended without its JSON line")
 
 
-def wait_ready(proc: subprocess.Popen[str], max_lines: int = 50) -> bool:
-    """Read a helper process's stdout up to its READY line. Zenoh 1.10 logs its own errors to stdout
-    (e.g. a transient "Unknown wire expr" while sessions meet): those lines are not the protocol."""
+def wait_ready(proc: subprocess.Popen[str], max_lines: int = 50, word: str = "READY") -> bool:
+    """Read a helper process's stdout up to its ``word`` line (READY). Zenoh 1.10 logs its own errors to
+    stdout (e.g. a transient "Unknown wire expr" while sessions meet): those lines are not the protocol."""
     assert proc.stdout is not None
     for _ in range(max_lines):
         line = proc.stdout.readline()
         if not line:
             return False
-        if line.strip() == "READY":
+        if line.strip() == word:
             return True
     return False
+
+
+def reap(*procs: subprocess.Popen[str], timeout: float = 10.0) -> None:
+    """Wait for each helper to end, killing one that does not within ``timeout``."""
+    for proc in procs:
+        try:
+            proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout)
 
 
 def _last_json(out: str) -> dict[str, Any]:
