@@ -26,7 +26,7 @@ from cli_helpers import CLI, ROOT  # noqa: F401  (CLI re-exported: older imports
 from drone_lab.experiment.stall_runs import wait_ready  # noqa: F401  (one READY protocol: tests and the stall runs)
 
 # Fixtures defined beside the helpers they go with, visible to every test module.
-pytest_plugins = ["bag_helpers"]
+pytest_plugins = ["bag_helpers", "pty_px4"]
 
 # Files whose tests run after the parallel pass (`-m serial`): what they assert depends on the machine's
 # load. Two of them at a time (pass 2), except the ALONE_FILES and SERIAL_TESTS, which have the machine

@@ -3,7 +3,8 @@ built-in simulator's MAVLink, so the link opens a real tty (pyserial, termios, E
 
 ``PtyWire(sim_port)`` bridges a new pty's master to the simulator's UDP socket; ``wire.path`` is the
 slave, the "device". ``wire.unplug()`` hangs the tty up as a pulled USB cable does; ``wire.inject``
-puts bytes on the line between the simulator's frames.
+puts bytes on the line between the simulator's frames. The ``wired`` fixture (a simulator behind a
+fresh wire) is visible to every test module (conftest's ``pytest_plugins``).
 """
 from __future__ import annotations
 
@@ -12,6 +13,10 @@ import select
 import socket
 import threading
 import tty
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
 
 
 class PtyWire:
@@ -77,3 +82,15 @@ class PtyWire:
         self.sock.close()
 
     close = unplug
+
+
+@pytest.fixture
+def wired() -> Iterator[tuple[Any, PtyWire]]:
+    """The built-in simulator (system 1) behind a fresh pty: (simulator, wire)."""
+    from px4_link.sim import Simulator
+
+    wire = PtyWire()
+    with Simulator(1, port=0, target_port=wire.udp_port, seed=1) as sim:
+        wire.attach(sim.port)
+        yield sim, wire
+    wire.close()

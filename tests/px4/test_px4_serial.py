@@ -8,7 +8,6 @@ from __future__ import annotations
 import os
 import random
 import threading
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -24,15 +23,6 @@ WAIT = 10.0
 # checks passing 1 s after boot; the failsafe parameters are PX4's.
 QUICK_FLIGHT = {"MPC_TKO_SPEED": 3.0, "MPC_LAND_SPEED": 2.0, "COM_SPOOLUP_TIME": 0.3, "MPC_TKO_RAMP_T": 0.5}
 QUICK_WARMUP_S = 1.0
-
-
-@pytest.fixture
-def wired() -> Iterator[tuple[Simulator, PtyWire]]:
-    wire = PtyWire()
-    with Simulator(1, port=0, target_port=wire.udp_port, seed=1) as sim:
-        wire.attach(sim.port)
-        yield sim, wire
-    wire.close()
 
 
 class Events:

@@ -10,11 +10,11 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from typing import Any
 
 import pytest
-from conftest import fresh_domain, python_proc, stop_process, wait_for
+from conftest import python_proc, stop_process, wait_for
 from pty_px4 import PtyWire
 from pymavlink.dialects.v20 import common as mavlink2
 
@@ -27,20 +27,8 @@ from zenoh_robot import Node
 WAIT = 10.0
 
 
-@pytest.fixture(autouse=True)
-def own_domain(monkeypatch: pytest.MonkeyPatch) -> None:
-    """The companion and the test's node in a Zenoh domain of their own: another test's companion
-    would hear them."""
-    monkeypatch.setenv("ZR_DOMAIN", str(fresh_domain()))
-
-
-@pytest.fixture
-def wired() -> Iterator[tuple[Simulator, PtyWire]]:
-    wire = PtyWire()
-    with Simulator(1, port=0, target_port=wire.udp_port, seed=1) as sim:
-        wire.attach(sim.port)
-        yield sim, wire
-    wire.close()
+# The companion and the test's node in a Zenoh domain of their own: another test's companion would hear them.
+pytestmark = pytest.mark.usefixtures("own_domain")
 
 
 def _qgc() -> Any:
