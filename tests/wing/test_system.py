@@ -132,6 +132,7 @@ def test_two_drones_each_get_only_their_setpoints(ns: str) -> None:
         xs = {a: 1.5, b: -1.5}
         seen: dict[str, set] = {a: set(), b: set()}
         started: set[str] = set()
+        replies: dict[str, str] = {}
         # How long this may take is not what is asserted (each drone's own setpoints, never the other's): on
         # four loaded workers one drone's first setpoint had not arrived after 30 s (a CI rehearsal).
         deadline = time.monotonic() + 60
@@ -141,10 +142,16 @@ def test_two_drones_each_get_only_their_setpoints(ns: str) -> None:
             for d, sim in ((a, sim_a), (b, sim_b)):
                 obs = observers[d]
                 # A session each (offboard_start): only then do setpoints reach PX4.
-                if d not in started and obs.state is not None and obs.state.connected \
-                        and obs.command("offboard_start").success:
-                    started.add(d)
+                if d not in started and obs.state is not None and obs.state.connected:
+                    res = obs.command("offboard_start")
+                    replies[d] = res.message
+                    if res.success:
+                        started.add(d)
                 if sim.last_setpoint is not None:
                     seen[d].add(sim.last_setpoint.position[0])
             time.sleep(0.1)
-        assert seen[a] == {1.5} and seen[b] == {-1.5}, seen
+        # When it fails, say where the chain stopped: no state heard, offboard_start refused, or no setpoint.
+        why = {d: {"state heard": observers[d].state is not None, "offboard_start": replies.get(d),
+                   "setpoints received by the sim": sim.setpoints_received}
+               for d, sim in ((a, sim_a), (b, sim_b))}
+        assert seen[a] == {1.5} and seen[b] == {-1.5}, (seen, why)
