@@ -20,15 +20,26 @@ from zenoh_robot.topic_statistics import default_statistics_key
 TALKER = TOPIC_TALKER   # conftest's talker fixture runs it (test_cli_topic's talker)
 
 
+def _echo(*args: str) -> subprocess.CompletedProcess[str]:
+    """``topic echo`` to its end; if it never ends, what the graph showed then (one CI rehearsal's echo of the
+    talker's setpoints waited 60 s: whether the publisher was on the graph tells a lost match from no data)."""
+    try:
+        return cli("topic", "echo", *args, timeout=60)
+    except subprocess.TimeoutExpired:
+        graph = cli("topic", "info", "-v", args[0], timeout=30)
+        raise AssertionError(f"topic echo {' '.join(args)} never ended; topic info -v then:\n"
+                             f"{graph.stdout}{graph.stderr}") from None
+
+
 def test_echo_field_prints_one_value_per_message(talker):
     # One line per message, no `---` between them (issue #39): what a shell loop or `sort` reads.
-    out = cli("topic", "echo", f"/{talker}/setpoint", "--field", "x", "--count", "2")
+    out = _echo(f"/{talker}/setpoint", "--field", "x", "--count", "2")
     assert out.returncode == 0, out.stderr
     assert out.stdout == "1.5\n1.5\n"
-    out = cli("topic", "echo", f"/{talker}/chatter", "--field", "data", "--count", "2")
+    out = _echo(f"/{talker}/chatter", "--field", "data", "--count", "2")
     assert out.returncode == 0, out.stderr
     assert re.fullmatch(r"hello \d+\nhello \d+\n", out.stdout), out.stdout     # no YAML `...`, no `---`
-    out = cli("topic", "echo", f"/{talker}/setpoint", "--field", "header", "--once")
+    out = _echo(f"/{talker}/setpoint", "--field", "header", "--once")
     assert out.returncode == 0, out.stderr
     assert re.fullmatch(r"\{stamp: \d+, frame_id: '', seq: \d+\}\n", out.stdout), out.stdout   # a structure: one line
     out = cli("topic", "echo", f"/{talker}/setpoint", "--field", "header.nope", "--once")
