@@ -22,6 +22,8 @@ NAV_STATE_MODES: dict[int, str] = {
     6: "POSCTL.SLOW", 8: "ALTCTL", 10: "ACRO", 12: "AUTO.LAND", 13: "TERMINATION", 14: "OFFBOARD",
     15: "STABILIZED", 17: "AUTO.TAKEOFF", 18: "AUTO.LAND", 19: "AUTO.FOLLOW_TARGET", 20: "AUTO.PRECLAND",
     21: "POSCTL.ORBIT", 22: "AUTO.VTOL_TAKEOFF",
+    # external modes (px4_zenoh.external_mode): PX4's NAVIGATION_STATE_EXTERNAL1..8
+    **{22 + n: f"EXTERNAL{n}" for n in range(1, 9)},
 }
 
 

@@ -45,9 +45,10 @@ from .uorb import UorbCodec
 
 log = logging.getLogger("px4_zenoh")
 
+# setpoints_withheld: asked while an external mode (external_mode.offboard) is not active, so not sent
 COUNTERS = ("samples_received", "samples_decoded", "samples_dropped", "samples_skipped", "decode_errors",
             "wrong_key_samples", "hash_mismatches", "messages_sent", "bytes_sent", "setpoints_sent",
-            "setpoints_rejected", "setpoints_clamped", "setpoints_expired", "setpoints_unsent",
+            "setpoints_rejected", "setpoints_clamped", "setpoints_expired", "setpoints_unsent", "setpoints_withheld",
             "commands_sent", "command_retries", "unsolicited_acks", "duplicate_acks", "reconnects",
             "disconnects", "reboots", "callback_errors", "nonfinite_telemetry", "params_refused",
             "heartbeats_received", "interval_rerequests")

@@ -87,4 +87,10 @@ class Px4ZenohLink(VehicleLinkBase[ZenohCore]):
         """What the companion's summary shows of this backend: the keys learnt, the mismatches, counters."""
         return {"backend": "zenoh", "connection": self.connection,
                 "keys_learnt": sorted(self._core.keys.known()),
-                "hash_mismatches": [str(m) for m in self.hash_mismatches()], "stats": self.stats}
+                "hash_mismatches": [str(m) for m in self.hash_mismatches()], "stats": self.stats,
+                **self._mode_summary()}
+
+    def _mode_summary(self) -> dict[str, Any]:
+        """The external mode flown instead of OFFBOARD (``external_mode.offboard``), when there is one."""
+        summary = getattr(self.offboard, "summary", None)
+        return {"external_mode": summary()} if callable(summary) else {}

@@ -69,6 +69,25 @@ OFFBOARD_MODE = _t("/fmu/in/offboard_control_mode", "OffboardControlMode")
 TRAJECTORY = _t("/fmu/in/trajectory_setpoint", "TrajectorySetpoint")
 VEHICLE_COMMAND = _t("/fmu/in/vehicle_command", "VehicleCommand")
 
+# External modes (px4_zenoh.external_mode; PX4's commander/ModeManagement.cpp on the other side).
+REGISTER_REQUEST = _t("/fmu/in/register_ext_component_request", "RegisterExtComponentRequest")
+REGISTER_REPLY = _t("/fmu/out/register_ext_component_reply", "RegisterExtComponentReply")
+UNREGISTER = _t("/fmu/in/unregister_ext_component", "UnregisterExtComponent")
+CHECK_REQUEST = _t("/fmu/out/arming_check_request", "ArmingCheckRequest")      # every 300 ms
+CHECK_REPLY = _t("/fmu/in/arming_check_reply", "ArmingCheckReply")
+MODE_COMPLETED_IN = _t("/fmu/in/mode_completed", "ModeCompleted")
+MODE_COMPLETED_OUT = _t("/fmu/out/mode_completed", "ModeCompleted")
+GOTO = _t("/fmu/in/goto_setpoint", "GotoSetpoint")
+# PX4 main 2026-03's zenoh module maps these onto the wrong uORB topic (the default topic of their type:
+# vehicle_control_mode, config_overrides, vehicle_command; fixed by PX4 PR #26564). Never sent by this
+# package while that PX4 may be on the other side (external_mode.BridgeBug).
+CONFIG_CONTROL_SETPOINTS = _t("/fmu/in/config_control_setpoints", "VehicleControlMode")
+CONFIG_OVERRIDES_REQUEST = _t("/fmu/in/config_overrides_request", "ConfigOverrides")
+COMMAND_MODE_EXECUTOR = _t("/fmu/in/vehicle_command_mode_executor", "VehicleCommand")
+EXTERNAL_MODE_TOPICS: tuple[Px4Topic, ...] = (REGISTER_REQUEST, REGISTER_REPLY, UNREGISTER, CHECK_REQUEST,
+                                              CHECK_REPLY, MODE_COMPLETED_IN, MODE_COMPLETED_OUT, GOTO)
+MISROUTED: tuple[Px4Topic, ...] = (CONFIG_CONTROL_SETPOINTS, CONFIG_OVERRIDES_REQUEST, COMMAND_MODE_EXECUTOR)
+
 USED: tuple[Px4Topic, ...] = (VEHICLE_STATUS, COMMAND_ACK, FAILSAFE_FLAGS, LAND_DETECTED, LOCAL_POSITION,
                               GLOBAL_POSITION, ATTITUDE, SENSOR_COMBINED, BATTERY, GPS, CONTROL_MODE,
                               OFFBOARD_MODE, TRAJECTORY, VEHICLE_COMMAND)
@@ -96,8 +115,9 @@ class HashMismatch:
 class KeyBook:
     """The keys of the used topics, as PX4's tokens announce them."""
 
-    def __init__(self, domain: int, our_hashes: dict[str, str]) -> None:
+    def __init__(self, domain: int, our_hashes: dict[str, str], topics: tuple[Px4Topic, ...] = USED) -> None:
         self.domain = domain
+        self._by_name = {t.name: t for t in topics}
         self._ours = our_hashes            # type name (px4_msgs/msg/X) -> RIHS01_...
         self._keys: dict[str, str] = {}    # topic -> key
         self._mismatch: dict[str, HashMismatch] = {}
@@ -112,7 +132,7 @@ class KeyBook:
             return None
         if not tok.node.startswith(PX4_NODE_PREFIX) or tok.domain_id != self.domain:
             return None
-        topic = BY_NAME.get(tok.name)
+        topic = self._by_name.get(tok.name)
         if topic is None or tok.raw_type != topic.dds_type:
             return None
         want = "MP" if topic.direction == OUT else "MS"

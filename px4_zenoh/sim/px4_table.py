@@ -50,6 +50,8 @@ PAYLOAD_LEN: dict[str, int] = {
     "VehicleStatus": 108, "VehicleCommandAck": 52, "FailsafeFlags": 124, "VehicleLandDetected": 52,
     "VehicleLocalPosition": 220, "VehicleGlobalPosition": 100, "VehicleAttitude": 84, "SensorCombined": 76,
     "BatteryStatus": 196, "SensorGps": 180, "VehicleControlMode": 52,
+    # external modes: sizeof(register_ext_component_reply_s) 48, arming_check_request_s 16, mode_completed_s 16
+    "RegisterExtComponentReply": 76, "ArmingCheckRequest": 44, "ModeCompleted": 44,
 }
 
 RATES_HZ: dict[str, float] = {

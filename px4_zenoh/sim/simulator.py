@@ -8,7 +8,10 @@ bytes) and attachment (seq from 1, µs since boot on a 4 ms grid, PX4's GID) at 
 
 The vehicle is px4_link.sim's ``SimulatorBase``: the same Commander (modes, arming, offboard rules, land
 detection, auto-disarm), Failsafes, ParamStore, PointMassQuad, faults and introspection properties as the
-MAVLink simulator; this module is only the Zenoh front end.
+MAVLink simulator, its commander extended with PX4's external-mode management (``ext_commander.py``,
+``mode_management.py``: registration, the 300 ms arming check, fallbacks, executors); this module is the
+Zenoh front end, including the external-mode topics and this PX4's misrouting of three of them
+(``MISROUTED_TO``).
 Inbound, as PX4 does: ``vehicle_command`` for target system 0 or ours (component 0 or 1), others
 dropped silently; one ACK addressed to the command's source ids, ``from_external`` false;
 ``offboard_control_mode`` is the offboard signal and ``trajectory_setpoint`` its target; attachments
@@ -43,10 +46,32 @@ from px4_link.sim.commander import (
     PX4_ESTIMATOR_WARMUP_S,
     ReceivedSetpoint,
 )
+from px4_link.sim.failsafe import Failsafes
 from px4_link.sim.faults import Fault
-from px4_zenoh.topics import COMMAND_ACK, OFFBOARD_MODE, OUT, TRAJECTORY, VEHICLE_COMMAND, Px4Topic
+from px4_zenoh.topics import (
+    CHECK_REPLY,
+    CHECK_REQUEST,
+    COMMAND_ACK,
+    COMMAND_MODE_EXECUTOR,
+    CONFIG_CONTROL_SETPOINTS,
+    CONFIG_OVERRIDES_REQUEST,
+    CONTROL_MODE,
+    GOTO,
+    MODE_COMPLETED_IN,
+    MODE_COMPLETED_OUT,
+    OFFBOARD_MODE,
+    OUT,
+    REGISTER_REPLY,
+    REGISTER_REQUEST,
+    TRAJECTORY,
+    UNREGISTER,
+    VEHICLE_COMMAND,
+    Px4Topic,
+)
 from px4_zenoh.uorb import UorbCodec, load_types
 
+from .ext_commander import ExtCommander
+from .mode_management import API_VERSION, CheckReply, ModeManagement, name_of
 from .outlet import Outlet
 from .px4_table import DECLARED, ON_CHANGE, PAYLOAD_LEN, RATE_SETS
 from .tokens import entity_token, node_token, token_zid
@@ -74,6 +99,17 @@ STRAY_ACKS = ((0.132, 5, 255), (1.228, ACCEPTED, 0))   # (s after boot, result, 
 CMD_DO_GRIPPER = 211
 INBOX_CAP = 2048
 SETPOINT_LOG_CAP = 8192   # trajectory_setpoints kept in ``setpoint_arrivals`` (400 s at 20 Hz)
+COMPONENT_MODE_EXECUTOR_START = 1000   # VehicleCommand COMPONENT_MODE_EXECUTOR_START
+# What the simulator subscribes to (PX4 subscribes to every /fmu/in topic; these are the ones it acts on).
+INBOUND = (OFFBOARD_MODE.name, TRAJECTORY.name, VEHICLE_COMMAND.name, REGISTER_REQUEST.name, UNREGISTER.name,
+           CHECK_REPLY.name, MODE_COMPLETED_IN.name, GOTO.name, CONFIG_CONTROL_SETPOINTS.name,
+           CONFIG_OVERRIDES_REQUEST.name, COMMAND_MODE_EXECUTOR.name)
+# Published on events, not on a rate.
+EVENT_OUT = (COMMAND_ACK.name, REGISTER_REPLY.name, CHECK_REQUEST.name, MODE_COMPLETED_OUT.name, CONTROL_MODE.name)
+# PX4 main 2026-03's zenoh module publishes these /fmu/in topics onto the default uORB topic of their type
+# (src/modules/zenoh: the subscriber is made from the type, not the topic; topics.json "uorb_topic").
+MISROUTED_TO = {CONFIG_CONTROL_SETPOINTS.name: "vehicle_control_mode",
+                CONFIG_OVERRIDES_REQUEST.name: "config_overrides", COMMAND_MODE_EXECUTOR.name: "vehicle_command"}
 
 
 class ZenohSimulator(SimulatorBase):
@@ -83,16 +119,19 @@ class ZenohSimulator(SimulatorBase):
     ERROR_LABEL: ClassVar[str] = "zenoh sim"
     JOIN_TIMEOUT_S: ClassVar[float] = 5.0
     _log: ClassVar[logging.Logger] = log
+    commander: ExtCommander
 
     def __init__(self, connect: str = "tcp/127.0.0.1:7447", sysid: int = 1, domain: int = 0, *,
                  rates: str = "px4", params: dict[str, float | int] | None = None,
                  home: tuple[float, float, float] = DEFAULT_HOME, physics_hz: float = 100.0,
                  seed: int | None = None, estimator_warmup_s: float = PX4_ESTIMATOR_WARMUP_S,
-                 msg_dir: Path | None = None, retry_s: float = RETRY_S, faults: Sequence[Fault] = ()) -> None:
+                 msg_dir: Path | None = None, retry_s: float = RETRY_S, faults: Sequence[Fault] = (),
+                 mode_arm_check: bool = False) -> None:
         if rates not in RATE_SETS:
             raise ValueError(f"rates is one of {', '.join(RATE_SETS)}, got {rates!r}")
         # the types first: loading them takes ~0.1 s, which must not count as time since boot (stray ACKs)
         types = load_types(msg_dir)
+        self._types: dict[str, Any] = dict(types)
         self._codecs = {name: UorbCodec.of(cls) for name, cls in types.items()}
         # PX4's topics whose types we have; the rest of PX4's 46 entities are left out (no definition,
         # so no hash to announce and nothing to encode).
@@ -101,6 +140,13 @@ class ZenohSimulator(SimulatorBase):
         super().__init__(sysid, params=params, home=home, physics_hz=physics_hz, seed=seed,
                          estimator_warmup_s=estimator_warmup_s, faults=faults,
                          offboard_loss_latency_s=FAILSAFE_LATENCY_S)
+        # PX4's commander with its external-mode management (ext_commander.py, mode_management.py);
+        # mode_arm_check is COM_MODE_ARM_CHK (registrations accepted while armed).
+        self.commander = ExtCommander(self.params, self.vehicle, self._boot, home_alt=home[2],
+                                      estimator_warmup_s=estimator_warmup_s,
+                                      offboard_loss_latency_s=FAILSAFE_LATENCY_S,
+                                      mm=ModeManagement(allow_update_while_armed=mode_arm_check))
+        self.failsafes = Failsafes(self.params, self.commander)
         self.connect, self.domain = connect, domain
         self.rates = dict(RATE_SETS[rates])
         self.retry_s = retry_s
@@ -127,6 +173,15 @@ class ZenohSimulator(SimulatorBase):
         self.dropped: dict[str, int] = {"oversize": 0, "target": 0, "malformed": 0, "inbox_full": 0}
         self.commands: list[tuple[float, int, int]] = []
         self.connect_attempts = 0
+        # external modes: what PX4 would log or publish, for tests
+        self.misrouted: dict[str, int] = {name: 0 for name in MISROUTED_TO}
+        self.control_mode_overwrites: list[tuple[float, bool]] = []   # (time, flag_armed) PX4 was handed
+        self.check_requests: list[tuple[float, int]] = []             # (time, request_id) published
+        self.check_replies: list[tuple[float, int, int, bool]] = []   # (time, request_id, registration, can_arm)
+        self.registration_log: list[tuple[float, str, int, bool, int]] = []   # (time, name, request_id, ok, mode)
+        self.unregister_log: list[tuple[float, str, int]] = []
+        self.mode_completed_log: list[tuple[float, int, int]] = []    # (time, nav_state, result)
+        self.goto_received = 0
 
     # ---------------------------------------------------------------- lifecycle
     def wait_connected(self, timeout: float) -> bool:
@@ -157,9 +212,9 @@ class ZenohSimulator(SimulatorBase):
             codec = self._codecs[topic.type_short]
             keys.append(entity_token(self.zid, self.domain, topic, codec.type_hash))
             key = topic.key(self.domain, codec.type_hash)
-            if topic.direction == OUT and (topic.name in self.rates or topic.name == COMMAND_ACK.name):
+            if topic.direction == OUT and (topic.name in self.rates or topic.name in EVENT_OUT):
                 self._outlets[topic.name] = Outlet(session, key, codec, PAYLOAD_LEN[topic.type_short])
-            elif topic.name in (OFFBOARD_MODE.name, TRAJECTORY.name, VEHICLE_COMMAND.name):
+            elif topic.name in INBOUND:
                 handles.append(session.declare_subscriber(key, self._receiver(topic.name)))
         handles += [session.liveliness().declare_token(k) for k in keys]
         self.token_keys = keys
@@ -243,12 +298,16 @@ class ZenohSimulator(SimulatorBase):
         while self._inbox:
             name, payload, t_rx = self._inbox.popleft()
             try:
-                if name == VEHICLE_COMMAND.name:
+                if name in (VEHICLE_COMMAND.name, COMMAND_MODE_EXECUTOR.name):
+                    if name == COMMAND_MODE_EXECUTOR.name:   # misrouted: commander sees a plain vehicle_command
+                        self.misrouted[name] += 1
                     self._on_command(self._codecs["VehicleCommand"].decode(payload), t_rx, t_us)
                 elif name == OFFBOARD_MODE.name:
                     self._on_offboard_mode(self._codecs["OffboardControlMode"].decode(payload), t_rx)
-                else:
+                elif name == TRAJECTORY.name:
                     self._on_trajectory(self._codecs["TrajectorySetpoint"].decode(payload), t_rx)
+                else:
+                    self._on_external(name, payload, t_rx, t_us)
             except ValueError as e:   # PX4 reads the body blindly; a short sample is simply not a message
                 self.dropped["malformed"] += 1
                 log.debug("sim%d: dropped %s: %s", self.sysid, name, e)
@@ -261,7 +320,12 @@ class ZenohSimulator(SimulatorBase):
         p = [float(cmd.param1), float(cmd.param2), float(cmd.param3), float(cmd.param4), float(cmd.param5),
              float(cmd.param6), float(cmd.param7)]
         try:
-            r = self.commander.handle_command(int(cmd.command), p, t_rx)
+            # Commander.cpp getSourceFromCommand: a mode executor's commands keep it in charge
+            self.commander.command_from_executor = int(cmd.source_component) >= COMPONENT_MODE_EXECUTOR_START
+            try:
+                r = self.commander.handle_command(int(cmd.command), p, t_rx)
+            finally:   # only this command's mode change is the executor's
+                self.commander.command_from_executor = False
         except Exception:
             # a simulator bug, never an answer: no ACK (a FAILED ACK would pass for a refusal)
             self._internal_error(f"command {cmd.command}: {traceback.format_exc()}")
@@ -281,6 +345,11 @@ class ZenohSimulator(SimulatorBase):
         self._trajectory = traj
         pos = tuple(float(a) for a in traj.position)
         self._setpoint_log.append((t_rx, pos if all(math.isfinite(a) for a in pos) else None))  # type: ignore[arg-type]
+        vel = tuple(float(a) for a in traj.velocity)
+        self.commander.on_external_setpoint(
+            pos if all(math.isfinite(a) for a in pos) else None,  # type: ignore[arg-type]
+            vel if all(math.isfinite(a) for a in vel) else None,  # type: ignore[arg-type]
+            float(traj.yaw) if math.isfinite(traj.yaw) else None, goto=False)
         last = self.commander.last_setpoint
         if last is not None:   # a new target within the current offboard signal (its time unchanged)
             self.commander.last_setpoint = dataclasses.replace(self._setpoint(last.time), time=last.time)
@@ -299,6 +368,64 @@ class ZenohSimulator(SimulatorBase):
             | 0x800
         return ReceivedSetpoint(t, mask, 1, pos, vel, yaw, 0)  # type: ignore[arg-type]
 
+    def _on_external(self, name: str, payload: bytes, t_rx: float, t_us: int) -> None:
+        """The external-mode topics; the uORB queue each lands in is ModeManagement's (its lengths)."""
+        mm = self.commander.mm
+        if name == REGISTER_REQUEST.name:
+            mm.requests.append(self._codecs["RegisterExtComponentRequest"].decode(payload))
+        elif name == UNREGISTER.name:
+            u = self._codecs["UnregisterExtComponent"].decode(payload)
+            self.unregister_log.append((t_rx, name_of(u.name), int(u.mode_id)))
+            mm.unregisters.append(u)
+        elif name == CHECK_REPLY.name:
+            reply = self._codecs["ArmingCheckReply"].decode(payload)
+            self.check_replies.append((t_rx, int(reply.request_id), int(reply.registration_id),
+                                       bool(reply.can_arm_and_run)))
+            mm.checks.replies.append(CheckReply.of(reply))
+        elif name == MODE_COMPLETED_IN.name:
+            # uORB mode_completed: PX4's own publisher of /fmu/out/mode_completed sends it straight back out
+            done = self._codecs["ModeCompleted"].decode(payload)
+            self.mode_completed_log.append((t_rx, int(done.nav_state), int(done.result)))
+            self._put(MODE_COMPLETED_OUT.name, dataclasses.replace(done, timestamp=t_us), t_us)
+        elif name == GOTO.name:
+            g = self._codecs["GotoSetpoint"].decode(payload)
+            self.goto_received += 1
+            pos = tuple(float(a) for a in g.position)
+            yaw = float(g.heading) if g.flag_control_heading and math.isfinite(g.heading) else None
+            self.commander.on_external_setpoint(pos if all(math.isfinite(a) for a in pos) else None,  # type: ignore[arg-type]
+                                                None, yaw, goto=True)
+        elif name == CONFIG_CONTROL_SETPOINTS.name:
+            # misrouted onto uORB vehicle_control_mode: the controllers (and PX4's own /fmu/out publisher)
+            # take the mode's config for commander's control mode until commander publishes again
+            cm = self._codecs["VehicleControlMode"].decode(payload)
+            self.misrouted[name] += 1
+            self.control_mode_overwrites.append((t_rx, bool(cm.flag_armed)))
+            self._put(CONTROL_MODE.name, dataclasses.replace(cm, timestamp=t_us), t_us)
+        elif name == CONFIG_OVERRIDES_REQUEST.name:
+            self.misrouted[name] += 1   # lands on config_overrides, which commander rewrites within 500 ms
+
+    def _mode_management_out(self, t_us: int) -> None:
+        mm = self.commander.mm
+        for r in mm.replies_out:
+            self.registration_log.append((time.monotonic(), r.name, r.request_id, r.success, r.mode_id))
+            self._put(REGISTER_REPLY.name, self._types["RegisterExtComponentReply"](
+                timestamp=t_us, request_id=r.request_id, name=r.name.encode()[:24].ljust(25, b"\0"),
+                px4_ros2_api_version=API_VERSION, success=r.success, arming_check_id=r.arming_check_id,
+                mode_id=r.mode_id, mode_executor_id=r.mode_executor_id, not_user_selectable=r.not_user_selectable),
+                t_us)
+        for q in mm.requests_out:
+            self.check_requests.append((time.monotonic(), q.request_id))
+            self._put(CHECK_REQUEST.name, self._types["ArmingCheckRequest"](
+                timestamp=t_us, request_id=q.request_id, valid_registrations_mask=q.valid_registrations_mask), t_us)
+        mm.replies_out.clear()
+        mm.requests_out.clear()
+
+    def _put(self, name: str, msg: Any, t_us: int) -> None:
+        outlet = self._outlets.get(name)
+        if outlet is not None:
+            outlet.put(msg, t_us)
+            self.published[name] = self.published.get(name, 0) + 1
+
     # ---------------------------------------------------------------- outbound
     def _send_ack(self, t_us: int, command: int, result: int, target_system: int, target_component: int,
                   result_param1: int = 0) -> None:
@@ -311,7 +438,9 @@ class ZenohSimulator(SimulatorBase):
     def _signature(self, name: str) -> tuple[Any, ...]:
         c, v = self.commander, self.view
         if name.endswith("vehicle_status"):
-            return (nav_state(c.mode), c.armed, c.failsafe, v.intention.mode, c.preflight_failure() is None)
+            mm = self.commander.mm
+            return (nav_state(c.mode), c.armed, c.failsafe, v.intention.mode, c.preflight_failure() is None,
+                    mm.executor_in_charge(), tuple(sorted(mm.modes)))
         if name.endswith("vehicle_land_detected"):
             return (c.landed_state == ON_GROUND,)
         if name.endswith("vehicle_control_mode"):
@@ -319,6 +448,7 @@ class ZenohSimulator(SimulatorBase):
         return (v.offboard_signal_lost, c.estimate_valid())
 
     def _publish(self, now: float, t_us: int) -> None:
+        self._mode_management_out(t_us)
         while self._stray and now - self._boot >= self._stray[0][0]:
             _, result, param1 = self._stray.pop(0)
             self._send_ack(t_us, CMD_DO_GRIPPER, result, *self._stray_target, result_param1=param1)
@@ -362,6 +492,11 @@ class ZenohSimulator(SimulatorBase):
     @property
     def nav_state(self) -> int:
         return NAV_STATE.get(self.commander.mode, 4)
+
+    @property
+    def mode_management(self) -> ModeManagement:
+        """PX4's external-mode state (read under no lock: for tests and logs)."""
+        return self.commander.mm
 
     @property
     def offboard_signal_lost(self) -> bool:

@@ -21,7 +21,8 @@ from px4_link.sim.physics import PointMassQuad
 NAV_STATE = {"MANUAL": 0, "ALTCTL": 1, "POSCTL": 2, "AUTO.MISSION": 3, "AUTO.LOITER": 4, "AUTO.RTL": 5,
              "POSCTL.SLOW": 6, "ACRO": 10, "TERMINATION": 13, "OFFBOARD": 14, "STABILIZED": 15,
              "AUTO.TAKEOFF": 17, "AUTO.LAND": 18, "AUTO.FOLLOW_TARGET": 19, "AUTO.PRECLAND": 20,
-             "POSCTL.ORBIT": 21}
+             "POSCTL.ORBIT": 21, **{f"EXTERNAL{i}": 22 + i for i in range(1, 9)}}
+NAV_TERMINATION = 13
 DISARMED, ARMED = 1, 2
 # ARM_DISARM_REASON_* by the commander's disarm texts
 REASON_COMMAND_EXTERNAL, REASON_LANDING, REASON_PREFLIGHT_INACTION, REASON_FAILSAFE = 4, 6, 7, 14
@@ -76,9 +77,19 @@ class VehicleView:
     # ------------------------------------------------------------ builders, one per topic
     def vehicle_status(self, t_us: int) -> Any:
         c = self.commander
+        nav = nav_state(c.mode)
+        # external modes (ext_commander / mode_management): who is in charge, what is listed
+        mm = getattr(c, "mm", None)
+        valid = sum(1 << v for v in NAV_STATE.values() if v < 23)
+        can_set = valid & ~(1 << NAV_TERMINATION)
+        in_charge, display = 0, nav
+        if mm is not None:
+            valid, can_set = mm.mode_status(valid, can_set)
+            in_charge, display = mm.executor_in_charge(), mm.nav_state_display(nav)
         return self.types["VehicleStatus"](
-            timestamp=t_us, arming_state=ARMED if c.armed else DISARMED, nav_state=nav_state(c.mode),
-            nav_state_display=nav_state(c.mode), nav_state_user_intention=nav_state(self.intention.mode),
+            timestamp=t_us, arming_state=ARMED if c.armed else DISARMED, nav_state=nav,
+            executor_in_charge=in_charge, valid_nav_states_mask=valid, can_set_nav_states_mask=can_set,
+            nav_state_display=display, nav_state_user_intention=nav_state(self.intention.mode),
             latest_disarming_reason=self.disarm_reason, failsafe=c.failsafe,
             vehicle_type=VEHICLE_TYPE_ROTARY_WING, system_type=MAV_TYPE_QUADROTOR, system_id=self.sysid,
             component_id=1, gcs_connection_lost=self.failsafes.gcs_connection_lost, power_input_valid=True,
@@ -94,7 +105,9 @@ class VehicleView:
         c = self.commander
         offboard = c.mode == "OFFBOARD"
         auto = c.mode.startswith("AUTO.")
-        flying_modes = auto or offboard or c.mode == "POSCTL"
+        # an external mode's default config_control_setpoint (ModeManagement.hpp setControlModeDefaults)
+        external = c.mode.startswith("EXTERNAL")
+        flying_modes = auto or offboard or external or c.mode == "POSCTL"
         return self.types["VehicleControlMode"](
             timestamp=t_us, flag_armed=c.armed, flag_multicopter_position_control_enabled=flying_modes,
             flag_control_auto_enabled=auto, flag_control_offboard_enabled=offboard,

@@ -1,0 +1,112 @@
+"""``link.offboard`` flown through a PX4 external mode instead of OFFBOARD (``--px4-mode NAME``).
+
+One job: keep px4_link's Offboard contract (validation, fence, velocity expiry, the 20 Hz repeat, the
+``offboard_lost`` event, ``start``/``stop``) while PX4 is asked for the registered mode rather than OFFBOARD:
+- ``start`` selects the mode (VEHICLE_CMD_SET_NAV_STATE with its nav_state, through the core's command
+  sender and its ACK) and waits until vehicle_status shows it;
+- each setpoint goes out as the mode's trajectory_setpoint, and only while the mode is active (selected and
+  armed); no offboard_control_mode (an external mode needs none, and PX4 would count it as an OFFBOARD signal);
+- PX4 leaving the mode by itself (its fallback, another GCS) is ``offboard_lost``, as leaving OFFBOARD is.
+The mode is registered in the background (PX4 may not be there yet), again if PX4 loses it (a reboot), and
+unregistered by ``close``.
+
+Threading: as px4_link's Offboard; the registration runs on its own daemon thread.
+"""
+from __future__ import annotations
+
+import logging
+import threading
+from typing import Any
+
+from px4_link.commands import CommandAck, CommandFailed, CommandTemporarilyRejected
+from px4_link.offboard import PRESTREAM_S, VELOCITY_TIMEOUT_S
+from px4_link.plugin import Event
+from px4_link.targets import Geofence, PositionTarget, Target, TargetRefused
+
+from ..convert import mode_of
+from ..core import ZenohCore
+from ..offboard import ZenohOffboard
+from .messages import CMD_SET_NAV_STATE
+from .mode import Check, ExternalMode
+
+log = logging.getLogger(__name__)
+RETRY_S = 2.0
+
+
+class ModeOffboard(ZenohOffboard):
+    def __init__(self, core: ZenohCore, geofence: Geofence | None, max_speed: float | None, mode: ExternalMode,
+                 velocity_timeout_s: float = VELOCITY_TIMEOUT_S) -> None:
+        super().__init__(core, geofence, max_speed, velocity_timeout_s)
+        self.mode = mode
+        self._stop = threading.Event()
+        self._registrar = threading.Thread(target=self._keep_registered, name="px4mode-register", daemon=True)
+        self._registrar.start()
+
+    @property
+    def mode_name(self) -> str:
+        """What px4_link's state calls the mode (``EXTERNAL<n>``), "" before the registration."""
+        mode_id = self.mode.mode_id
+        return mode_of(mode_id) if mode_id >= 0 else ""
+
+    def _keep_registered(self) -> None:
+        self.mode.keep_registered(self._stop, RETRY_S)
+
+    def _send(self, sp: Target, now: float) -> None:
+        core = self._zcore
+        if not core.can_send:
+            return
+        out = self.outgoing(sp, now)
+        if isinstance(out, PositionTarget):
+            sent = self.mode.trajectory((out.x, out.y, out.z), None, out.yaw)
+        else:
+            sent = self.mode.trajectory(None, (out.vx, out.vy, out.vz), out.yaw)
+        core.count("setpoints_sent" if sent else "setpoints_withheld")
+
+    def start(self, prestream_s: float = PRESTREAM_S, confirm_timeout: float = 3.0) -> CommandAck:
+        core = self._zcore
+        with self._lock:
+            if self.setpoint is None:
+                raise TargetRefused("no_setpoint", "offboard.start needs a setpoint first (call set_setpoint)")
+            if not self._streaming:
+                self._streaming = True
+        name = self.mode_name
+        if not name:
+            raise CommandTemporarilyRejected(CMD_SET_NAV_STATE, None,
+                                             f"mode {self.mode.name!r} is not registered with PX4 (yet)")
+        ack = core.send_command(CMD_SET_NAV_STATE, float(self.mode.mode_id))
+        if not core.wait_until(lambda: core.state.mode == name, confirm_timeout):
+            raise CommandFailed(CMD_SET_NAV_STATE, ack.result,
+                                f"mode {self.mode.name!r} ({name}) accepted but PX4 shows {core.state.mode}")
+        self._active = True
+        return ack
+
+    def _on_mode_change(self, old: str, new: str) -> list[Event]:
+        if not old or old != self.mode_name:
+            return []
+        lost = self._active and not self.leaving
+        if not lost:
+            return []
+        self._active = False
+        return [("offboard_lost", {"new_mode": new})]
+
+    def summary(self) -> dict[str, Any]:
+        reg = self.mode.registration
+        return {"name": self.mode.name, "nav_state": reg.mode_id if reg else None,
+                "registered_in_s": round(reg.took_s, 4) if reg else None,
+                "check_replies": self.mode.stats.replies_sent, "verdict": list(self.mode.verdict[1])}
+
+    def close(self) -> None:
+        self._stop.set()
+        self._registrar.join(5.0)   # a registration in flight ends first, so close() unregisters it
+        self.mode.close()
+
+
+def install(link: Any, name: str, check: Check, *, replace_internal_mode: str | None = None) -> ModeOffboard:
+    """Put a ModeOffboard on ``link`` (a Px4ZenohLink) in place of its OFFBOARD plugin."""
+    core: ZenohCore = link.core
+    old: ZenohOffboard = link.offboard
+    old.stop_stream()
+    mode = ExternalMode(core.session, name, check, domain=core.domain, replace_internal_mode=replace_internal_mode)
+    new = ModeOffboard(core, old.geofence, old._validator.max_speed, mode, old.velocity_timeout_s)
+    link.offboard = new
+    return new
