@@ -62,6 +62,8 @@ from .downlink import DownlinkRates
 from .formation import slot
 from .patterns import PathPoint, make_pattern
 from .planner import FormationClock, Position, TargetPlanner
+from .shedding import PERIOD_S as SHEDDING_PERIOD_S
+from .shedding import SheddingWatch
 from .vehicle_identity import StateSource, watch_claims
 
 log = logging.getLogger("gcs")
@@ -124,8 +126,10 @@ class DroneView:
         budget = {k: with_cpu_budget(node.enable_topic_statistics, v) for k, v in STREAM_CPU_BUDGET_PCT.items()}
         sensor, state, events = wired("sensor", DOWN), wired("state", DOWN), wired("events", DOWN)
         silent = self.alerts.silence_events      # "uav3 sensor: publisher seen, 0 samples in 5 s" (alerts.py)
-        node.create_subscription(message_of(sensor), f"{ns}/{sensor.name}", self._on_sensor, q[sensor.name],
-                                 topic_statistics=budget["sensor"], event_callbacks=silent("sensor"))
+        self.shedding = SheddingWatch(self.alerts)   # what this GCS's own queues drop, named (shedding.py)
+        self.shedding.watch("sensor", node.create_subscription(
+            message_of(sensor), f"{ns}/{sensor.name}", self._on_sensor, q[sensor.name],
+            topic_statistics=budget["sensor"], event_callbacks=silent("sensor")))
         node.create_subscription(message_of(state), f"{ns}/{state.name}", self._on_state, q[state.name],
                                  topic_statistics=budget["state"], event_callbacks=silent("state"))
         node.create_subscription(message_of(events), f"{ns}/{events.name}", self._on_event, q[events.name])
@@ -136,6 +140,7 @@ class DroneView:
                                piece=self.streams["image_strip"].record)
         self.frames = image_receiver(cfg.profile.image_mode, node, f"{ns}/{image.name}", q[image.name],
                                      records=records, topic_statistics=budget["image"])
+        self.shedding.watch("image", getattr(self.frames, "subscription", None))
         # Retried with one request id until the deadline; the companion runs each call once
         # (zenoh_robot/services/idempotency.py).
         self.commands = node.create_client(f"{ns}/{COMMAND_SERVICE}", Command, CommandResult, retry=command_retry(node))
@@ -297,6 +302,7 @@ class Gcs:
         self._claims = watch_claims(node, self._on_companion_claims)
         node.create_timer(1.0 / config.rate_hz, self._stream)
         node.create_timer(PRESENCE_PERIOD_S, self._presence)
+        node.create_timer(SHEDDING_PERIOD_S, self._check_shedding)
         # Loss feedback (loss_feedback.py): setpoint copies follow the loss the drones measure.
         self.loss_monitor = LossMonitor(node, "gcs") if config.profile.loss_feedback else None
         if self.loss_monitor is not None:
@@ -394,6 +400,10 @@ class Gcs:
             t = drone.target()
             if t is not None and drone.may_stream:
                 drone.send_setpoint(t)
+
+    def _check_shedding(self) -> None:
+        for d in list(self.drones.values()):
+            d.shedding.check()
 
     def _presence(self) -> None:
         # Even while streaming stops (landing, paused): the lease is the holder's as long as this GCS runs.

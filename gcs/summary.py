@@ -39,6 +39,8 @@ def summarize(gcs: Gcs, profile: str) -> dict[str, Any]:
             "events": [e.to_dict() for e in d.events],
             # Silent streams and a second companion with this id (gcs/alerts.py), and that one's states dropped.
             "alerts": d.alerts.log, "alerts_now": d.alerts.now, "state_ignored": d.source.ignored,
+            # Samples this GCS's own queues dropped, per stream (gcs/shedding.py): load here, not loss there.
+            "shed_by_gcs": dict(d.shedding.dropped),
             "downlink": gcs.downlink.status[d.id].as_dict()
             if gcs.downlink is not None and d.id in gcs.downlink.status else None,
             # Raw (seq, stamp, arrival) records for offline analysis (the experiment joins them
@@ -82,6 +84,10 @@ def print_summary(console: Console, summary: dict[str, Any]) -> None:
                       f"{d['max_path_error_m']:.2f} m (mean {d['mean_path_error_m']:.2f} m, against its own path)")
         for alert in d.get("alerts", []):
             console.print(f"{drone}: {alert}")
+        shed = {k: v for k, v in d.get("shed_by_gcs", {}).items() if v}
+        if shed:   # counted in "lost" above (those samples never reached the stream's record)
+            console.print(f"{drone}: this GCS dropped " + ", ".join(f"{v:,} {k}" for k, v in shed.items())
+                          + " samples itself (its queues full): that part of 'lost' is this GCS's load, not the link")
         if d.get("downlink"):
             asked = {k: v for k, v in summary.get("downlink_asked", {}).items() if v is not None}
             console.print(f"{drone}: downlink asked {asked}: {d['downlink']['status']} {d['downlink']['detail']}")
