@@ -85,12 +85,14 @@ class SilentStreamInfo:
     for_s: float                   # silent for (recovered: how long it was silent)
     total_count: int               # silent episodes so far
     ever_received: bool            # a sample arrived before the silence began
+    redeclared: bool = False       # the subscriber was declared again to recover (zenoh_robot.silence)
 
     def describe(self, topic: str) -> str:
         if not self.silent:
             return f"{topic}: samples again after {self.for_s:.1f} s of silence"
         who = "publisher seen" if self.publishers == 1 else f"{self.publishers} publishers seen"
-        return f"{topic}: {who}, 0 samples in {self.window_s:g} s"
+        again = "; subscription declared again" if self.redeclared else ""
+        return f"{topic}: {who}, 0 samples in {self.window_s:g} s{again}"
 
 
 @dataclass(frozen=True)

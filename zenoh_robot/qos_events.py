@@ -16,7 +16,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Protocol
 
 import msgpack
@@ -56,6 +56,8 @@ class WatchedPublisher(WatchedEndpoint, Protocol):
 
 class WatchedSubscription(WatchedEndpoint, Protocol):
     last_sample_mono: float | None
+
+    def redeclare(self) -> bool: ...
 
 
 class _EntityEvents:
@@ -378,6 +380,8 @@ class SubscriptionEvents(_EntityEvents):
         if self._silence is not None:
             silent = self._silence.check(now, self.current_count, self._matched_at, self.sub.last_sample_mono)
             if silent is not None:
+                if silent.silent:   # recover where this side can: the subscriber declared again, once an episode
+                    silent = replace(silent, redeclared=self.sub.redeclare())
                 self.fire("silent_stream", silent)
         changes: list[tuple[int, int]] = []
         with self._lock:

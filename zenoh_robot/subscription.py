@@ -217,6 +217,7 @@ class Subscription(Generic[M]):
             receive = "callback"    # the advanced subscriber's history replay stays on the proven path
         self.receive = receive
         self._closed = False
+        self.redeclared = 0      # times the Zenoh subscriber was declared again (redeclare)
         # Channel path: the sample the waiter thread got from recv(), and its go-ahead to block again.
         self._first: Any = None
         self._backlog: deque[Any] = deque()     # taken from the channel, not yet handled (executor only)
@@ -660,6 +661,28 @@ class Subscription(Generic[M]):
 
         Always 0 on a multicast session (no declarations cross it): use ``node.link_up()`` there."""
         return self.events.current_count
+
+    def redeclare(self) -> bool:
+        """Declare this subscription's Zenoh subscriber again (the new one first, then the old one goes): what a
+        silent stream (``zenoh_robot.silence``) tries once, in case the declaration never reached the publisher's
+        side. The queue, counters and graph token stay. Only the callback path (the channel path's waiter is
+        bound to its channel); False when not done. Thread-safe; the rare path: nothing per sample."""
+        if self.receive != "callback" or self._closed:
+            return False
+        try:
+            fresh = declare_subscriber(self.context.session, self.data_key, self.qos, self._on_sample)
+        except Exception as exc:   # a closing session: the stream stays as it was
+            self.log.warning("re-declaring the subscription of %r failed: %s", self.topic, exc)
+            return False
+        with self._lock:
+            old, self._zsub = self._zsub, fresh
+            self.redeclared += 1
+        try:
+            old.undeclare()
+        except Exception:
+            pass
+        self.log.info("subscription of %r re-declared (silent stream)", self.topic)
+        return True
 
     def destroy(self) -> None:
         if self.statistics is not None:

@@ -2,6 +2,8 @@
 ``silent_stream`` once, and once more (``silent`` False) when samples come; nothing while unmatched."""
 from __future__ import annotations
 
+import threading
+
 import pytest
 from conftest import spinning_nodes, wait_for
 
@@ -59,3 +61,36 @@ def test_the_watch_compares_clocks_only() -> None:
     assert again is not None and again.silent and again.ever_received and again.total_count == 2
     assert silence_window(None, None) == DEFAULT_WINDOW_S
     assert silence_window(0.5, None) == 2.5 and silence_window(None, 0.001) == MIN_WINDOW_S
+
+
+def test_a_subscription_whose_declaration_went_missing_recovers_by_declaring_again(ns: str) -> None:
+    """The graph shows the publisher matched, but Zenoh's subscriber is gone (a declaration that never reached
+    the publisher's side, issue #42's silent sensor): the silence event declares the subscriber again, says
+    so, and the stream comes back by itself."""
+    with spinning_nodes(ns) as (talker, listener):
+        got: list[SilentStreamInfo] = []
+        received: list[str] = []
+        sub = listener.create_subscription(String, "chatter", lambda m: received.append(m.data), QoSProfile(depth=10),
+                                           event_callbacks=SubscriptionEventCallbacks(silent_stream=got.append))
+        sub.events.expected_period_s = 0.1
+        pub = talker.create_publisher(String, "chatter", QoSProfile(depth=10))
+        assert wait_for(lambda: sub.get_publisher_count() == 1, 10.0)
+        pub.publish(String("before"))
+        assert wait_for(lambda: received == ["before"], 10.0), received
+        sub._zsub.undeclare()      # the Zenoh subscriber lost; the graph token stays
+        stop = threading.Event()
+
+        def talk() -> None:        # the publisher goes on at 20 Hz, as a drone's stream does
+            while not stop.wait(0.05):
+                pub.publish(String("again"))
+        th = threading.Thread(target=talk, daemon=True)
+        th.start()
+        try:
+            assert wait_for(lambda: bool(got), 10.0), got
+            assert got[0].silent and got[0].redeclared and got[0].ever_received, got
+            assert "subscription declared again" in got[0].describe("/x/chatter") and sub.redeclared == 1
+            assert wait_for(lambda: "again" in received, 10.0), received
+            assert wait_for(lambda: len(got) == 2 and not got[1].silent, 10.0), got
+        finally:
+            stop.set()
+            th.join()
