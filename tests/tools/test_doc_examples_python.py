@@ -1,0 +1,96 @@
+"""The Python examples of README.md and docs/ run as a user runs them (issue #39: every example executed),
+and examples/ (talker, listener, watchdog) too.
+
+A ```python block right after ``<!-- doc-test: python "REGEX" -->`` is run as a script in a Zenoh domain of
+its own: it must print a line matching REGEX (an example that spins is then stopped with Ctrl-C, as a user
+would), and never print a traceback. ``<!-- doc-test: python -->`` (no REGEX): it must run for a few seconds
+(or end with exit 0) without a traceback. Blocks without a marker are fragments (``...``, names defined
+elsewhere) and are not run.
+"""
+from __future__ import annotations
+
+import re
+import signal
+import subprocess
+from pathlib import Path
+
+import pytest
+from conftest import Lines, fresh_domain, kill_process, python_proc
+
+ROOT = Path(__file__).resolve().parents[2]
+MARKER = re.compile(r'<!--\s*doc-test:\s*python(?:\s+"(?P<expect>[^"]*)")?\s*-->')
+QUIET_S = 3.0     # an example that prints nothing by design runs this long, then gets Ctrl-C
+
+
+def marked_blocks() -> list[tuple[str, str | None, str]]:
+    """(where, expected line or None, code) of every marked Python block."""
+    out: list[tuple[str, str | None, str]] = []
+    for doc in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]:
+        lines = doc.read_text().splitlines()
+        for i, line in enumerate(lines):
+            m = MARKER.search(line)
+            if not m:
+                continue
+            start = next(j for j in range(i + 1, len(lines)) if lines[j].startswith("```python")) + 1
+            end = next(j for j in range(start, len(lines)) if lines[j].startswith("```"))
+            out.append((f"{doc.relative_to(ROOT)}:{start}", m["expect"], "\n".join(lines[start:end]) + "\n"))
+    return out
+
+
+def _run(script: str, *args: str, env: dict[str, str]) -> subprocess.Popen:
+    """``python script args`` as from a terminal: a test run started in the background passes an ignored
+    SIGINT on to its children, where Ctrl-C would then never become KeyboardInterrupt."""
+    boot = ("import runpy, signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+            "sys.argv = sys.argv[1:]; runpy.run_path(sys.argv[0], run_name='__main__')")
+    return python_proc("-c", boot, script, *args, env=env)
+
+
+def _stop(proc: subprocess.Popen, lines: Lines) -> str:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+    try:
+        proc.wait(timeout=15)
+    except subprocess.TimeoutExpired:
+        kill_process(proc)
+    return lines.text()
+
+
+def test_the_docs_mark_their_runnable_examples() -> None:
+    where = [w for w, _, _ in marked_blocks()]
+    assert any(w.startswith("README.md") for w in where) and any(w.startswith("docs/guide.md") for w in where)
+
+
+@pytest.mark.parametrize(("where", "expect", "code"), marked_blocks(), ids=[w for w, _, _ in marked_blocks()])
+def test_a_marked_doc_example_runs(where: str, expect: str | None, code: str, tmp_path: Path) -> None:
+    script = tmp_path / "example.py"
+    script.write_text(code)
+    proc = _run(str(script), env={"ZR_DOMAIN": str(fresh_domain())})
+    lines = Lines(proc)
+    try:
+        if expect is not None:
+            assert lines.wait_for(expect, 30), f"{where}: no line matching {expect!r}:\n{lines.text()[-2000:]}"
+        else:
+            try:
+                proc.wait(timeout=QUIET_S)
+            except subprocess.TimeoutExpired:
+                pass
+    finally:
+        out = _stop(proc, lines)
+    assert "Traceback" not in out, f"{where}:\n{out[-2000:]}"
+    assert proc.returncode in (0, -signal.SIGINT, 130), f"{where}: exit {proc.returncode}\n{out[-2000:]}"
+
+
+def test_talker_listener_and_watchdog_examples() -> None:
+    ns = f"ex{fresh_domain()}"
+    env = {"ZR_DOMAIN": str(fresh_domain())}
+    procs = {name: _run(f"examples/{name}.py", "--ns", ns, env=env)
+             for name in ("listener", "watchdog", "talker")}
+    lines = {name: Lines(p) for name, p in procs.items()}
+    try:
+        assert lines["listener"].wait_for(r"\S", 30), lines["listener"].text()[-2000:]
+        assert lines["watchdog"].wait_for(r"matched publishers: 1", 30), lines["watchdog"].text()[-2000:]
+    finally:
+        outs = {name: _stop(p, lines[name]) for name, p in procs.items()}
+    for name, out in outs.items():
+        assert "Traceback" not in out, f"{name}: {out[-2000:]}"
+    assert re.search(r"\d", outs["listener"]), outs["listener"]
