@@ -125,6 +125,10 @@ def test_listings_hide_the_parts_unless_asked(talker: str) -> None:
     assert not [s for s in _ok(cli("service", "list")) if "/_action/" in s]
     assert {base + p for p in ("send_goal", "cancel_goal", "get_result")} <= set(
         _ok(cli("service", "list", "--include-hidden-services")))
+    # topic find too (it read a flag only `list` had: a traceback once an action was on the graph)
+    status = "action_msgs/msg/GoalStatusArray"
+    assert base + "status" not in _ok(cli("topic", "find", status))
+    assert base + "status" in _ok(cli("topic", "find", status, "--include-hidden-topics"))
 
 
 def test_interface_show_of_an_action() -> None:

@@ -77,16 +77,18 @@ def known_topics(node: "Node") -> list[str]:
 
 def wait_for_publishers(node: "Node", key: str, deadline: float | None) -> list["TopicEndpointInfo"]:
     node.refresh_graph(1.0)
-    announced = False
+    announced: str | None = None
     while True:
         since = node.graph.changes
         pubs = node.get_publishers_info_by_topic("/" + key)
         if pubs:
             return pubs
-        if not announced:
-            hint = _did_you_mean(node, key)
+        # Said again when what is known changes (subscriptions of the topic seen after the first line): the
+        # graph of a loaded network fills in over seconds, and the line must not stay wrong.
+        hint = _did_you_mean(node, key)
+        if hint != announced:
             print(f"waiting for /{key}...{hint}", file=sys.stderr, flush=True)
-            announced = True
+            announced = hint
         wait = 0.5 if deadline is None else min(0.5, deadline - time.monotonic())
         if wait <= 0:
             raise CliError(f"topic /{key} did not appear (no publisher) before --duration ran out"

@@ -66,6 +66,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     o = _op_parser(ops, "find", "topics of a message type")
     o.add_argument("type", help="message type, e.g. Setpoint or zenoh_robot/Setpoint")
     _graph_args(o)
+    o.add_argument("--include-hidden-topics", action="store_true",
+                   help="also the topics of actions (<action>/_action/feedback, status), as ros2 topic find")
     o = _op_parser(ops, "echo", "print a topic's messages")
     _reader_args(o)
     o.add_argument("--count", type=int, metavar="N", help="exit after N messages")
