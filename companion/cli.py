@@ -63,6 +63,15 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
                    help="with --px4 zenoh*: fly as a PX4 external mode named NAME (<= 24 bytes) instead of OFFBOARD: "
                         "registered with PX4, its arming check answered from the companion's state, selected by "
                         "the GCS's offboard_start (docs/px4-zenoh.md)")
+    p.add_argument("--px4-replace", choices=("rtl",), metavar="rtl",
+                   help="with --px4 zenoh*: register the companion's own RTL as the replacement of PX4's (climb to "
+                        "10 m above home, straight back, descend, land); PX4 flies its own RTL again ~1 s after "
+                        "the companion dies (docs/px4-zenoh.md)")
+    p.add_argument("--px4-executor", action="store_true",
+                   help="with --px4-mode NAME: own the mission as a PX4 mode executor (offboard_start: arm, take off, "
+                        "the mode, then the GCS's rtl ends it and PX4's RTL lands), PX4's failsafes still in "
+                        "charge; needs a PX4 whose zenoh bridge routes vehicle_command_mode_executor (PX4 PR "
+                        "#26564; PX4_ZENOH_BRIDGE_FIXED=1), refused otherwise")
     p.add_argument("--sysid", type=int, default=1, help="system id of the built-in simulator (with --px4 sim)")
     p.add_argument("--profile", choices=sorted(PROFILES), default="resilient")
     p.add_argument("--config", type=Path, help="QoS YAML overriding streams (setpoint, sensor, state, image, events)")
@@ -166,7 +175,9 @@ def vehicle_link(args: argparse.Namespace, geofence: Geofence,
         from px4_zenoh.session import Px4Endpoint, free_tcp_endpoint
         where = parse_px4_spec(args.px4) or Px4Endpoint("router", free_tcp_endpoint())
         with Px4ZenohLink(where, msg_dir=args.px4_msgs, geofence=geofence) as zlink, \
-                _external_mode(zlink, getattr(args, "px4_mode", None), readiness):
+                _external_mode(zlink, getattr(args, "px4_mode", None), readiness,
+                               getattr(args, "px4_executor", False)), \
+                _replacement(zlink, getattr(args, "px4_replace", None)):
             if args.px4 != "zenoh-sim":
                 yield zlink, None, str(where)
                 return
@@ -176,8 +187,10 @@ def vehicle_link(args: argparse.Namespace, geofence: Geofence,
         return
     if args.px4_msgs is not None:
         raise ValueError("--px4-msgs: only with --px4 zenoh, zenoh:<endpoint> or zenoh-sim")
-    if getattr(args, "px4_mode", None):
-        raise ValueError("--px4-mode: only with --px4 zenoh, zenoh:<endpoint> or zenoh-sim (PX4's zenoh module)")
+    for flag in ("px4_mode", "px4_replace", "px4_executor"):
+        if getattr(args, flag, None):
+            raise ValueError(f"--{flag.replace('_', '-')}: only with --px4 zenoh, zenoh:<endpoint> or zenoh-sim "
+                             "(PX4's zenoh module)")
     # UDP: the tunnel is a tee in front of the link; a serial port has one holder, the link, so there
     # the tunnel taps the link itself (mavlink_tunnel.py).
     with px4_connection(args.px4, args.sysid) as px4_conn, maybe_tee(args.mavlink_tunnel, px4_conn) as (tee, conn), \
@@ -186,18 +199,49 @@ def vehicle_link(args: argparse.Namespace, geofence: Geofence,
 
 
 @contextlib.contextmanager
-def _external_mode(zlink: Any, name: str | None, readiness: ModeReadiness | None) -> Iterator[None]:
-    """With a mode name: the link's offboard becomes that PX4 external mode, unregistered on the way out."""
+def _external_mode(zlink: Any, name: str | None, readiness: ModeReadiness | None,
+                   executor: bool = False) -> Iterator[None]:
+    """With a mode name: the link's offboard becomes that PX4 external mode (owned by a mode executor with
+    ``executor``), unregistered on the way out."""
     if not name:
+        if executor:
+            raise ValueError("--px4-executor: needs --px4-mode NAME (the mode the executor owns)")
         yield
         return
+    from px4_zenoh.external_mode import BridgeBugError
     from px4_zenoh.external_mode.offboard import install
     check = (readiness or ModeReadiness()).check
-    mode = install(zlink, name, check)
+    try:
+        mode = install(zlink, name, check, executor=executor)
+    except BridgeBugError:
+        raise ValueError(executor_refusal()) from None
     try:
         yield
     finally:
         mode.close()
+
+
+def executor_refusal() -> str:
+    """--px4-executor on a PX4 not declared fixed, in one line."""
+    from px4_zenoh.external_mode.bridge import ENV_FIXED
+    return ("--px4-executor refused: this PX4's zenoh module delivers /fmu/in/vehicle_command_mode_executor to "
+            "uORB vehicle_command, so PX4 would run the executor's commands without checking it is in charge "
+            f"(its failsafes and the pilot could be overridden); needs PX4 PR #26564 (set {ENV_FIXED}=1 for a "
+            "PX4 with it)")
+
+
+@contextlib.contextmanager
+def _replacement(zlink: Any, which: str | None) -> Iterator[None]:
+    """With --px4-replace rtl: the companion's RTL replaces PX4's while the companion lives."""
+    if not which:
+        yield
+        return
+    from px4_zenoh.external_mode.offboard import install_rtl
+    rtl = install_rtl(zlink)
+    try:
+        yield
+    finally:
+        rtl.close()
 
 
 def _free_udp_port() -> int:
@@ -232,6 +276,11 @@ def run(args: argparse.Namespace) -> int:
     if px4_problem is not None:   # a usage mistake, as argparse's: one line and exit 2
         print(f"companion: --px4: {px4_problem}", file=sys.stderr)
         return 2
+    if getattr(args, "px4_executor", False):
+        from px4_zenoh.external_mode import BridgePolicy
+        if not BridgePolicy.from_env().fixed:   # refused before PX4 or Zenoh is opened: nothing half-started
+            print(f"companion: {executor_refusal()}", file=sys.stderr)
+            return 2
     params = params_from_args(args)
     try:
         profile = load_profile(args, params)

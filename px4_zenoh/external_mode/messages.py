@@ -23,6 +23,9 @@ EVENT_TEXT_BYTES = 21
 LOG_LEVEL_ERROR = 0x33           # external and internal log level 3 (error)
 API_VERSION = 1                  # RegisterExtComponentRequest LATEST_PX4_ROS2_API_VERSION
 CMD_SET_NAV_STATE = 100001       # VehicleCommand VEHICLE_CMD_SET_NAV_STATE
+CMD_NAV_TAKEOFF = 22             # VehicleCommand VEHICLE_CMD_NAV_TAKEOFF
+CMD_ARM_DISARM = 400             # VehicleCommand VEHICLE_CMD_COMPONENT_ARM_DISARM
+COMPONENT_MODE_EXECUTOR_START = 1000   # VehicleCommand COMPONENT_MODE_EXECUTOR_START
 ARMING_STATE_ARMED = 2
 RESULT_SUCCESS, RESULT_FAILURE_OTHER = 0, 100        # ModeCompleted RESULT_*
 SOURCE_TYPE_MODE = 0                                 # ConfigOverrides SOURCE_TYPE_MODE
@@ -69,17 +72,21 @@ def event_text(event: Any) -> str:
     return bytes(event.arguments[4:]).split(b"\0", 1)[0].decode("utf-8", "replace")
 
 
-def register_request(types: dict[str, Any], name: str, request_id: int, replace: int | None) -> Any:
+def register_request(types: dict[str, Any], name: str, request_id: int, replace: int | None,
+                     executor: bool = False) -> Any:
+    """A mode with its arming check; with ``executor`` the mode's executor too, in the same request (as
+    px4-ros2's ModeExecutorBase::doRegister: the executor owns that mode)."""
     return types["RegisterExtComponentRequest"](
         timestamp=0, request_id=request_id, name=encode_name(name), px4_ros2_api_version=API_VERSION,
-        register_arming_check=True, register_mode=True, register_mode_executor=False,
+        register_arming_check=True, register_mode=True, register_mode_executor=executor,
         enable_replace_internal_mode=replace is not None, replace_internal_mode=replace or 0,
         activate_mode_immediately=False, not_user_selectable=False)
 
 
-def unregister(types: dict[str, Any], name: str, arming_check_id: int, mode_id: int) -> Any:
+def unregister(types: dict[str, Any], name: str, arming_check_id: int, mode_id: int,
+               mode_executor_id: int = -1) -> Any:
     return types["UnregisterExtComponent"](timestamp=0, name=encode_name(name), arming_check_id=arming_check_id,
-                                           mode_id=mode_id, mode_executor_id=-1)
+                                           mode_id=mode_id, mode_executor_id=mode_executor_id)
 
 
 def check_reply(types: dict[str, Any], request_id: int, registration_id: int, can_arm_and_run: bool,
@@ -125,6 +132,18 @@ def set_nav_state(types: dict[str, Any], nav_state: int, target_system: int, sou
         timestamp=0, param1=float(nav_state), param2=0.0, param3=0.0, param4=0.0, param5=0.0, param6=0.0,
         param7=0.0, command=CMD_SET_NAV_STATE, target_system=target_system, target_component=1,
         source_system=source_system, source_component=source_component, confirmation=0, from_external=True)
+
+
+def executor_command(types: dict[str, Any], command: int, params: Sequence[float], target_system: int,
+                     executor_id: int) -> Any:
+    """A mode executor's command (for /fmu/in/vehicle_command_mode_executor): source_component 1000+id is how
+    PX4 (Commander::handleCommandsFromModeExecutors) tells whether the executor is in charge; PX4 rewrites
+    source_system itself, and answers to (its own system id, 1000+id)."""
+    p = [float(x) for x in params] + [math.nan if i >= 4 else 0.0 for i in range(len(params), 7)]
+    return types["VehicleCommand"](
+        timestamp=0, param1=p[0], param2=p[1], param3=p[2], param4=p[3], param5=p[4], param6=p[5], param7=p[6],
+        command=command, target_system=target_system, target_component=1, source_system=target_system,
+        source_component=COMPONENT_MODE_EXECUTOR_START + executor_id, confirmation=0, from_external=True)
 
 
 def overrides(types: dict[str, Any], mode_id: int, defer_failsafes: bool, defer_timeout_s: int,

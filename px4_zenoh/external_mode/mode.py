@@ -17,6 +17,11 @@ how this class meets it:
   goto_setpoint) and mode_completed are published only while active: PX4 flies whatever arrives on those
   uORB topics, so a setpoint outside the mode would fight PX4's own flight tasks.
 - **unregistration** on ``close()`` (a context manager): PX4 then switches a selected mode to Hold.
+- **executor** (``executor=True``, executor.py runs the sequence): registered with the mode in one request;
+  ``in_charge`` from ``vehicle_status.executor_in_charge``; ``executor_command`` sends as component 1000+id on
+  ``vehicle_command_mode_executor`` and takes PX4's ACK addressed to that component (3 sends of 300 ms, as
+  px4-ros2); ``completions`` is PX4's ``mode_completed`` heard. Refused at construction on a bridge not
+  declared fixed: there PX4 would run those commands without its in-charge check.
 - **bridge bug**: nothing is ever sent on a topic this PX4's zenoh module misroutes (``bridge.py``), unless
   told the PX4 is fixed. Without it the mode keeps PX4's default control config (position, velocity,
   altitude, attitude, rates all enabled: what trajectory/goto setpoints need) and no config overrides.
@@ -56,7 +61,8 @@ TYPES = ("RegisterExtComponentRequest", "RegisterExtComponentReply", "Unregister
          "ArmingCheckRequest", "ArmingCheckReply", "Event", "ModeCompleted", "GotoSetpoint",
          "TrajectorySetpoint", "VehicleStatus", "VehicleCommand", "VehicleCommandAck", "ConfigOverrides")
 TOPICS: tuple[tp.Px4Topic, ...] = tp.EXTERNAL_MODE_TOPICS + (tp.VEHICLE_STATUS, tp.VEHICLE_COMMAND, tp.COMMAND_ACK,
-                                                             tp.TRAJECTORY, tp.CONFIG_OVERRIDES_REQUEST)
+                                                             tp.TRAJECTORY, tp.CONFIG_OVERRIDES_REQUEST,
+                                                             tp.COMMAND_MODE_EXECUTOR)
 REGISTRATION_TOPICS = (tp.REGISTER_REQUEST, tp.REGISTER_REPLY, tp.UNREGISTER, tp.CHECK_REQUEST, tp.CHECK_REPLY,
                        tp.VEHICLE_STATUS)
 # What this class publishes; declared before the first use (a fresh publisher may drop its first put while
@@ -68,6 +74,8 @@ GID = bytes.fromhex("7a72000000000000000000000000e0de")   # ours, for rmw_zenoh'
 SOURCE_SYSTEM, SOURCE_COMPONENT = 245, 191                 # as px4_zenoh.core's commands
 UNREGISTER_SPACING_S = 0.06   # PX4's unregister queue holds one: give its 10 ms cycle time to take each
 PERIODS_KEPT = 512
+EXECUTOR_TRIES, EXECUTOR_ACK_S = 3, 0.3   # px4-ros2 ModeExecutorBase::sendCommandSync: 3 sends, 300 ms each
+COMPLETIONS_KEPT = 64
 
 
 def _matching(pub: zenoh.Publisher) -> bool:
@@ -88,6 +96,7 @@ class Registration:
     arming_check_id: int
     took_s: float           # first request -> the reply taken
     tries: int
+    mode_executor_id: int = -1   # the executor PX4 gave us (1..5), -1 without one
 
 
 @dataclass
@@ -112,14 +121,19 @@ class ExternalMode:
     def __init__(self, session: zenoh.Session, name: str, check: Check, *, domain: int = 0,
                  replace_internal_mode: str | int | None = None, requires_position: bool = True,
                  bridge: BridgePolicy | None = None, msg_dir: Path | None = None,
-                 on_active: Callable[[bool], None] | None = None) -> None:
+                 on_active: Callable[[bool], None] | None = None, executor: bool = False) -> None:
         m.encode_name(name)   # refuse a name PX4 would cut
+        self.bridge = bridge or BridgePolicy.from_env()
+        if executor:
+            # An executor's commands are only safe if PX4 checks that the executor is in charge; this PX4's
+            # bridge hands them to vehicle_command unchecked (bridge.py): refused before anything is sent.
+            self.bridge.require(tp.COMMAND_MODE_EXECUTOR)
+        self.executor = executor
         self.name = name
         self.check = check
         self.domain = domain
         self.replaces = m.internal_mode(replace_internal_mode)
         self.requires_position = requires_position
-        self.bridge = bridge or BridgePolicy.from_env()
         self.on_active = on_active
         self._session = session
         self._types: dict[str, Any] = dict(load_types(msg_dir, TYPES))
@@ -132,6 +146,10 @@ class ExternalMode:
         self._replies: list[Any] = []              # replies to our request_ids, in arrival order
         self._nav_state = -1
         self._armed = False
+        self._in_charge = 0                        # vehicle_status.executor_in_charge
+        self._failsafe = False
+        self._completed: deque[tuple[float, int, int]] = deque(maxlen=COMPLETIONS_KEPT)   # (time, nav, result)
+        self._exec_acks: list[Any] = []
         self._sysid = 1
         self._active = False
         self._unlisted = 0                         # vehicle_status samples in a row without our mode
@@ -140,7 +158,7 @@ class ExternalMode:
         self._seq: dict[str, int] = {}
         self._pubs: dict[str, zenoh.Publisher] = {}
         self.stats = ModeStats()
-        self._extras: queue.Queue[tuple[int, int] | None] = queue.Queue()
+        self._extras: queue.Queue[tuple[int, int, int] | None] = queue.Queue()
         self._janitor = threading.Thread(target=self._unregister_extras, name=f"px4mode-{name}", daemon=True)
         self._janitor.start()
         self._entities: list[Any] = []
@@ -149,7 +167,8 @@ class ExternalMode:
             self._entities.append(lv.declare_subscriber(pattern, self._on_token, history=True))
         for topic, handler in ((tp.REGISTER_REPLY, self._on_register_reply),
                                (tp.CHECK_REQUEST, self._on_check_request),
-                               (tp.VEHICLE_STATUS, self._on_status), (tp.COMMAND_ACK, self._on_ack)):
+                               (tp.VEHICLE_STATUS, self._on_status), (tp.COMMAND_ACK, self._on_ack),
+                               (tp.MODE_COMPLETED_OUT, self._on_completed)):
             self._entities.append(session.declare_subscriber(topic.any_hash_key(domain),
                                                              self._receiver(topic, handler)))
 
@@ -176,6 +195,34 @@ class ExternalMode:
             return self._reg is not None and self._nav_state == self._reg.mode_id
 
     @property
+    def armed(self) -> bool:
+        with self._lock:
+            return self._armed
+
+    @property
+    def nav_state(self) -> int:
+        """PX4's nav_state as last heard (-1 before vehicle_status)."""
+        with self._lock:
+            return self._nav_state
+
+    @property
+    def in_charge(self) -> bool:
+        """Our executor is in charge (vehicle_status.executor_in_charge; PX4 puts it back to 0 in a failsafe)."""
+        with self._lock:
+            return self._reg is not None and self._reg.mode_executor_id > 0 and \
+                self._in_charge == self._reg.mode_executor_id
+
+    @property
+    def failsafe(self) -> bool:
+        with self._lock:
+            return self._failsafe
+
+    def completions(self, since: float = 0.0) -> list[tuple[float, int, int]]:
+        """PX4's mode_completed heard since ``since`` (monotonic): (time, nav_state, result)."""
+        with self._lock:
+            return [c for c in self._completed if c[0] >= since]
+
+    @property
     def verdict(self) -> tuple[bool, tuple[str, ...]]:
         """The last answer given to PX4's check."""
         with self._lock:
@@ -195,13 +242,14 @@ class ExternalMode:
             rid = secrets.randbits(64)
             with self._lock:
                 self._sent[rid] = time.monotonic()
-            self._put(tp.REGISTER_REQUEST, m.register_request(self._types, self.name, rid, self.replaces))
+            self._put(tp.REGISTER_REQUEST, m.register_request(self._types, self.name, rid, self.replaces,
+                                                              self.executor))
             with self._cond:
                 self._cond.wait_for(lambda: bool(self._replies), try_timeout_s)
                 taken = next((r for r in self._replies if r.success), None)
                 if taken is not None:
                     self._reg = Registration(int(taken.request_id), int(taken.mode_id), int(taken.arming_check_id),
-                                             time.monotonic() - t0, attempt)
+                                             time.monotonic() - t0, attempt, int(taken.mode_executor_id))
                     extras = [r for r in self._replies if r.success and r is not taken]
                     self._replies.clear()
                     reg = self._reg
@@ -212,7 +260,7 @@ class ExternalMode:
                 else:
                     continue
             for r in extras:
-                self._extras.put((int(r.arming_check_id), int(r.mode_id)))
+                self._extras.put((int(r.arming_check_id), int(r.mode_id), int(r.mode_executor_id)))
             log.info("px4 mode %r: registered as nav_state %d (check %d) in %.3f s, %d tries", self.name,
                      reg.mode_id, reg.arming_check_id, reg.took_s, attempt)
             return reg
@@ -235,7 +283,7 @@ class ExternalMode:
             time.sleep(0.02)
 
     def _declare_publishers(self, timeout_s: float) -> None:
-        for topic in SENT:
+        for topic in SENT + ((tp.COMMAND_MODE_EXECUTOR,) if self.executor else ()):
             self._publisher(topic)
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
@@ -250,16 +298,17 @@ class ExternalMode:
             reg, self._reg = self._reg, None
             self._active = False
         if reg is not None:
-            self._put(tp.UNREGISTER, m.unregister(self._types, self.name, reg.arming_check_id, reg.mode_id))
+            self._put(tp.UNREGISTER, m.unregister(self._types, self.name, reg.arming_check_id, reg.mode_id,
+                                                  reg.mode_executor_id))
 
     def _unregister_extras(self) -> None:
         while True:
             item = self._extras.get()
             if item is None:
                 return
-            check_id, mode_id = item
+            check_id, mode_id, executor_id = item
             log.warning("px4 mode %r: PX4 registered a retry too (nav_state %d); unregistering it", self.name, mode_id)
-            self._put(tp.UNREGISTER, m.unregister(self._types, self.name, check_id, mode_id))
+            self._put(tp.UNREGISTER, m.unregister(self._types, self.name, check_id, mode_id, executor_id))
             with self._lock:
                 self.stats.extras_unregistered += 1
             time.sleep(UNREGISTER_SPACING_S)
@@ -348,7 +397,7 @@ class ExternalMode:
                 return
             if self._reg is not None:        # a late answer to a retry: PX4 registered us twice
                 if reply.success:
-                    self._extras.put((int(reply.arming_check_id), int(reply.mode_id)))
+                    self._extras.put((int(reply.arming_check_id), int(reply.mode_id), int(reply.mode_executor_id)))
                 return
             self._replies.append(reply)
             self._cond.notify_all()
@@ -379,10 +428,12 @@ class ExternalMode:
         with self._lock:
             self._nav_state = int(st.nav_state)
             self._armed = int(st.arming_state) == m.ARMING_STATE_ARMED
+            self._in_charge, self._failsafe = int(st.executor_in_charge), bool(st.failsafe)
             self._sysid = int(st.system_id) or 1
             self._check_listed(int(st.can_set_nav_states_mask))
             active = self._reg is not None and self._nav_state == self._reg.mode_id and self._armed
             changed, self._active = active != self._active, active
+            self._cond.notify_all()   # wait() re-checks on every status
         if changed and self.on_active is not None:
             self.on_active(active)
 
@@ -413,11 +464,55 @@ class ExternalMode:
             stop.wait(0.2)
 
     def _on_ack(self, ack: Any) -> None:
-        if int(ack.command) != m.CMD_SET_NAV_STATE or int(ack.target_system) != SOURCE_SYSTEM:
-            return
         with self._cond:
+            reg = self._reg
+            if reg is not None and reg.mode_executor_id > 0 and \
+                    int(ack.target_component) == m.COMPONENT_MODE_EXECUTOR_START + reg.mode_executor_id:
+                self._exec_acks.append(ack)     # an answer to our executor (as px4-ros2 matches it)
+                self._cond.notify_all()
+                return
+            if int(ack.command) != m.CMD_SET_NAV_STATE or int(ack.target_system) != SOURCE_SYSTEM:
+                return
             self._acks.append(ack)
             self._cond.notify_all()
+
+    def _on_completed(self, done: Any) -> None:
+        with self._cond:
+            self._completed.append((time.monotonic(), int(done.nav_state), int(done.result)))
+            self._cond.notify_all()
+
+    def executor_command(self, command: int, *params: float) -> int | None:
+        """Send a command as our mode executor (vehicle_command_mode_executor, source_component 1000+id); PX4's
+        ACK result, or None when none came (3 sends, 300 ms each, as px4-ros2's sendCommandSync). PX4 runs it
+        only while the executor is in charge (TEMPORARILY_REJECTED otherwise). Needs a fixed bridge."""
+        self.bridge.require(tp.COMMAND_MODE_EXECUTOR)
+        with self._lock:
+            reg = self._reg
+            if reg is None or reg.mode_executor_id < 0:
+                raise RegistrationError(f"mode {self.name!r} has no registered executor")
+            sysid = self._sysid
+        msg = m.executor_command(self._types, command, params, sysid, reg.mode_executor_id)
+        for _ in range(EXECUTOR_TRIES):
+            with self._lock:
+                self._exec_acks.clear()
+            self._put(tp.COMMAND_MODE_EXECUTOR, msg)
+            with self._cond:
+                if self._cond.wait_for(lambda: any(int(a.command) == command for a in self._exec_acks),
+                                       EXECUTOR_ACK_S):
+                    return int(next(a for a in self._exec_acks if int(a.command) == command).result)
+        return None
+
+    def wait(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
+        """Block until ``predicate`` (called under no lock) holds, re-checked on every PX4 message this class
+        hears; False on timeout."""
+        deadline = time.monotonic() + timeout_s
+        while not predicate():
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return False
+            with self._cond:
+                self._cond.wait(min(left, 0.05))
+        return True
 
     # ---------------------------------------------------------------- sending
     def _put(self, topic: tp.Px4Topic, msg: Any) -> None:

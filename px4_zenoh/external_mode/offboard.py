@@ -10,34 +10,48 @@ One job: keep px4_link's Offboard contract (validation, fence, velocity expiry, 
 The mode is registered in the background (PX4 may not be there yet), again if PX4 loses it (a reboot), and
 unregistered by ``close``.
 
+With a mode executor (``install(executor=True)``, a fixed bridge only: executor.py) the mode's flight is one
+step of the executor's sequence: ``start`` selects the mode and asks the executor to run (arm, take off, the
+mode, RTL); PX4 leaving the mode for the executor's takeoff is not a loss; the GCS's ``rtl`` during the mode
+ends the mode (mode_completed) and the executor flies RTL, still in charge; any other switch (hold, land, a
+failsafe) is PX4's or the user's and ends the executor's turn, as PX4 rules.
+
+``install_rtl`` registers the companion's own RTL as the replacement of PX4's (rtl.py).
+
 Threading: as px4_link's Offboard; the registration runs on its own daemon thread.
 """
 from __future__ import annotations
 
 import logging
 import threading
+import time
 from typing import Any
 
 from px4_link.commands import CommandAck, CommandFailed, CommandTemporarilyRejected
 from px4_link.offboard import PRESTREAM_S, VELOCITY_TIMEOUT_S
 from px4_link.plugin import Event
 from px4_link.targets import Geofence, PositionTarget, Target, TargetRefused
+from px4_link.telemetry import LocalPosition
 
-from ..convert import mode_of
+from ..convert import LANDED_ON_GROUND, mode_of
 from ..core import ZenohCore
 from ..offboard import ZenohOffboard
+from .executor import ModeExecutor
 from .messages import CMD_SET_NAV_STATE
 from .mode import Check, ExternalMode
+from .rtl import RETURN_ALT_M, ReturnHome
 
 log = logging.getLogger(__name__)
 RETRY_S = 2.0
+POSITION_FRESH_S = 1.0     # an older local position is no position for the replacement RTL
 
 
 class ModeOffboard(ZenohOffboard):
     def __init__(self, core: ZenohCore, geofence: Geofence | None, max_speed: float | None, mode: ExternalMode,
-                 velocity_timeout_s: float = VELOCITY_TIMEOUT_S) -> None:
+                 velocity_timeout_s: float = VELOCITY_TIMEOUT_S, executor: ModeExecutor | None = None) -> None:
         super().__init__(core, geofence, max_speed, velocity_timeout_s)
         self.mode = mode
+        self.executor = executor
         self._stop = threading.Event()
         self._registrar = threading.Thread(target=self._keep_registered, name="px4mode-register", daemon=True)
         self._registrar.start()
@@ -78,11 +92,34 @@ class ModeOffboard(ZenohOffboard):
             raise CommandFailed(CMD_SET_NAV_STATE, ack.result,
                                 f"mode {self.mode.name!r} ({name}) accepted but PX4 shows {core.state.mode}")
         self._active = True
+        if self.executor is not None:
+            self.executor.request()
         return ack
+
+    def stop(self, mode: str | None = "AUTO.LOITER") -> CommandAck | None:
+        """The GCS's rtl while the executor flies the mode: the mode is done (mode_completed), and the executor
+        schedules RTL itself; anything else leaves the mode as in OFFBOARD (a user's switch: PX4 puts the
+        autopilot back in charge)."""
+        ex = self.executor
+        if mode == "AUTO.RTL" and ex is not None and ex.running and ex.step == "mode":
+            self.leaving = True
+            try:
+                if not self.mode.complete(True):
+                    raise CommandFailed(CMD_SET_NAV_STATE, None, f"mode {self.mode.name!r} is not active: "
+                                        "its completion was not reported")
+            finally:
+                self._active = False
+                self.leaving = False
+                self.stop_stream()
+            return None
+        return super().stop(mode)
 
     def _on_mode_change(self, old: str, new: str) -> list[Event]:
         if not old or old != self.mode_name:
             return []
+        ex = self.executor
+        if ex is not None and ex.running and ex.step == "takeoff" and new == "AUTO.TAKEOFF":
+            return []      # the executor's own step: the mode comes back after the takeoff
         lost = self._active and not self.leaving
         if not lost:
             return []
@@ -91,22 +128,47 @@ class ModeOffboard(ZenohOffboard):
 
     def summary(self) -> dict[str, Any]:
         reg = self.mode.registration
-        return {"name": self.mode.name, "nav_state": reg.mode_id if reg else None,
-                "registered_in_s": round(reg.took_s, 4) if reg else None,
-                "check_replies": self.mode.stats.replies_sent, "verdict": list(self.mode.verdict[1])}
+        out = {"name": self.mode.name, "nav_state": reg.mode_id if reg else None,
+               "registered_in_s": round(reg.took_s, 4) if reg else None,
+               "check_replies": self.mode.stats.replies_sent, "verdict": list(self.mode.verdict[1])}
+        if self.executor is not None:
+            out["executor"] = [what for _, what in self.executor.log]
+        return out
 
     def close(self) -> None:
+        if self.executor is not None:
+            self.executor.close()
         self._stop.set()
         self._registrar.join(5.0)   # a registration in flight ends first, so close() unregisters it
         self.mode.close()
 
 
-def install(link: Any, name: str, check: Check, *, replace_internal_mode: str | None = None) -> ModeOffboard:
-    """Put a ModeOffboard on ``link`` (a Px4ZenohLink) in place of its OFFBOARD plugin."""
+def install(link: Any, name: str, check: Check, *, replace_internal_mode: str | None = None,
+            executor: bool = False) -> ModeOffboard:
+    """Put a ModeOffboard on ``link`` (a Px4ZenohLink) in place of its OFFBOARD plugin; with ``executor`` the
+    mode is owned by a mode executor (BridgeBugError on a PX4 whose bridge misroutes executor commands)."""
     core: ZenohCore = link.core
+    mode = ExternalMode(core.session, name, check, domain=core.domain, replace_internal_mode=replace_internal_mode,
+                        executor=executor)   # refused here, before the OFFBOARD plugin is touched
     old: ZenohOffboard = link.offboard
     old.stop_stream()
-    mode = ExternalMode(core.session, name, check, domain=core.domain, replace_internal_mode=replace_internal_mode)
-    new = ModeOffboard(core, old.geofence, old._validator.max_speed, mode, old.velocity_timeout_s)
+    new = ModeOffboard(core, old.geofence, old._validator.max_speed, mode, old.velocity_timeout_s,
+                       ModeExecutor(mode) if executor else None)
     link.offboard = new
     return new
+
+
+def install_rtl(link: Any, return_alt_m: float | None = None) -> ReturnHome:
+    """Register the companion's RTL (rtl.py) as the replacement of PX4's, flown from ``link``'s telemetry."""
+    core: ZenohCore = link.core
+
+    def position() -> tuple[float, float, float] | None:
+        p = core.latest(LocalPosition)
+        if p is None or time.monotonic() - p.received_at > POSITION_FRESH_S:
+            return None
+        return (p.x, p.y, p.z)
+
+    def landed() -> bool:
+        return bool(core.state.landed_state == LANDED_ON_GROUND)
+    return ReturnHome(core.session, position, landed, domain=core.domain,
+                      return_alt_m=RETURN_ALT_M if return_alt_m is None else return_alt_m)

@@ -22,6 +22,12 @@ What follows PX4 (file, function):
   is unresponsive.
 - executor in charge (onUserIntendedNavStateChange): a user's mode change puts the autopilot back in
   charge; a change from a mode executor (source component >= 1000) keeps the executor in charge.
+- mode_completed (navigator_main.cpp mode_completed, which px4-ros2 executors wait for): takeoff.cpp when the
+  takeoff point is reached, land.cpp and rtl_direct.cpp (RTLState::IDLE after its land) when landed; queued in
+  ``completions`` for the simulator to publish.
+- takeoff complete with a mode executor in charge: no switch to Hold (Commander.cpp: the auto-Loiter after a
+  finished takeoff only while the autopilot is in charge); the vehicle holds the takeoff point until the
+  executor schedules its next mode.
 - setpoints: PX4's position controller flies the latest trajectory_setpoint in an external mode (no
   offboard_control_mode needed); a goto_setpoint counts for 500 ms (FlightModeManager's goto timeout),
   then the vehicle holds. Setpoints sent while neither an external mode nor OFFBOARD is flown would fight
@@ -48,7 +54,7 @@ from px4_link.sim.commander import (
 )
 from px4_link.sim.physics import Target
 
-from .mode_management import FIRST_EXTERNAL_NAV_STATE, ModeManagement, is_external
+from .mode_management import AUTOPILOT_EXECUTOR_ID, FIRST_EXTERNAL_NAV_STATE, ModeManagement, is_external
 from .uorb_out import NAV_STATE, nav_state
 
 CMD_SET_NAV_STATE = 100001          # VehicleCommand VEHICLE_CMD_SET_NAV_STATE
@@ -68,6 +74,7 @@ class ExtCommander(Commander):
     mm: ModeManagement = field(default_factory=ModeManagement)
     command_from_executor: bool = False    # the command being handled came from a mode executor
     setpoints_outside_mode: int = 0
+    completions: list[int] = field(default_factory=list)   # nav_states whose mode_completed is due out
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -76,6 +83,7 @@ class ExtCommander(Commander):
         self._ext_target: Target | None = None
         self._goto_at: float | None = None
         self._ext_fallback: str | None = None   # the external mode a failsafe left
+        self._completed_reported = False        # this mode's mode_completed sent (once per entry, as navigator)
 
     # ------------------------------------------------------------ modes
     def _set_mode(self, new: str, reason: str) -> None:
@@ -87,6 +95,7 @@ class ExtCommander(Commander):
         super()._set_mode(ext_mode(self.mm.replacement_if_valid(base)), reason)
 
     def _enter(self, mode: str) -> None:
+        self._completed_reported = False
         if is_external(nav_state(mode)):
             self._ext_target, self._goto_at = None, None
             self._hold_pos, self._hold_yaw = self.vehicle.pos.copy(), self.vehicle.yaw
@@ -166,7 +175,15 @@ class ExtCommander(Commander):
                 self.mm.check_and_report()
             self._check_external()
             self.mm.failsafe_action_active = self.failsafe
-            return super().update(now)
+            target = super().update(now)
+            if self.mode in ("AUTO.RTL", "AUTO.LAND") and self.landed_state == ON_GROUND:
+                self._complete(self.mode)     # land.cpp / rtl_direct.cpp: landed -> mode_completed
+            return target
+
+    def _complete(self, mode: str) -> None:
+        if not self._completed_reported:
+            self._completed_reported = True
+            self.completions.append(nav_state(mode))
 
     def _fallback_mode(self) -> str:
         return "AUTO.RTL" if self._can_run("AUTO.RTL") is None else "AUTO.LAND"
@@ -220,6 +237,12 @@ class ExtCommander(Commander):
             return True
 
     def _mode_target(self) -> Target | None:
+        if self.mode == "AUTO.TAKEOFF":
+            v = self.vehicle
+            if abs(v.pos[2] - self._hold_pos[2]) < max(0.1 * self._takeoff_alt, 0.2):   # as the base's test
+                self._complete(self.mode)                   # takeoff.cpp: the takeoff point reached
+                if self.mm.executor_in_charge() != AUTOPILOT_EXECUTOR_ID:
+                    return Target(position=self._hold_pos, yaw=self._hold_yaw)   # no auto-Hold: the executor's
         if not is_external(nav_state(self.mode)):
             return super()._mode_target()
         t = self._ext_target

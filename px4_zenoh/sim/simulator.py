@@ -44,6 +44,7 @@ from px4_link.sim.commander import (
     CMD_COMPONENT_ARM_DISARM,
     ON_GROUND,
     PX4_ESTIMATOR_WARMUP_S,
+    TEMPORARILY_REJECTED,
     ReceivedSetpoint,
 )
 from px4_link.sim.failsafe import Failsafes
@@ -126,7 +127,7 @@ class ZenohSimulator(SimulatorBase):
                  home: tuple[float, float, float] = DEFAULT_HOME, physics_hz: float = 100.0,
                  seed: int | None = None, estimator_warmup_s: float = PX4_ESTIMATOR_WARMUP_S,
                  msg_dir: Path | None = None, retry_s: float = RETRY_S, faults: Sequence[Fault] = (),
-                 mode_arm_check: bool = False) -> None:
+                 mode_arm_check: bool = False, bridge_fixed: bool = False) -> None:
         if rates not in RATE_SETS:
             raise ValueError(f"rates is one of {', '.join(RATE_SETS)}, got {rates!r}")
         # the types first: loading them takes ~0.1 s, which must not count as time since boot (stray ACKs)
@@ -148,6 +149,12 @@ class ZenohSimulator(SimulatorBase):
                                       mm=ModeManagement(allow_update_while_armed=mode_arm_check))
         self.failsafes = Failsafes(self.params, self.commander)
         self.connect, self.domain = connect, domain
+        # bridge_fixed: a PX4 with PR #26564, whose zenoh module maps the three MISROUTED_TO topics by name: an
+        # executor's commands reach Commander::handleCommandsFromModeExecutors (the in-charge check); the two
+        # config topics reach their own uORB topics, which this simulator records (``delivered``) but does not
+        # model (no control-config or override handling).
+        self.bridge_fixed = bridge_fixed
+        self.delivered: dict[str, int] = {name: 0 for name in MISROUTED_TO}
         self.rates = dict(RATE_SETS[rates])
         self.retry_s = retry_s
         self.view = VehicleView(types, self.commander, self.vehicle, self.failsafes, home, sysid,
@@ -182,6 +189,8 @@ class ZenohSimulator(SimulatorBase):
         self.unregister_log: list[tuple[float, str, int]] = []
         self.mode_completed_log: list[tuple[float, int, int]] = []    # (time, nav_state, result)
         self.goto_received = 0
+        self.px4_completed_log: list[tuple[float, int]] = []          # (time, nav_state) of PX4's own modes
+        self.executor_refusals = 0                                     # executor commands refused (not in charge)
 
     # ---------------------------------------------------------------- lifecycle
     def wait_connected(self, timeout: float) -> bool:
@@ -298,7 +307,10 @@ class ZenohSimulator(SimulatorBase):
         while self._inbox:
             name, payload, t_rx = self._inbox.popleft()
             try:
-                if name in (VEHICLE_COMMAND.name, COMMAND_MODE_EXECUTOR.name):
+                if name == COMMAND_MODE_EXECUTOR.name and self.bridge_fixed:
+                    self.delivered[name] += 1
+                    self._on_executor_command(self._codecs["VehicleCommand"].decode(payload), t_rx, t_us)
+                elif name in (VEHICLE_COMMAND.name, COMMAND_MODE_EXECUTOR.name):
                     if name == COMMAND_MODE_EXECUTOR.name:   # misrouted: commander sees a plain vehicle_command
                         self.misrouted[name] += 1
                     self._on_command(self._codecs["VehicleCommand"].decode(payload), t_rx, t_us)
@@ -336,6 +348,20 @@ class ZenohSimulator(SimulatorBase):
             log.info("sim%d: %s", self.sysid, r.text)
         self.commands.append((t_rx, int(cmd.command), r.result))
         self._send_ack(t_us, int(cmd.command), r.result, int(cmd.source_system), int(cmd.source_component))
+
+    def _on_executor_command(self, cmd: Any, t_rx: float, t_us: int) -> None:
+        """Commander::handleCommandsFromModeExecutors (a fixed bridge only): run by the commander when it comes
+        from the executor in charge (source_component 1000 + its id), else TEMPORARILY_REJECTED; either way PX4
+        sets source_system to its own id first, so the ACK goes to (our system id, 1000 + id)."""
+        cmd = dataclasses.replace(cmd, source_system=self.sysid)
+        in_charge = self.commander.mm.executor_in_charge()
+        if int(cmd.source_component) == COMPONENT_MODE_EXECUTOR_START + in_charge:
+            self._on_command(cmd, t_rx, t_us)
+            return
+        log.warning("sim%d: Got cmd from executor %d not in charge (in charge: %d)", self.sysid,
+                    int(cmd.source_component) - COMPONENT_MODE_EXECUTOR_START, in_charge)
+        self.executor_refusals += 1
+        self._send_ack(t_us, int(cmd.command), TEMPORARILY_REJECTED, self.sysid, int(cmd.source_component))
 
     def _on_offboard_mode(self, ocm: Any, t_rx: float) -> None:
         self._ocm, self._ocm_last = ocm, t_rx
@@ -394,6 +420,8 @@ class ZenohSimulator(SimulatorBase):
             yaw = float(g.heading) if g.flag_control_heading and math.isfinite(g.heading) else None
             self.commander.on_external_setpoint(pos if all(math.isfinite(a) for a in pos) else None,  # type: ignore[arg-type]
                                                 None, yaw, goto=True)
+        elif name in (CONFIG_CONTROL_SETPOINTS.name, CONFIG_OVERRIDES_REQUEST.name) and self.bridge_fixed:
+            self.delivered[name] += 1   # where it belongs; not modelled (see __init__)
         elif name == CONFIG_CONTROL_SETPOINTS.name:
             # misrouted onto uORB vehicle_control_mode: the controllers (and PX4's own /fmu/out publisher)
             # take the mode's config for commander's control mode until commander publishes again
@@ -419,6 +447,11 @@ class ZenohSimulator(SimulatorBase):
                 timestamp=t_us, request_id=q.request_id, valid_registrations_mask=q.valid_registrations_mask), t_us)
         mm.replies_out.clear()
         mm.requests_out.clear()
+        for nav in self.commander.completions:   # PX4's own modes' mode_completed (navigator)
+            self.px4_completed_log.append((time.monotonic(), nav))
+            self._put(MODE_COMPLETED_OUT.name, self._types["ModeCompleted"](timestamp=t_us, result=0, nav_state=nav),
+                      t_us)
+        self.commander.completions.clear()
 
     def _put(self, name: str, msg: Any, t_us: int) -> None:
         outlet = self._outlets.get(name)
