@@ -14,6 +14,7 @@ from .commands import (
                        NotConnected,
 )
 from .link import DEFAULT_CONNECTION, Px4Link
+from .mode_list import AvailableMode, CurrentMode, ModeList
 from .modes import decode_custom_mode, encode_custom_mode, mode_to_main_sub, normalize_mode_name
 from .offboard import Offboard
 from .param import Param, ParamError
@@ -23,7 +24,7 @@ from .telemetry import Attitude, Battery, ExtendedSysState, GlobalPosition, Imu,
 from .telemetry_service import Telemetry
 
 __all__ = [
-    "Px4Link", "DEFAULT_CONNECTION", "LinkStats", "Px4State",
+    "Px4Link", "DEFAULT_CONNECTION", "LinkStats", "Px4State", "AvailableMode", "CurrentMode", "ModeList",
     "Action", "ActionError", "Offboard", "Param", "ParamError", "Telemetry",
     "Imu", "Attitude", "LocalPosition", "GlobalPosition", "Battery", "SysStatus",
     "ExtendedSysState",

@@ -126,6 +126,11 @@ class CommandSender:
         self._second_seen = False                      # ... or already came while the answer was read
         self.echoes = 0
 
+    @property
+    def waiting_for(self) -> int | None:
+        """The command whose ACK a caller waits for now, if any."""
+        return self._waiting_for
+
     def cancel(self, owner: int, why: str) -> bool:
         """Withdraw the command in flight if thread ``owner`` sent it: its ``run`` raises
         CommandCancelled at once and sends no more attempts, so a more urgent command (a failsafe

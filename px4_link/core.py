@@ -35,6 +35,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Any
 
 from .commands import CommandSender
@@ -67,6 +68,8 @@ RAW_BACKLOG_S = 0.03
 RAW_PAUSE_S = 1.0
 
 FrameListener = Callable[[bytes], None]
+# (command, result) of an ACK addressed to us -> True when the filter's owner sent that command itself
+AckFilter = Callable[[int, int], bool]
 
 
 class LinkCore(VehicleCore):
@@ -86,6 +89,8 @@ class LinkCore(VehicleCore):
         self._peer = PeerLock(target_system)
         self._boot = BootWatch()
         self._any_handlers: list[MessageHandler] = []
+        self._ack_filters: list[AckFilter] = []
+        self._external_names: dict[int, str] = {}   # custom_mode -> registered name (mode_list.py), replaced whole
         self._handlers: dict[str, list[MessageHandler]] = {}
         self._frame_listeners: tuple[FrameListener, ...] = ()   # replaced whole: added while running
         self._write_lock = threading.Lock()   # one frame at a time on the wire, ours or raw
@@ -101,7 +106,8 @@ class LinkCore(VehicleCore):
         self._next_heartbeat = 0.0
         self._parser = Parser()
         if self._signing_key is not None:
-            setup_signing(self._parser.mav, self._signing_key, sign_outgoing=False)
+            for mav in self._parser.decoders:
+                setup_signing(mav, self._signing_key, sign_outgoing=False)
         self._commands = CommandSender(self._send_command_long, command_timeout, command_retries,
                                        context=self._recent_statustext)
 
@@ -113,6 +119,26 @@ class LinkCore(VehicleCore):
             self._any_handlers.append(handler)
         else:
             self._handlers.setdefault(mtype, []).append(handler)
+
+    def add_ack_filter(self, ack_filter: AckFilter) -> None:
+        """``ack_filter(command, result)`` on the receive thread for each COMMAND_ACK addressed to us, before
+        the command sender: True claims it (a command a plugin sent without waiting). Register before ``start``."""
+        self._ack_filters.append(ack_filter)
+
+    def command_in_flight(self) -> int | None:
+        """The command a caller of ``send_command`` waits for now, if any."""
+        return self._commands.waiting_for
+
+    def set_external_mode_names(self, names: dict[int, str]) -> None:
+        """Registered names of PX4's external modes by custom_mode (from AVAILABLE_MODES): the state names the
+        mode PX4 flies by them from now on, and at once if it flies one now."""
+        with self._cond:
+            self._external_names = dict(names)
+            s = self._state
+            name = self._external_names.get(s.custom_mode) if s.connected else None
+            if name != s.mode_name:
+                self._state = replace(s, mode_name=name)
+                self._cond.notify_all()
 
     def add_frame_listener(self, listener: FrameListener) -> None:
         """``listener(frame)`` on the receive thread with the bytes of every frame accepted from the
@@ -358,6 +384,10 @@ class LinkCore(VehicleCore):
         self._publish(sample)
 
     def _on_ack(self, m: Any) -> None:
+        if m.target_system == self.source_system and m.target_component in (0, self.source_component):
+            for claimed in self._ack_filters:
+                if claimed(m.command, m.result):
+                    return
         self._on_command_ack(m.target_system, m.target_component, m.command, m.result, getattr(m, "progress", 0),
                              getattr(m, "result_param2", 0))
 
@@ -366,7 +396,8 @@ class LinkCore(VehicleCore):
         mode = decode_custom_mode(m.custom_mode) if custom else "UNKNOWN"
         self._on_vehicle_heartbeat(
             m.get_srcSystem(), m.get_srcComponent(), mode, bool(m.base_mode & MAV_MODE_FLAG_SAFETY_ARMED),
-            {"custom_mode": m.custom_mode, "base_mode": m.base_mode, "system_status": m.system_status,
+            {"mode_name": self._external_names.get(m.custom_mode) if custom else None,
+             "custom_mode": m.custom_mode, "base_mode": m.base_mode, "system_status": m.system_status,
              "autopilot": m.autopilot, "vehicle_type": m.type})
 
     def _on_reboot(self) -> None:

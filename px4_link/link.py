@@ -16,6 +16,7 @@ from typing import Any
 from .action import Action
 from .commands import CommandError
 from .core import LinkCore
+from .mode_list import AvailableMode, ModeList
 from .offboard import VELOCITY_TIMEOUT_S, Offboard
 from .param import Param
 from .plugin import EventCallback
@@ -45,7 +46,8 @@ class Px4Link(VehicleLinkBase[LinkCore]):
 
     Events delivered to ``on_event(name, details)``: connected, disconnected, rebooted,
     mode_changed, armed_changed, landed_changed, offboard_lost, setpoint_rejected, setpoint_clamped,
-    setpoint_expired (offboard.py), statustext; on a serial port also link_down (the device vanished:
+    setpoint_expired (offboard.py), statustext, modes_listed (``count``: PX4's mode list read, mode_list.py);
+    on a serial port also link_down (the device vanished:
     ``why``), link_up (bytes through it again) and baud_mismatch (``why``: bytes but no frame).
     Callbacks run on the link's threads: keep them short (see core.py).
     """
@@ -84,6 +86,7 @@ class Px4Link(VehicleLinkBase[LinkCore]):
         self.offboard = Offboard(self._core, geofence, max_speed, velocity_timeout_s)
         self.param = Param(self._core)
         self.telemetry = Telemetry(self._core)
+        self.modes = ModeList(self._core)
 
     @property
     def connection(self) -> str:
@@ -133,6 +136,13 @@ class Px4Link(VehicleLinkBase[LinkCore]):
             return None
         m = self._version
         return describe_version(int(m.flight_sw_version), bytes(m.flight_custom_version))
+
+    def available_modes(self, wait: float = 0.0) -> list[AvailableMode]:
+        """The modes PX4 offers (AVAILABLE_MODES, asked by the link on connect and again when PX4 announces a
+        change): (index, standard_mode, custom_mode, name, flags) each, external modes by their registered
+        names; [] before the list is complete, or from a PX4 without it (before v1.15). ``wait`` > 0: wait that
+        long at most for the list. ``link.modes.current`` is the last CURRENT_MODE."""
+        return self.modes.available(wait)
 
     def _on_version(self, m: Any) -> None:     # the receive thread
         self._version = m

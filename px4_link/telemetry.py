@@ -201,6 +201,9 @@ class Px4State:
     system_id: int | None = None
     component_id: int | None = None
     mode: str = "UNKNOWN"
+    # An external mode's registered name (PX4's AVAILABLE_MODES: ``mode`` says EXTERNAL<n>); None for
+    # PX4's own modes, or before the list names it.
+    mode_name: str | None = None
     custom_mode: int = 0
     base_mode: int = 0
     armed: bool = False

@@ -11,13 +11,26 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
-from pymavlink.dialects.v20 import common
+from pymavlink.dialects.v20 import common, development
 
 # pymavlink has no type information: its classes are Any to mypy, so annotations say Any
 # where a MAVLink object or message goes.
 mavlink2 = common   # the MAVLink 2 "common" dialect: message classes, enums, mavlink_map
 MAVLink = mavlink2.MAVLink
 MAVLinkMessage = mavlink2.MAVLink_message
+
+# PX4 builds with MAVLink's "development" dialect, and names its modes with three of its messages
+# that this pymavlink's ``common`` lacks (AVAILABLE_MODES 435, CURRENT_MODE 436, AVAILABLE_MODES_MONITOR
+# 437). Switching the whole link to ``development`` would change every other message's class under the
+# link's users; instead only these ids are decoded (CRC and signature checked) and encoded with the
+# development dialect's classes. A frame carries its own crc_extra, so ``common``'s MAVLink object packs
+# them with its sequence numbers and signing as it does its own messages.
+EXTRA_MESSAGES: dict[int, Any] = {
+    cls.id: cls for cls in (development.MAVLink_available_modes_message,
+                            development.MAVLink_current_mode_message,
+                            development.MAVLink_available_modes_monitor_message)
+}
+EXTRA_IDS: dict[str, int] = {cls.msgname: msg_id for msg_id, cls in EXTRA_MESSAGES.items()}
 
 
 class _Sink:
@@ -34,6 +47,7 @@ class Encoder:
 
     def __init__(self, write: Callable[[bytes], None], system_id: int, component_id: int) -> None:
         self.mav = MAVLink(_Sink(write), srcSystem=system_id, srcComponent=component_id)
+        self._extra = development.MAVLink(None)   # only its pure *_encode factories are used
         self._lock = threading.Lock()
 
     def send(self, msg: Any) -> None:
@@ -42,8 +56,10 @@ class Encoder:
 
     def __getattr__(self, name: str) -> Any:
         # *_encode factories are pure; expose them directly (encoder.heartbeat_encode(...)).
+        # The extra messages' factories come from the development dialect (see EXTRA_MESSAGES); what
+        # they build is sent, like any message, through ``self.mav``.
         if name.endswith("_encode"):
-            return getattr(self.mav, name)
+            return getattr(self.mav, name) if hasattr(self.mav, name) else getattr(self._extra, name)
         raise AttributeError(name)
 
 
@@ -58,6 +74,8 @@ class Parser:
     def __init__(self) -> None:
         self._mav = MAVLink(None)
         self._mav.robust_parsing = True
+        # Decodes EXTRA_MESSAGES, which ``common`` hands out as unchecked UNKNOWN_<id> frames.
+        self._extra = development.MAVLink(None)
         self.bytes_received = 0
         self.messages = 0
         self.bad_bytes = 0
@@ -69,6 +87,11 @@ class Parser:
     @property
     def mav(self) -> Any:
         return self._mav
+
+    @property
+    def decoders(self) -> tuple[Any, Any]:
+        """Both MAVLink objects that check frames: signing must be set up on each."""
+        return self._mav, self._extra
 
     def feed(self, data: bytes, datagram: bool = False) -> list[Any]:
         if not data:
@@ -94,8 +117,9 @@ class Parser:
                     self.bad_signatures += 1
                 continue
             if mtype.startswith("UNKNOWN"):
-                self.unknown_messages += 1
-                continue
+                m = self._decode_extra(m)
+                if m is None:
+                    continue
             self.messages += 1
             out.append(m)
         if datagram:
@@ -106,16 +130,48 @@ class Parser:
                 self._reset()
         return out
 
+    def _decode_extra(self, m: Any) -> Any:
+        """An UNKNOWN_<id> frame (its ``data`` is the whole frame, unchecked) decoded with the development
+        dialect when its id is one of EXTRA_MESSAGES; None (counted) when it is not or does not check out."""
+        frame = bytearray(m.data)
+        msg_id = _frame_msg_id(frame)
+        if msg_id not in EXTRA_MESSAGES:
+            self.unknown_messages += 1
+            return None
+        try:
+            return self._extra.decode(frame)
+        except Exception as exc:   # pymavlink's MAVError: a bad CRC or signature, a wrong length
+            self.bad_frames += 1
+            self.bad_bytes += len(frame)
+            reason = str(exc).upper()
+            if "CRC" in reason:
+                self.crc_errors += 1
+            if "SIGNATURE" in reason:
+                self.bad_signatures += 1
+            return None
+
     def _reset(self) -> None:
         self._mav.buf = bytearray()
         self._mav.buf_index = 0
         self._mav.expected_length = mavlink2.HEADER_LEN_V1 + 2
 
 
+def _frame_msg_id(frame: bytes | bytearray) -> int | None:
+    """The message id in a MAVLink 2 (24 bits at bytes 7-9) or 1 (byte 5) frame header."""
+    if len(frame) >= 10 and frame[0] == 0xFD:
+        return frame[7] | (frame[8] << 8) | (frame[9] << 16)
+    if len(frame) >= 6 and frame[0] == 0xFE:
+        return frame[5]
+    return None
+
+
 def message_id(name_or_id: str | int) -> int:
     """MAVLink message id from a name like "HIGHRES_IMU" (or an id, returned as is)."""
     if isinstance(name_or_id, int):
         return name_or_id
+    extra = EXTRA_IDS.get(name_or_id.upper())
+    if extra is not None:
+        return extra
     try:
         return int(getattr(mavlink2, f"MAVLINK_MSG_ID_{name_or_id.upper()}"))
     except AttributeError:
@@ -123,7 +179,7 @@ def message_id(name_or_id: str | int) -> int:
 
 
 def message_name(msg_id: int) -> str | None:
-    cls = mavlink2.mavlink_map.get(msg_id)
+    cls = mavlink2.mavlink_map.get(msg_id) or EXTRA_MESSAGES.get(msg_id)
     return cls.msgname if cls is not None else None
 
 

@@ -183,6 +183,9 @@ class Commander:
         self._rtl_phase = ""
         self._pending: tuple[float, str] | None = None   # delayed failsafe action (at, mode)
         self._mode_after_disarm = self.mode
+        # PX4's nav_state_user_intention (CURRENT_MODE's intended_custom_mode): what the user last chose,
+        # which a failsafe's mode does not change.
+        self.user_mode = self.mode
         self._ramp_from: float | None = None     # arming time while the takeoff ramp runs
 
     # ------------------------------------------------------------ helpers
@@ -197,6 +200,8 @@ class Commander:
         self._pending = None  # any mode change supersedes a delayed failsafe action
         if reason in USER_REASONS and new not in NO_ARM_MODES:
             self._mode_after_disarm = new
+        if reason in USER_REASONS or reason.startswith("disarmed"):   # UserModeIntention: change, onDisarm
+            self.user_mode = new
         self._enter(new)
 
     def _enter(self, mode: str) -> None:

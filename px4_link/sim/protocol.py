@@ -17,8 +17,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ..modes import encode_custom_mode
-from ..wire import Encoder, Parser, float_bits_to_int, int_to_float_bits, mavlink2
-from .commander import ACCEPTED, FAILED, ON_GROUND, Commander, ReceivedSetpoint, int_param
+from ..wire import Encoder, Parser, float_bits_to_int, int_to_float_bits, mavlink2, message_name
+from .available_modes import AvailableModes
+from .commander import ACCEPTED, DENIED, FAILED, ON_GROUND, Commander, ReceivedSetpoint, int_param
 from .params import INT32, ParamStore
 from .physics import PointMassQuad
 
@@ -36,7 +37,13 @@ DEFAULT_RATES_HZ: dict[str, float] = {
     "HOME_POSITION": 0.5,
     "VFR_HUD": 10.0,
     "GPS_RAW_INT": 5.0,
+    # Every link mode has these two (mavlink_main.cpp). AVAILABLE_MODES' stream sends only
+    # AVAILABLE_MODES_MONITOR, and only once the list changed; CURRENT_MODE goes when vehicle_status has a new
+    # sample, which commander publishes at >= 2 Hz: the 0.5 Hz schedule decides.
+    "AVAILABLE_MODES": 0.3,
+    "CURRENT_MODE": 0.5,
 }
+AVAILABLE_MODES_ID = 435
 MAX_RATE_HZ = 400.0  # the loop cannot honour more; PX4 also caps by link bandwidth
 # Streams real PX4 also sends on this link (SUMMARY.txt of the SITL trace) that the simulator
 # does not build. PX4 accepts MAV_CMD_SET_MESSAGE_INTERVAL for any message it has a stream
@@ -114,8 +121,7 @@ class StreamTable:
     def set_interval(self, msg_id: int, interval_us: float) -> bool:
         """PX4 semantics: -1 disables, 0 restores the default, > 0 sets the interval;
         False (PX4: MAV_RESULT_FAILED) for HEARTBEAT and messages PX4 has no stream for."""
-        cls = mavlink2.mavlink_map.get(msg_id)
-        name = cls.msgname if cls is not None else None
+        name = message_name(msg_id)
         if name in NOT_SIMULATED_STREAMS:
             self.not_simulated_us[name] = interval_us
             return True
@@ -173,7 +179,8 @@ class SimProtocol:
                  commander: Commander, vehicle: PointMassQuad, params: ParamStore,
                  streams: StreamTable, home: tuple[float, float, float], boot_time: float,
                  on_log: Callable[[str], None] | None = None,
-                 on_internal_error: Callable[[str], None] | None = None) -> None:
+                 on_internal_error: Callable[[str], None] | None = None,
+                 modes: AvailableModes | None = None) -> None:
         self.sock = sock
         self.dest = target
         self._locked = False
@@ -181,6 +188,7 @@ class SimProtocol:
         self.commander, self.vehicle, self.params, self.streams = commander, vehicle, params, streams
         self.home = home
         self.boot_time = boot_time
+        self.modes = modes if modes is not None else AvailableModes()
         self.stats = EndpointStats()
         self._parser = Parser()
         self.enc = Encoder(self._write, sysid, compid)
@@ -300,6 +308,9 @@ class SimProtocol:
             extras_unused = all(int_param(v) == 0 for v in (p[2], p[3], p[6]))
             ok = math.isfinite(p[1]) and extras_unused and self.streams.set_interval(wanted_id, p[1])
             result, text = (ACCEPTED, None) if ok else (FAILED, f"stream {wanted_id} not available")
+        elif cmd == mavlink2.MAV_CMD_REQUEST_MESSAGE and int_param(p[0], -1) == AVAILABLE_MODES_ID:
+            self._request_available_modes(m, p, now)
+            return
         elif cmd in (mavlink2.MAV_CMD_REQUEST_MESSAGE, mavlink2.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES):
             wanted = 148 if cmd == mavlink2.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES else int_param(p[0], -1)
             msg = self.build(wanted, now)
@@ -321,6 +332,21 @@ class SimProtocol:
             # Commander and the mode manager both answer DO_SET_MODE: two ACKs, 0-9 ms apart.
             self._ack(m, cmd, result)
         self.stats.commands.append((now, cmd, result))
+
+    def _request_available_modes(self, m: Any, p: list[float], now: float) -> None:
+        """MavlinkReceiver::handle_request_message_command -> MavlinkStreamAvailableModes::request_message: the
+        modes go out from inside the request (param2: 0 all, else the 1-based index), the ACK after them
+        (ACCEPTED, or DENIED for an index past the list). PX4 paces the modes by the link's data rate, which on
+        UDP (MAV_x_RATE 4 MB/s in SITL) is under its 1 ms threshold: back to back, as here."""
+        entries = self.modes.requested(int_param(p[1]))
+        total = len(self.modes.entries())
+        for i, e in enumerate(entries or ()):
+            index = int_param(p[1]) or i + 1
+            self.send(self.enc.available_modes_encode(total, index, e.standard_mode, e.custom_mode,
+                                                      e.properties, e.mode_name.encode()))
+        result = ACCEPTED if entries is not None else DENIED
+        self._ack(m, m.command, result)
+        self.stats.commands.append((now, m.command, result))
 
     def _ack(self, m: Any, cmd: int, result: int) -> None:
         self.send(self.enc.command_ack_encode(cmd, result, 0, 0, m.get_srcSystem(),
@@ -385,10 +411,10 @@ class SimProtocol:
         """Encode one message from the current state (by name or id); None if unknown."""
         name: str
         if isinstance(what, int):
-            cls = mavlink2.mavlink_map.get(what)
-            if cls is None:
+            found = message_name(what)
+            if found is None:
                 return None
-            name = cls.msgname
+            name = found
         else:
             name = what
         fn = getattr(self, f"_build_{name.lower()}", None)
@@ -481,6 +507,18 @@ class SimProtocol:
         return self.enc.gps_raw_int_encode(int((now - self.boot_time) * 1e6), 3, int(lat * 1e7),
                                            int(lon * 1e7), int(alt * 1000), 70, 100,
                                            int(math.hypot(v.vel[0], v.vel[1]) * 100), 65535, 12)
+
+    def _build_available_modes(self, now: float) -> Any:
+        """The AVAILABLE_MODES stream's own message: AVAILABLE_MODES_MONITOR, once the list changed."""
+        return self.enc.available_modes_monitor_encode(self.modes.seq) if self.modes.changed else None
+
+    def _build_current_mode(self, now: float) -> Any:
+        """CURRENT_MODE.hpp: the displayed mode, the user's intention (a failsafe's mode is not one)."""
+        c = self.commander
+        intended = c.user_mode if c.failsafe else c.mode
+        entry = self.modes.entry_for(c.mode)
+        return self.enc.current_mode_encode(entry.standard_mode if entry is not None else 0,
+                                            encode_custom_mode(c.mode), encode_custom_mode(intended))
 
     def _build_autopilot_version(self, now: float) -> Any:
         # flight_sw_version 1.15.0 (FIRMWARE_VERSION_TYPE_OFFICIAL = 255)

@@ -15,6 +15,7 @@ import traceback
 from collections.abc import Sequence
 from typing import ClassVar
 
+from .available_modes import AvailableModes
 from .base import DEFAULT_HOME, SimulatorBase
 from .commander import PX4_ESTIMATOR_WARMUP_S
 from .faults import Fault
@@ -45,6 +46,9 @@ class Simulator(SimulatorBase):
         self._bind = (bind_host, port)
         self.target = (target_host, target_port)
         self.streams = StreamTable(rates)
+        # What AVAILABLE_MODES lists. No external mode registers over MAVLink (PX4 takes registrations over
+        # uORB/DDS/Zenoh): ``register_external_mode`` is where one would enter.
+        self.available_modes = AvailableModes()
         self._sock: socket.socket | None = None
         self.protocol: SimProtocol | None = None
         self.loop_iterations = 0
@@ -58,7 +62,7 @@ class Simulator(SimulatorBase):
         self.protocol = SimProtocol(sock, self.target, self.sysid, self.compid, self.commander,
                                     self.vehicle, self.params, self.streams, self.home,
                                     self._boot, on_log=lambda s: log.debug("sim%d: %s", self.sysid, s),
-                                    on_internal_error=self._internal_error)
+                                    on_internal_error=self._internal_error, modes=self.available_modes)
         self.protocol.on_heartbeat = self.failsafes.on_heartbeat
 
     def _after_stop(self) -> None:
@@ -104,6 +108,16 @@ class Simulator(SimulatorBase):
     def _command_record(self) -> list[tuple[float, int, int]]:
         """COMMAND_LONG/INT answered: (time, MAV_CMD, MAV_RESULT)."""
         return list(self.protocol.stats.commands) if self.protocol else []
+
+    def register_external_mode(self, name: str) -> int:
+        """List an external mode as if a component had registered ``name`` (its nav_state): AVAILABLE_MODES
+        names it and AVAILABLE_MODES_MONITOR announces the change, as PX4's do. The simulator cannot fly it."""
+        with self._lock:
+            return self.available_modes.register(name)
+
+    def unregister_external_mode(self, nav_state: int) -> None:
+        with self._lock:
+            self.available_modes.unregister(nav_state)
 
     # ---------------------------------------------------------------- introspection (MAVLink's own)
     @property

@@ -31,6 +31,10 @@ def test_a_reachable_flight_controller_is_named_with_its_system() -> None:
     assert link.startswith("OK") and "heartbeats from system 3" in link and "921600 baud" in link, run.stdout
     # The simulator answers MAV_CMD_REQUEST_MESSAGE 148 with flight_sw_version 1.15.0, official.
     assert _line(run.stdout, "px4 firmware").startswith("OK") and "PX4 v1.15.0 (official)" in run.stdout, run.stdout
+    # AVAILABLE_MODES over the tty: PX4's 26 (18 selectable, TERMINATION not), its 8 external slots free.
+    modes = _line(run.stdout, "px4 modes")
+    assert modes.startswith("OK") and "26 modes, 17 selectable: MANUAL, ALTCTL, POSCTL" in modes, run.stdout
+    assert "TERMINATION" not in modes and "8 external slots free" in modes, run.stdout
     assert "Traceback" not in run.stderr
 
 
