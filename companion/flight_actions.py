@@ -124,7 +124,8 @@ class FlightActions:
 
         deadline = (distance0 if math.isfinite(distance0) else 0.0) / CRUISE_MS + SLACK_S
         return self._run(handle, lambda: self._desk.goto(goal.client_id, *target), done, result,
-                         deadline_s=deadline, cancel=lambda: self._desk.stop_goto(goal.client_id))
+                         deadline_s=deadline, cancel=lambda: self._desk.stop_goto(goal.client_id),
+                         settle=lambda: self._link.state.mode == "AUTO.LOITER")   # from OFFBOARD: Hold first
 
     def _land(self, handle: ServerGoalHandle) -> Any:
         goal, t = handle.request, self.types.land
