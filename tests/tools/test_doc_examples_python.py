@@ -3,9 +3,10 @@ and examples/ (talker, listener, watchdog) too.
 
 A ```python block right after ``<!-- doc-test: python "REGEX" -->`` is run as a script in a Zenoh domain of
 its own: it must print a line matching REGEX (an example that spins is then stopped with Ctrl-C, as a user
-would), and never print a traceback. ``<!-- doc-test: python -->`` (no REGEX): it must run for a few seconds
-(or end with exit 0) without a traceback. Blocks without a marker are fragments (``...``, names defined
-elsewhere) and are not run.
+would; ``python ends "REGEX"``: one that ends by itself must then exit 0 unaided), and never print a
+traceback. ``<!-- doc-test: python -->`` (no REGEX): it must run for a few seconds without a traceback
+(``python ends``: end by itself with exit 0). Blocks without a marker are fragments (``...``, names
+defined elsewhere) and are not run.
 """
 from __future__ import annotations
 
@@ -18,13 +19,13 @@ import pytest
 from conftest import Lines, fresh_domain, kill_process, python_proc
 
 ROOT = Path(__file__).resolve().parents[2]
-MARKER = re.compile(r'<!--\s*doc-test:\s*python(?:\s+"(?P<expect>[^"]*)")?\s*-->')
+MARKER = re.compile(r'<!--\s*doc-test:\s*python(?P<ends>\s+ends)?(?:\s+"(?P<expect>[^"]*)")?\s*-->')
 QUIET_S = 3.0     # an example that prints nothing by design runs this long, then gets Ctrl-C
 
 
-def marked_blocks() -> list[tuple[str, str | None, str]]:
-    """(where, expected line or None, code) of every marked Python block."""
-    out: list[tuple[str, str | None, str]] = []
+def marked_blocks() -> list[tuple[str, str | None, bool, str]]:
+    """(where, expected line or None, whether it ends by itself, code) of every marked Python block."""
+    out: list[tuple[str, str | None, bool, str]] = []
     for doc in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]:
         lines = doc.read_text().splitlines()
         for i, line in enumerate(lines):
@@ -33,7 +34,8 @@ def marked_blocks() -> list[tuple[str, str | None, str]]:
                 continue
             start = next(j for j in range(i + 1, len(lines)) if lines[j].startswith("```python")) + 1
             end = next(j for j in range(start, len(lines)) if lines[j].startswith("```"))
-            out.append((f"{doc.relative_to(ROOT)}:{start}", m["expect"], "\n".join(lines[start:end]) + "\n"))
+            out.append((f"{doc.relative_to(ROOT)}:{start}", m["expect"], bool(m["ends"]),
+                        "\n".join(lines[start:end]) + "\n"))
     return out
 
 
@@ -56,12 +58,13 @@ def _stop(proc: subprocess.Popen, lines: Lines) -> str:
 
 
 def test_the_docs_mark_their_runnable_examples() -> None:
-    where = [w for w, _, _ in marked_blocks()]
+    where = [w for w, _, _, _ in marked_blocks()]
     assert any(w.startswith("README.md") for w in where) and any(w.startswith("docs/guide.md") for w in where)
 
 
-@pytest.mark.parametrize(("where", "expect", "code"), marked_blocks(), ids=[w for w, _, _ in marked_blocks()])
-def test_a_marked_doc_example_runs(where: str, expect: str | None, code: str, tmp_path: Path) -> None:
+@pytest.mark.parametrize(("where", "expect", "ends", "code"), marked_blocks(),
+                         ids=[w for w, _, _, _ in marked_blocks()])
+def test_a_marked_doc_example_runs(where: str, expect: str | None, ends: bool, code: str, tmp_path: Path) -> None:
     script = tmp_path / "example.py"
     script.write_text(code)
     proc = _run(str(script), env={"ZR_DOMAIN": str(fresh_domain())})
@@ -69,6 +72,10 @@ def test_a_marked_doc_example_runs(where: str, expect: str | None, code: str, tm
     try:
         if expect is not None:
             assert lines.wait_for(expect, 30), f"{where}: no line matching {expect!r}:\n{lines.text()[-2000:]}"
+            if ends:     # it closes its sessions and exits by itself: no Ctrl-C in the middle of that
+                assert proc.wait(timeout=30) == 0, f"{where}: exit {proc.returncode}\n{lines.text()[-2000:]}"
+        elif ends:
+            assert proc.wait(timeout=30) == 0, f"{where}: exit {proc.returncode}\n{lines.text()[-2000:]}"
         else:
             try:
                 proc.wait(timeout=QUIET_S)
