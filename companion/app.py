@@ -38,6 +38,7 @@ from px4_link.vehicle import VehicleLink
 from zenoh_robot import Node
 from zenoh_robot.events import DuplicateNodeInfo, SubscriptionEventCallbacks
 from zenoh_robot.loss_feedback import LossMonitor
+from zenoh_robot.ros2 import Ros2TypeError
 from zenoh_robot.tools.stream_metrics import StreamRecorder
 from zenoh_robot.topic_statistics import with_cpu_budget
 
@@ -70,7 +71,9 @@ def flight_actions(node: Node, desk: CommandDesk, link: VehicleLink) -> FlightAc
     except ImportError as exc:
         log.warning("the drone's actions (takeoff, goto, land) are off: their ROS 2 types need the ros2 extra "
                     "(%s); the command service works as ever", exc)
-        return None
+    except Ros2TypeError as exc:   # never fails with the shipped .action files; the companion flies without
+        log.error("the drone's actions (takeoff, goto, land) are off: %s; the command service works as ever", exc)
+    return None
 
 
 class Companion:

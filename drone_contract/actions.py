@@ -47,7 +47,9 @@ class DroneActionTypes:
 
 
 def action_types() -> DroneActionTypes:
-    """The three types (made once; needs the ``ros2`` extra, rosbags)."""
+    """The three types (made once; needs the ``ros2`` extra, rosbags: ImportError without it)."""
+    import rosbags  # type: ignore[import-untyped]  # noqa: F401  (an ImportError, not a "bad definition")
+
     from zenoh_robot.ros2 import ros2_action_type
 
     return DroneActionTypes(*(ros2_action_type(name, definition(name)) for name in (TAKEOFF, GOTO, LAND)))

@@ -34,7 +34,10 @@ def parse_target(text: str | None) -> tuple[float, float, float]:
 def send_goto(node: Node, drone: str, client_id: str, target: tuple[float, float, float], timeout: float,
               say: Callable[[str], None] = print) -> tuple[bool, str]:
     """Fly ``drone`` to ``target``; (succeeded, the result line)."""
-    goto = action_types().goto
+    try:
+        goto = action_types().goto
+    except ImportError as exc:
+        return False, f"{drone} goto: FAILED the drone's action types need the ros2 extra ({exc})"
     client = node.create_action_client(goto, f"/{drone}/{ACTION_NAMES[GOTO]}", goal_timeout=timeout)
     try:
         if not client.wait_for_server(timeout):

@@ -133,3 +133,20 @@ def test_a_takeoff_goal_while_disarmed_aborts_at_once_naming_it(ns: str) -> None
         out = res.result(30)
         assert out.status == GoalStatus.STATUS_ABORTED and "not armed" in out.result.message, out.result.message
         assert r.sim.altitude < 0.3
+
+
+def test_without_the_ros2_extra_the_companion_flies_without_its_actions() -> None:
+    """rosbags absent (the `drone` extra alone): the actions are off with one warning, never a failed start;
+    `gcs cmd goto` says what is missing in one line."""
+    import subprocess
+    import sys
+
+    script = ("import sys, logging; sys.modules['rosbags'] = None; logging.basicConfig()\n"
+              "from companion.app import flight_actions\n"
+              "from gcs.goto import send_goto\n"
+              "print('actions:', flight_actions(None, None, None))\n"
+              "print(send_goto(None, 'uav1', 'op', (1.0, 2.0, 3.0), 1.0))\n")
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert "actions: None" in out.stdout and "need the ros2 extra" in out.stderr, (out.stdout, out.stderr)
+    assert "(False, \"uav1 goto: FAILED the drone's action types need the ros2 extra" in out.stdout, out.stdout
