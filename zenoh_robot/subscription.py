@@ -666,9 +666,10 @@ class Subscription(Generic[M]):
         """Declare this subscription's Zenoh subscriber again (the new one first, then the old one goes): what a
         silent stream (``zenoh_robot.silence``) tries once, in case the declaration never reached the publisher's
         side. The queue, counters and graph token stay. Only the callback path (the channel path's waiter is
-        bound to its channel); False when not done. Thread-safe; the rare path: nothing per sample."""
-        if self.receive != "callback" or self._closed:
-            return False
+        bound to its channel) and not transient local; False when not done. Thread-safe; the rare path: nothing
+        per sample."""
+        if self.receive != "callback" or self._closed or self.qos.durability is DurabilityPolicy.TRANSIENT_LOCAL:
+            return False    # (a transient-local subscriber declared again would replay its history)
         try:
             fresh = declare_subscriber(self.context.session, self.data_key, self.qos, self._on_sample)
         except Exception as exc:   # a closing session: the stream stays as it was
