@@ -191,3 +191,24 @@ def probed_sim(ready: bool = True, **sim_kwargs: Any) -> Iterator[tuple[Probe, A
         sim.stop()
         probe.close()
     assert not sim.internal_errors
+
+
+class Hover:
+    """An external-mode component's own setpoint loop (tests/px4/test_px4_zenoh_external_mode*.py): holds
+    ``target`` (NED, default 3 m above home) while the mode is active."""
+
+    def __init__(self, mode: Any, target: tuple[float, float, float] = (0.0, 0.0, -3.0)) -> None:
+        self.mode, self.target = mode, target
+        self._stop = threading.Event()
+        self._th = threading.Thread(target=self._run, daemon=True)
+        self._th.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            if self.mode.active:
+                self.mode.trajectory(self.target, yaw=0.0)
+            self._stop.wait(0.05)
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._th.join(1.0)

@@ -15,7 +15,7 @@ from typing import Any
 
 import pytest
 import zenoh
-from px4_zenoh_probe import Probe, probed_sim
+from px4_zenoh_probe import Hover, Probe, probed_sim
 
 from px4_zenoh.external_mode import BridgeBugError, BridgePolicy, ExternalMode, RegistrationError
 from px4_zenoh.sim import ZenohSimulator
@@ -68,26 +68,6 @@ def arm(probe: Probe) -> int:
     got = probe.ack(ARM, t, timeout=3.0)
     assert got is not None
     return int(got[1].result)
-
-
-class Hover:
-    """The component's own setpoint loop: holds 3 m above home while the mode is active."""
-
-    def __init__(self, mode: ExternalMode, target: tuple[float, float, float] = (0.0, 0.0, -3.0)) -> None:
-        self.mode, self.target = mode, target
-        self._stop = threading.Event()
-        self._th = threading.Thread(target=self._run, daemon=True)
-        self._th.start()
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            if self.mode.active:
-                self.mode.trajectory(self.target, yaw=0.0)
-            self._stop.wait(0.05)
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._th.join(1.0)
 
 
 def fly(probe: Probe, sim: ZenohSimulator, mode: ExternalMode) -> Hover:

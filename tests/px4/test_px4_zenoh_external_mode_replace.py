@@ -21,7 +21,7 @@ import pytest
 import zenoh
 from conftest import python_proc, stop_process, wait_for
 from px4_helpers import QUICK_WARMUP_S, wait_state_armable
-from px4_zenoh_probe import probed_sim
+from px4_zenoh_probe import Hover, probed_sim
 from rigs import OP, QUICK_FLIGHT, Observer
 
 from px4_zenoh.external_mode import BridgeBugError, BridgePolicy, ExternalMode, ModeExecutor, ReturnHome
@@ -40,26 +40,6 @@ def client_session(endpoint: str) -> zenoh.Session:
     c.insert_json5("connect/endpoints", f'["{endpoint}"]')
     c.insert_json5("scouting/multicast/enabled", "false")
     return zenoh.open(c)
-
-
-class Hover:
-    """A component's setpoint loop: holds ``target`` while its mode is active."""
-
-    def __init__(self, mode: ExternalMode, target: tuple[float, float, float]) -> None:
-        self.mode, self.target = mode, target
-        self._stop = threading.Event()
-        self._th = threading.Thread(target=self._run, daemon=True)
-        self._th.start()
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            if self.mode.active:
-                self.mode.trajectory(self.target, yaw=0.0)
-            self._stop.wait(0.05)
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._th.join(1.0)
 
 
 def sim_position(sim: ZenohSimulator) -> Any:
