@@ -11,6 +11,7 @@ Installed, the package's ``zenoh_robot.ros2_types`` entry point (:func:`register
 """
 from __future__ import annotations
 
+import importlib.util
 from dataclasses import dataclass
 from importlib import resources
 from typing import Any
@@ -48,8 +49,11 @@ class DroneActionTypes:
 
 def action_types() -> DroneActionTypes:
     """The three types (made once; needs the ``ros2`` extra, rosbags: ImportError without it)."""
-    import rosbags  # type: ignore[import-untyped]  # noqa: F401  (an ImportError, not a "bad definition")
-
     from zenoh_robot.ros2 import ros2_action_type
+
+    # Without rosbags the types cannot be made: an ImportError says so as what it is (ros2_action_type would
+    # report it as a bad definition).
+    if importlib.util.find_spec("rosbags") is None:
+        raise ImportError("rosbags is not installed (the ros2 extra: pip install 'zenoh-robot[ros2]')")
 
     return DroneActionTypes(*(ros2_action_type(name, definition(name)) for name in (TAKEOFF, GOTO, LAND)))
