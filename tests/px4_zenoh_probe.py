@@ -38,6 +38,11 @@ def _conf(mode: str, key: str, endpoint: str) -> zenoh.Config:
     return c
 
 
+def client_session(endpoint: str) -> zenoh.Session:
+    """A Zenoh client of the router at ``endpoint``, no scouting (PX4's side, or a component of PX4's)."""
+    return zenoh.open(_conf("client", "connect/endpoints", endpoint))
+
+
 @dataclass
 class Rec:
     t: float
@@ -56,7 +61,7 @@ class Probe:
     def __init__(self, endpoint: str | None = None) -> None:
         self.endpoint = endpoint or f"tcp/127.0.0.1:{free_port()}"
         self.router = zenoh.open(_conf("router", "listen/endpoints", self.endpoint))
-        self.session = zenoh.open(_conf("client", "connect/endpoints", self.endpoint))
+        self.session = client_session(self.endpoint)
         self.recs: list[Rec] = []
         self.tokens: dict[str, float] = {}
         self._lock = threading.Lock()

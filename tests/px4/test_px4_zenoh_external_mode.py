@@ -15,7 +15,7 @@ from typing import Any
 
 import pytest
 import zenoh
-from px4_zenoh_probe import Hover, Probe, probed_sim
+from px4_zenoh_probe import Hover, Probe, client_session, probed_sim
 
 from px4_zenoh.external_mode import BridgeBugError, BridgePolicy, ExternalMode, RegistrationError
 from px4_zenoh.sim import ZenohSimulator
@@ -37,14 +37,6 @@ while True:
     mode.trajectory((0.0, 0.0, -3.0))
     time.sleep(0.05)
 """
-
-
-def client_session(endpoint: str) -> zenoh.Session:
-    c = zenoh.Config()
-    c.insert_json5("mode", '"client"')
-    c.insert_json5("connect/endpoints", f'["{endpoint}"]')
-    c.insert_json5("scouting/multicast/enabled", "false")
-    return zenoh.open(c)
 
 
 @pytest.fixture

@@ -18,10 +18,9 @@ from collections.abc import Iterator
 from typing import Any
 
 import pytest
-import zenoh
 from conftest import python_proc, stop_process, wait_for
 from px4_helpers import QUICK_WARMUP_S, wait_state_armable
-from px4_zenoh_probe import Hover, probed_sim
+from px4_zenoh_probe import Hover, client_session, probed_sim
 from rigs import OP, QUICK_FLIGHT, Observer
 
 from px4_zenoh.external_mode import BridgeBugError, BridgePolicy, ExternalMode, ModeExecutor, ReturnHome
@@ -32,14 +31,6 @@ from zenoh_robot import Node
 EXT1, EXT2, HOLD, RTL, TAKEOFF = 23, 24, 4, 5, 17
 ARM, RTL_CMD, SET_NAV_STATE = 400, 20, 100001
 ACCEPTED, TEMP_REJECTED = 0, 1
-
-
-def client_session(endpoint: str) -> zenoh.Session:
-    c = zenoh.Config()
-    c.insert_json5("mode", '"client"')
-    c.insert_json5("connect/endpoints", f'["{endpoint}"]')
-    c.insert_json5("scouting/multicast/enabled", "false")
-    return zenoh.open(c)
 
 
 def sim_position(sim: ZenohSimulator) -> Any:
