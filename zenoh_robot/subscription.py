@@ -339,11 +339,13 @@ class Subscription(Generic[M]):
             # KEEP_ALL never drops, so samples may leave the queue in batches: one lock per batch
             # instead of one per sample, which the Zenoh thread would otherwise contend for.
             handled = 0
-            while handled < DRAIN_BATCH:
+            while True:
                 with lock:
                     if not queue:
                         self._scheduled = False
                         return False
+                    if handled >= DRAIN_BATCH:
+                        return True     # more is waiting: another drain, after the others' turn
                     batch = [queue.popleft() for _ in range(min(len(queue), DRAIN_BATCH))]
                     size = 0
                     for data, _, _ in batch:
@@ -355,7 +357,6 @@ class Subscription(Generic[M]):
                     except Exception as exc:   # a bug or a hostile sample: count it, keep the others coming
                         self._internal_error("handle", exc)
                 handled += len(batch)
-            return True
         # KEEP_LAST(n): a sample stays in the queue (where a newer one can still replace it) until
         # it is handled, so at most n are ever waiting.
         for _ in range(DRAIN_BATCH):
@@ -369,6 +370,11 @@ class Subscription(Generic[M]):
                 handle(data, received, attachment)
             except Exception as exc:
                 self._internal_error("handle", exc)
+        # Unscheduled here when the batch emptied the queue: no idle wake-up follows a full batch.
+        with lock:
+            if not queue:
+                self._scheduled = False
+                return False
         return True
 
     def _drain_channel(self) -> bool:

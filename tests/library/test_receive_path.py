@@ -242,3 +242,24 @@ def test_run_here_refuses_while_nobody_spins_freely(ns: str) -> None:
         assert not b.executor.run_here(lambda: ran.append(2))
         t.join(5.0)
         assert ran == []
+
+
+@pytest.mark.parametrize("qos", [KEEP_ALL, QoSProfile(depth=DRAIN_BATCH)], ids=["keep_all", "keep_last"])
+def test_a_drain_that_empties_the_queue_unschedules_at_once(ns: str, qos: QoSProfile) -> None:
+    """A turn that handles exactly DRAIN_BATCH samples and leaves nothing behind leaves no drain queued
+    (CI saw a spin_until return with a needless second drain still scheduled)."""
+    with linked_nodes(ns) as (a, b):
+        got: list[Setpoint] = []
+        sub = b.create_subscription(Setpoint, "sp", got.append, qos)
+        pub = a.create_publisher(Setpoint, "sp", qos)
+        time.sleep(0.3)
+        for i in range(DRAIN_BATCH):
+            pub.publish(Setpoint(x=float(i)))
+        deadline = time.monotonic() + 10.0
+        while sub.counters.received < DRAIN_BATCH and time.monotonic() < deadline:
+            time.sleep(0.01)     # nobody spins: the samples wait in the subscription's queue
+        assert sub.counters.received == DRAIN_BATCH and sub.pending == DRAIN_BATCH
+        assert b.executor.spin_once(5.0)           # one turn drains them all
+        assert len(got) == DRAIN_BATCH and not sub.pending
+        assert not sub._scheduled and sub._queued_bytes == 0
+        assert not b.executor.spin_once(0.0)       # and nothing is left for the executor to run
