@@ -185,7 +185,7 @@ class Companion:
                               "forged, replayed or recorded before a restart", "refused", count=n)
 
     def _stray_offboard(self) -> bool:
-        return not self.lifecycle.in_session and self.link.mode == "OFFBOARD" and self.link.connected
+        return not self.lifecycle.in_session and self.link.offboard.stray() and self.link.connected
 
     def _park_if_stray(self, now: float) -> None:
         # Real PX4 returns to OFFBOARD after landing and auto-disarm: never leave it there.
@@ -202,12 +202,13 @@ class Companion:
         now = time.monotonic()
         self._park_if_stray(now)
         end = now + timeout
-        while self.link.mode == "OFFBOARD" and time.monotonic() < end:
+        while self.link.offboard.stray() and time.monotonic() < end:
             time.sleep(0.05)
 
     def _park(self) -> None:
-        if self.lifecycle.park("PX4 in OFFBOARD outside a session"):
-            self.events.event("stray_offboard", "PX4 in OFFBOARD without an operator-requested session", SAFE_MODE)
+        mode = self.link.offboard.session_mode
+        if self.lifecycle.park(f"PX4 in {mode} outside a session"):
+            self.events.event("stray_offboard", f"PX4 in {mode} without an operator-requested session", SAFE_MODE)
 
     def _on_params_changed(self, changes: dict[str, Any]) -> None:   # the parameter service's thread
         self.config = self.params.config

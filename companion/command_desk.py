@@ -304,9 +304,9 @@ class CommandDesk:
         # Arming must never take off by itself: PX4 sitting in OFFBOARD outside a session
         # (it returns there after landing) goes to Hold first.
         note = ""
-        if self._link.mode == "OFFBOARD" and not self._lifecycle.in_session:
+        if self._link.offboard.stray() and not self._lifecycle.in_session:
             self._lifecycle.park("arm outside an offboard session")
-            note = f"PX4 was in OFFBOARD without a session: switched to {SAFE_MODE} before arming"
+            note = f"PX4 was in {self._link.mode} without a session: switched to {SAFE_MODE} before arming"
         self._link.action.arm()
         return note or "armed"
 

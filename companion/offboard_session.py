@@ -83,7 +83,7 @@ class OffboardLifecycle:
     def start(self, candidate: Target) -> None:
         """Open a session from ``candidate`` (already checked against the vehicle)."""
         with self._lock:
-            if self._state is OffboardState.ACTIVE and self.link.mode == "OFFBOARD":
+            if self._state is OffboardState.ACTIVE and self.px4_in_session_mode():
                 return
             self._go(OffboardState.STARTING, "offboard_start requested")
             try:
@@ -96,7 +96,11 @@ class OffboardLifecycle:
         except Exception as exc:
             self._abort(f"PX4 refused OFFBOARD: {exc}")
             raise
-        self._go(OffboardState.ACTIVE, "PX4 in OFFBOARD")
+        self._go(OffboardState.ACTIVE, f"PX4 in {self.link.offboard.session_mode}")
+
+    def px4_in_session_mode(self) -> bool:
+        """PX4 flies the mode sessions fly in (OFFBOARD, or the companion's external mode: --px4-mode)."""
+        return self.link.mode == self.link.offboard.session_mode
 
     def _abort(self, why: str) -> None:
         self.link.offboard.stop_stream()
@@ -148,8 +152,8 @@ class OffboardLifecycle:
             return False
         sent = False
         try:
-            if self.link.connected and self.link.mode == "OFFBOARD":
-                log.warning("PX4 in OFFBOARD outside a session (%s): commanding %s", why, SAFE_MODE)
+            if self.link.connected and self.link.offboard.stray():
+                log.warning("PX4 in %s outside a session (%s): commanding %s", self.link.mode, why, SAFE_MODE)
                 self.link.offboard.stop(mode=SAFE_MODE)
                 sent = True
         finally:

@@ -7,7 +7,8 @@ fallback), as in OFFBOARD; this verdict keeps PX4 from arming into, or re-enteri
 could not fly:
 - no GCS holds control -> "no GCS holds control";
 - the holder's token is gone and its lease ran out -> "GCS link lost";
-- a session whose setpoints stopped for the deadline, or the failsafe HOLD after it -> "setpoints stale".
+- a session whose setpoints stopped for the deadline, or the failsafe HOLD after it -> "setpoints stale";
+- no session at all (before offboard_start, after landing) -> "no offboard session".
 
 Threading: ``check`` runs on a Zenoh callback thread; it only reads the parts' attributes (no lock, no wait).
 """
@@ -44,4 +45,6 @@ class ModeReadiness:
             time.monotonic() - c.failsafe.last_setpoint_at > c.config.setpoint_deadline
         if state is OffboardState.FAILSAFE_HOLD or stale:
             reasons.append("setpoints stale")
+        elif state is OffboardState.IDLE:
+            reasons.append("no offboard session")   # nobody arms into the mode outside one (as OFFBOARD: parked)
         return not reasons, tuple(reasons)

@@ -209,6 +209,9 @@ class SetpointGate:
         self._flying = client
         with self._forward_lock:    # the session begins at the candidate: nothing older follows it
             self._last_forwarded = (client, *cand.stamp)
+        # The deadline counts from now before the session turns active too: the watchdog (and the PX4 mode's
+        # check) must never read the last session's setpoint time against the new one.
+        self._failsafe.rearm()
         self._lifecycle.start(cand.sp)
         self._failsafe.rearm()
-        return "OFFBOARD"
+        return self._link.offboard.session_mode or "OFFBOARD"

@@ -149,7 +149,8 @@ class TelemetryBridge:
             batt.remaining_pct / 100.0 if batt else math.nan, batt.voltage_v if batt else math.nan,
             failsafe, setpoints_rejected, offboard_state, controller,
             self.sensor_rate_hz(), self.sensor_rate_requested, commands_refused,
-            bool(st.armed or (sys_status is not None and sys_status.armable)), link_refused))
+            bool(st.armed or (sys_status is not None and sys_status.armable)), link_refused,
+            st.mode_name or "", link.offboard.session_mode))
         self._sent_state.record(sent.seq, sent.stamp_ns)
 
     # -- what PX4 sends --------------------------------------------------------------

@@ -44,10 +44,23 @@ class VehicleState(Message):
     commands_refused: int = 0
     armable: bool = False            # PX4's pre-arm checks pass (SYS_STATUS PREARM_CHECK health bit)
     link_refused: int = 0            # sealed samples and calls refused (forged, replayed, not fresh): an attack shows
+    mode_name: str = ""              # an external mode's registered name ("" for PX4's own modes): QGC shows it too
+    session_mode: str = ""           # the mode offboard_start flies in: OFFBOARD, or the companion's external mode
 
     def __post_init__(self) -> None:
         if self.header is None:
             self.header = Header()
+
+    @property
+    def in_session_mode(self) -> bool:
+        """PX4 flies the mode the companion's offboard session flies in (OFFBOARD, or its external mode; a
+        companion older than ``session_mode`` flies OFFBOARD)."""
+        return self.mode == (self.session_mode or "OFFBOARD")
+
+    @property
+    def mode_label(self) -> str:
+        """The mode as an operator reads it: an external mode by its registered name, as QGC shows it."""
+        return f"{self.mode_name} ({self.mode})" if self.mode_name else self.mode
 
 
 @message(name="zenoh_robot/Command")

@@ -162,7 +162,7 @@ class DroneView:
         if self.gcs.downlink is not None:   # a join (or rejoin): ask for this GCS's downlink rates
             self.gcs.downlink.on_state(self.id, previous_at, self.state_at, float(msg.sensor_rate_requested_hz),
                                        msg.controller)
-        self.plan.track(msg.position, msg.mode == "OFFBOARD")
+        self.plan.track(msg.position, msg.in_session_mode)
 
     def lost_pct(self, stream: str) -> float:
         """Share of ``stream`` that never arrived (NaN before there is anything to say). Strips are numbered

@@ -339,10 +339,10 @@ def interrupted_line(gcs: Gcs) -> str:
         if s is None:
             parts.append(f"{d.id}: never heard")
         elif s.armed and not s.landed:
-            parts.append(f"{d.id} holding at {-s.position[2]:.1f} m, armed ({s.mode}); land it with "
+            parts.append(f"{d.id} holding at {-s.position[2]:.1f} m, armed ({s.mode_label}); land it with "
                          f"`zenoh-robot gcs cmd {d.id} land`")
         else:
-            parts.append(f"{d.id} on the ground, {'armed' if s.armed else 'disarmed'} ({s.mode})")
+            parts.append(f"{d.id} on the ground, {'armed' if s.armed else 'disarmed'} ({s.mode_label})")
     return "interrupted by the operator: " + "; ".join(parts or ["no drone heard"])
 
 

@@ -168,7 +168,7 @@ def _drone_cells(d: DroneView, f: dict[str, float]) -> dict[str, str]:
     if d.under_attack:      # the drone refuses forged or replayed sealed samples: someone is trying
         link = f"ATTACK ({s.link_refused} refused)"
     alt = -s.position[2]
-    return {"drone": d.id, "mode": s.mode, "arm": "yes" if s.armed else "no",
+    return {"drone": d.id, "mode": s.mode_label, "arm": "yes" if s.armed else "no",
             "alt m": "-" if math.isnan(alt) else f"{alt:5.1f}",
             "position (NED m)": ",".join(f"{v:5.1f}" for v in s.position),
             "batt": "-" if math.isnan(s.battery_remaining) else f"{s.battery_remaining * 100:3.0f}%",
@@ -204,7 +204,7 @@ def plain_lines(gcs: Gcs, rates: RateMeter) -> list[str]:
         f = drone_figures(d, rates)
         s = d.state
         head = f"{d.id}: waiting for state" if s is None else (
-            f"{d.id}: {s.mode} {'armed' if s.armed else 'disarmed'} pos "
+            f"{d.id}: {s.mode_label} {'armed' if s.armed else 'disarmed'} pos "
             f"{','.join(f'{v:.1f}' for v in s.position)} offboard {s.offboard_state or '-'} "
             f"control {'this GCS' if d.in_control else (s.controller or 'none')}")
         parts = [head, f"setpoints {_hz(f['setpoint']).strip()} Hz"]

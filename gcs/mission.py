@@ -128,7 +128,7 @@ class Mission:
         armable = self._until(lambda: bool(drone.state and drone.state.armable), ARMABLE_TIMEOUT_S)
         self._step("armable", armable, "" if armable else
                    f"PX4's pre-arm checks did not pass within {ARMABLE_TIMEOUT_S:g} s (mode "
-                   f"{drone.state.mode if drone.state else '?'}): see the drone's log for PX4's reason")
+                   f"{drone.state.mode_label if drone.state else '?'}): see the drone's log for PX4's reason")
 
     def arm(self) -> None:
         self._command("arm")
@@ -150,14 +150,14 @@ class Mission:
         while time.monotonic() < end:
             self._check()
             s = drone.state
-            if s is not None and (s.mode != "OFFBOARD" or s.offboard_state != "active"):
-                self._step("offboard", False, f"drone left the offboard session: mode {s.mode}, "
+            if s is not None and (not s.in_session_mode or s.offboard_state != "active"):
+                self._step("offboard", False, f"drone left the offboard session: mode {s.mode_label}, "
                                               f"companion {s.offboard_state or '?'} {s.failsafe}".strip())
             out["offboard_s"] = min(time.monotonic() - start, duration)   # in OFFBOARD, as the drone last said
             out["pattern_window"][1] = time.time()
             time.sleep(0.2)
         s = drone.state
-        if s is not None and s.mode == "OFFBOARD" and s.offboard_state == "active":
+        if s is not None and s.in_session_mode and s.offboard_state == "active":
             out["offboard_s"] = duration
 
     def land(self) -> None:

@@ -16,14 +16,15 @@ ActionError = CommandError   # MAVSDK-style name; every subclass tells which ref
 
 
 def set_mode(core: Core, name: str, confirm_timeout: float = 3.0) -> CommandAck:
-    """MAV_CMD_DO_SET_MODE with PX4 custom main/sub mode, then wait until the heartbeat
-    shows it (an ACK alone does not guarantee the switch stuck). A function, not only a
+    """MAV_CMD_DO_SET_MODE with PX4 custom main/sub mode, then wait until the heartbeat shows it, or the
+    external mode replacing it (an ACK alone does not guarantee the switch stuck). A function, not only a
     method, because the offboard plugin switches modes too and plugins share only the core."""
     canonical = normalize_mode_name(name)
     main, sub = mode_to_main_sub(canonical)
     ack = core.send_command(mavlink2.MAV_CMD_DO_SET_MODE, MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
                             main, sub)
-    if confirm_timeout > 0 and not core.wait_until(lambda: core.state.mode == canonical,
+    # A mode replaced by an external one (a companion's RTL) is flown as that one: PX4 shows its nav_state.
+    if confirm_timeout > 0 and not core.wait_until(lambda: canonical in (core.state.mode, core.state.mode_replaces),
                                                    confirm_timeout):
         raise CommandFailed(mavlink2.MAV_CMD_DO_SET_MODE, ack.result,
                             f"mode {canonical} accepted but heartbeat still shows "

@@ -35,7 +35,6 @@ import logging
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import replace
 from typing import Any
 
 from .commands import CommandSender
@@ -90,7 +89,6 @@ class LinkCore(VehicleCore):
         self._boot = BootWatch()
         self._any_handlers: list[MessageHandler] = []
         self._ack_filters: list[AckFilter] = []
-        self._external_names: dict[int, str] = {}   # custom_mode -> registered name (mode_list.py), replaced whole
         self._handlers: dict[str, list[MessageHandler]] = {}
         self._frame_listeners: tuple[FrameListener, ...] = ()   # replaced whole: added while running
         self._write_lock = threading.Lock()   # one frame at a time on the wire, ours or raw
@@ -128,17 +126,6 @@ class LinkCore(VehicleCore):
     def command_in_flight(self) -> int | None:
         """The command a caller of ``send_command`` waits for now, if any."""
         return self._commands.waiting_for
-
-    def set_external_mode_names(self, names: dict[int, str]) -> None:
-        """Registered names of PX4's external modes by custom_mode (from AVAILABLE_MODES): the state names the
-        mode PX4 flies by them from now on, and at once if it flies one now."""
-        with self._cond:
-            self._external_names = dict(names)
-            s = self._state
-            name = self._external_names.get(s.custom_mode) if s.connected else None
-            if name != s.mode_name:
-                self._state = replace(s, mode_name=name)
-                self._cond.notify_all()
 
     def add_frame_listener(self, listener: FrameListener) -> None:
         """``listener(frame)`` on the receive thread with the bytes of every frame accepted from the
@@ -396,7 +383,7 @@ class LinkCore(VehicleCore):
         mode = decode_custom_mode(m.custom_mode) if custom else "UNKNOWN"
         self._on_vehicle_heartbeat(
             m.get_srcSystem(), m.get_srcComponent(), mode, bool(m.base_mode & MAV_MODE_FLAG_SAFETY_ARMED),
-            {"mode_name": self._external_names.get(m.custom_mode) if custom else None,
+            {**(self._external_fields(m.custom_mode) if custom else {"mode_name": None, "mode_replaces": None}),
              "custom_mode": m.custom_mode, "base_mode": m.base_mode, "system_status": m.system_status,
              "autopilot": m.autopilot, "vehicle_type": m.type})
 

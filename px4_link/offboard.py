@@ -89,6 +89,16 @@ class Offboard:
         """True between a successful start() and stop() or PX4 leaving OFFBOARD."""
         return self._active
 
+    @property
+    def session_mode(self) -> str:
+        """The PX4 mode ``start`` flies in (px4_zenoh's external mode flies in its own)."""
+        return "OFFBOARD"
+
+    def stray(self) -> bool:
+        """PX4 flies the session's mode though nobody here asked (real PX4 goes back to OFFBOARD after
+        landing and auto-disarm): outside a session the companion parks it in Hold."""
+        return self._core.state.mode == self.session_mode
+
     def set_setpoint(self, sp: Target, sent_at: float | None = None) -> None:
         """Validate and stream ``sp``; the first one starts the stream. Raises
         TargetRefused (nothing is sent). ``sent_at``: the sender's time of ``sp`` in seconds, on its

@@ -204,6 +204,9 @@ class Px4State:
     # An external mode's registered name (PX4's AVAILABLE_MODES: ``mode`` says EXTERNAL<n>); None for
     # PX4's own modes, or before the list names it.
     mode_name: str | None = None
+    # The PX4 mode that external mode flies in place of (a companion's RTL replacing PX4's: "AUTO.RTL"), when
+    # its owner says so (VehicleCore.add_mode_namer); None otherwise.
+    mode_replaces: str | None = None
     custom_mode: int = 0
     base_mode: int = 0
     armed: bool = False

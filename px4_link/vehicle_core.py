@@ -28,6 +28,9 @@ from .ratelimit import RateLimitedLog
 from .telemetry import Px4State
 
 T = TypeVar("T")
+# Names an external mode this process flies itself (px4_zenoh's external modes): its key (the state's
+# custom_mode) -> (registered name, the PX4 mode it replaces or None), or None when it is not one of its own.
+ModeNamer = Callable[[int], "tuple[str, str | None] | None"]
 
 
 class VehicleCore:
@@ -58,6 +61,8 @@ class VehicleCore:
         self._listeners_lock = threading.Lock()
         self._mode_hooks: list[ModeHook] = []
         self._periodic: list[PeriodicHook] = []
+        self._external_names: dict[int, str] = {}   # custom_mode -> registered name (PX4's list), replaced whole
+        self._mode_namers: tuple[ModeNamer, ...] = ()   # replaced whole: added while running
 
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
@@ -71,6 +76,40 @@ class VehicleCore:
     def add_periodic(self, hook: PeriodicHook) -> None:
         """``hook()`` on the send thread at every tick, after the subclass's own tick work."""
         self._periodic.append(hook)
+
+    def set_external_mode_names(self, names: dict[int, str]) -> None:
+        """Registered names of PX4's external modes by custom_mode (from AVAILABLE_MODES): the state names the
+        mode PX4 flies by them from now on, and at once if it flies one now."""
+        with self._cond:
+            self._external_names = dict(names)
+            self._rename_locked()
+
+    def add_mode_namer(self, namer: ModeNamer) -> None:
+        """A mode this process registered names itself (and says which PX4 mode it replaces): PX4's own list
+        may not be read on this link (px4_zenoh has none), and only the owner knows what it replaces."""
+        with self._cond:
+            self._mode_namers = (*self._mode_namers, namer)
+            self._rename_locked()
+
+    def _external_fields(self, custom_mode: int) -> dict[str, Any]:
+        """The state's mode_name and mode_replaces for ``custom_mode`` (under the state lock or not)."""
+        for namer in self._mode_namers:
+            try:
+                named = namer(custom_mode)
+            except Exception:   # noqa: BLE001 - a namer's bug must not stop the heartbeat's handling
+                self.count("callback_errors")
+                self.rlog.exception(f"namer{id(namer) % 64}", "%s mode namer %r raised", self._tag, namer)
+                continue
+            if named is not None:
+                return {"mode_name": named[0], "mode_replaces": named[1]}
+        return {"mode_name": self._external_names.get(custom_mode), "mode_replaces": None}
+
+    def _rename_locked(self) -> None:
+        s = self._state
+        fields = self._external_fields(s.custom_mode) if s.connected else {"mode_name": None, "mode_replaces": None}
+        if fields["mode_name"] != s.mode_name or fields["mode_replaces"] != s.mode_replaces:
+            self._state = replace(s, **fields)
+            self._cond.notify_all()
 
     # ----------------------------------------------------------------- lifecycle
     def start(self) -> None:

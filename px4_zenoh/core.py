@@ -212,7 +212,8 @@ class ZenohCore(VehicleCore):
             self._stats["reboots"] += 1
             return [("rebooted", {"system_id": sysid})]
 
-        self._on_vehicle_heartbeat(sysid, compid, mode, armed, {"custom_mode": int(m.nav_state)},
+        self._on_vehicle_heartbeat(sysid, compid, mode, armed,
+                                   {"custom_mode": int(m.nav_state), **self._external_fields(int(m.nav_state))},
                                    check_reboot)
 
     def _on_landed(self, landed_state: int) -> None:

@@ -25,13 +25,14 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 from px4_link.commands import CommandAck, CommandFailed, CommandTemporarilyRejected
 from px4_link.offboard import PRESTREAM_S, VELOCITY_TIMEOUT_S
 from px4_link.plugin import Event
 from px4_link.targets import Geofence, PositionTarget, Target, TargetRefused
-from px4_link.telemetry import LocalPosition
+from px4_link.telemetry import LocalPosition, SysStatus
 
 from ..convert import LANDED_ON_GROUND, mode_of
 from ..core import ZenohCore
@@ -62,6 +63,14 @@ class ModeOffboard(ZenohOffboard):
         mode_id = self.mode.mode_id
         return mode_of(mode_id) if mode_id >= 0 else ""
 
+    @property
+    def session_mode(self) -> str:
+        return self.mode_name
+
+    def stray(self) -> bool:
+        ex = self.executor
+        return super().stray() and not (ex is not None and ex.running)   # the executor hands the mode on itself
+
     def _keep_registered(self) -> None:
         self.mode.keep_registered(self._stop, RETRY_S)
 
@@ -87,10 +96,19 @@ class ModeOffboard(ZenohOffboard):
         if not name:
             raise CommandTemporarilyRejected(CMD_SET_NAV_STATE, None,
                                              f"mode {self.mode.name!r} is not registered with PX4 (yet)")
+        # PX4 arms into (and, armed, switches to) the mode only after its check said yes; the last answer may
+        # predate what makes it yes now (a GCS took control a moment ago): the next one comes within ~310 ms.
+        if not self.mode.wait(lambda: self.mode.verdict[0], confirm_timeout):
+            raise CommandTemporarilyRejected(CMD_SET_NAV_STATE, None, f"mode {self.mode.name!r} cannot run yet: "
+                                             + ", ".join(self.mode.verdict[1]))
         ack = core.send_command(CMD_SET_NAV_STATE, float(self.mode.mode_id))
         if not core.wait_until(lambda: core.state.mode == name, confirm_timeout):
             raise CommandFailed(CMD_SET_NAV_STATE, ack.result,
                                 f"mode {self.mode.name!r} ({name}) accepted but PX4 shows {core.state.mode}")
+        if not core.state.armed:
+            # PX4 folds the check's answers into its arming checks at 10 Hz: once its vehicle_status says the
+            # selected mode can arm, an arm that follows is not refused for an answer PX4 has not read yet.
+            core.wait_sample(SysStatus, confirm_timeout, lambda s: s.armable)
         self._active = True
         if self.executor is not None:
             self.executor.request()
@@ -155,7 +173,15 @@ def install(link: Any, name: str, check: Check, *, replace_internal_mode: str | 
     new = ModeOffboard(core, old.geofence, old._validator.max_speed, mode, old.velocity_timeout_s,
                        ModeExecutor(mode) if executor else None)
     link.offboard = new
+    core.add_mode_namer(_namer(mode, None))
     return new
+
+
+def _namer(mode: ExternalMode, replaces: str | None) -> Callable[[int], tuple[str, str | None] | None]:
+    """The state's name for ``mode`` while PX4 flies it (px4_zenoh has no AVAILABLE_MODES to read it from)."""
+    def name(nav_state: int) -> tuple[str, str | None] | None:
+        return (mode.name, replaces) if nav_state == mode.mode_id >= 0 else None
+    return name
 
 
 def install_rtl(link: Any, return_alt_m: float | None = None) -> ReturnHome:
@@ -170,5 +196,7 @@ def install_rtl(link: Any, return_alt_m: float | None = None) -> ReturnHome:
 
     def landed() -> bool:
         return bool(core.state.landed_state == LANDED_ON_GROUND)
-    return ReturnHome(core.session, position, landed, domain=core.domain,
-                      return_alt_m=RETURN_ALT_M if return_alt_m is None else return_alt_m)
+    rtl = ReturnHome(core.session, position, landed, domain=core.domain,
+                     return_alt_m=RETURN_ALT_M if return_alt_m is None else return_alt_m)
+    core.add_mode_namer(_namer(rtl.mode, "AUTO.RTL"))   # a GCS's rtl is confirmed by this mode flying
+    return rtl

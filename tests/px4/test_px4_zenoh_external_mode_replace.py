@@ -141,9 +141,13 @@ def test_companion_replaces_rtl_and_px4_takes_it_back_when_the_companion_dies(ns
             assert obs.command("arm").success
             assert wait_for(lambda: sim.altitude > 2.0, 20), (sim.mode, sim.altitude)
             t_rtl = time.monotonic()
-            sim.commander.handle_command(RTL_CMD, [0.0] * 7)      # RTL asked of PX4 (as QGC, RC or a failsafe)
+            # The GCS's rtl: PX4 flies the replacement, and the companion confirms the return by it (PX4 shows
+            # the replacement's nav_state, never AUTO.RTL's), reporting success.
+            r = obs.command("rtl")
             ext = f"EXTERNAL{rtl_nav - EXT1 + 1}"
+            assert r.success and r.mode == ext, (r.message, r.mode)
             assert wait_for(lambda: sim.mode == ext, 5, interval=0.01), sim.mode
+            assert wait_for(lambda: obs.state is not None and obs.state.mode_name == "RTL (companion)", 5), obs.state
             # the companion's RTL flies: it climbs towards its return altitude (10 m) over the GCS's hover
             assert wait_for(lambda: sim.altitude > 4.0, 20), (sim.mode, sim.altitude)
             assert sim.mode == ext
