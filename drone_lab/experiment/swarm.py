@@ -334,6 +334,11 @@ def analyse_cell(cell: SwarmCell, workdir: Path, ids: list[str], t0: int, t1: in
                                      f"{downlink.get('detail', '')}")
         if cell.fly:
             figures["flight"] = flight_figures(missions.get(d) or {}, comp, (gcs.get("drones") or {}).get(d) or {})
+        # What the GCS said of this drone (silent streams, a second claimant, its own shedding): the per-drone
+        # table shows it beside the figures, so a drop is never only a number.
+        if "alerts" in g:      # a GCS from before alerts recorded none: the table says "not recorded"
+            figures["alerts"] = [str(a) for a in g.get("alerts") or []]
+            figures["shed_by_gcs"] = {k: int(v) for k, v in (g.get("shed_by_gcs") or {}).items() if v}
         out["drones"][d] = figures
     out["summary"] = summarize(out, cell)
     return out

@@ -56,6 +56,44 @@ def table(results: list[dict[str, Any]]) -> str:
     return "\n".join([head, sep, *body])
 
 
+DRONE_STREAMS = ("setpoint", "sensor", "state", "image")
+
+
+def _events(fig: dict[str, Any]) -> str:
+    """The GCS's alerts for one drone by kind (``silent_sensor x2``) and what its own queues shed."""
+    if "alerts" not in fig:
+        return "not recorded"     # a run from before the sweep kept them: nothing is known, not "none"
+    kinds: dict[str, int] = {}
+    for a in fig.get("alerts") or []:
+        kind = str(a).split(":", 1)[0]
+        kinds[kind] = kinds.get(kind, 0) + 1
+    out = [k if n == 1 else f"{k} x{n}" for k, n in sorted(kinds.items())]
+    out += [f"GCS shed {v} {k}" for k, v in sorted((fig.get("shed_by_gcs") or {}).items()) if v]
+    return ", ".join(out) or "none"
+
+
+def drone_table(results: list[dict[str, Any]]) -> str:
+    """One row per run and drone: each stream's delivered % and its longest silence (ms, window edges
+    included), image fps, and the events the GCS raised for it. The cells' tables give the worst drone;
+    this one says which drone it was, and whether anything said so at the time."""
+    head = ["cell", "drone"] + [f"{s} % / longest silence ms" for s in DRONE_STREAMS[:3]] + ["img fps", "events"]
+    rows = ["| " + " | ".join(head) + " |", "|" + "|".join("---" for _ in head) + "|"]
+    for r in results:
+        for d, fig in sorted((r.get("drones") or {}).items()):
+            cells = [str(r.get("name", "?")), d]
+            for stream in DRONE_STREAMS[:3]:
+                f = fig.get(stream) or {}
+                cells.append(f"{_fmt('{:.1f}', f.get('delivered_pct', math.nan))} / "
+                             f"{_fmt('{:.0f}', f.get('longest_gap_ms', math.nan))}")
+            cells.append(_fmt("{:.1f}", (fig.get("image") or {}).get("fps", math.nan)))
+            cells.append(_events(fig))
+            rows.append("| " + " | ".join(cells) + " |")
+        for err in r.get("errors") or []:
+            if "missing records" in str(err):
+                rows.append(f"| {r.get('name', '?')} | {str(err).split(':', 1)[0]} | no record | | | | |")
+    return "\n".join(rows)
+
+
 def verdicts(results: list[dict[str, Any]]) -> list[str]:
     """The issue's targets, said for the largest swarm measured (not asserted: machines differ)."""
     out = []
@@ -148,6 +186,9 @@ def write_report(results: list[dict[str, Any]], out: Path) -> dict[str, Path]:
     if hovering:
         md += ["## Streaming only (hover setpoints to grounded drones)" if flying else "", "", table(hovering), "",
                *[f"- {v}" for v in verdicts(hovering)], ""]
+    md += ["## Per drone", "", "Every run, every drone: delivered % and the longest silence of each stream, and "
+           "what the GCS raised for that drone at the time (gcs/alerts.py: silent streams, a second claimant; "
+           "gcs/shedding.py: samples its own queues dropped).", "", drone_table(results), ""]
     (out / "results.md").write_text("\n".join(md))
     files = {"table": out / "results.md"}
     fig = figure(results, out / "swarm.png")

@@ -269,3 +269,25 @@ def test_swarm_flight_table_gives_median_and_range_over_runs() -> None:
     assert "| 3 |" in row and "0.70 (0.50-0.90)" in row and "100 (50-100)" in row, row
     verdict = flight_verdicts(results)[0]   # type: ignore[arg-type]
     assert verdict.startswith("N=2 peer: 5 of 6 drone flights flew") and "SATURATE" not in verdict, verdict
+
+
+def test_swarm_per_drone_table_names_the_drone_its_silences_and_what_was_said() -> None:
+    from drone_lab.experiment.swarm_report import drone_table
+
+    def stream(pct: float, gap: float) -> dict[str, float]:
+        return {"delivered_pct": pct, "longest_gap_ms": gap}
+    quiet = {"setpoint": stream(100.0, 140.0), "sensor": stream(99.5, 60.0), "state": stream(100.0, 210.0),
+             "image": {"fps": 14.9}, "alerts": [], "shed_by_gcs": {}}
+    silent = {**quiet, "sensor": stream(0.0, 40000.0),
+              "alerts": ["silent_sensor: uav3 sensor: publisher seen, 0 samples in 5 s",
+                         "silent_sensor: uav3 sensor: publisher seen, 0 samples in 5 s; subscription declared again"],
+              "shed_by_gcs": {"sensor": 812, "image": 0}}
+    results = [{"name": "n5_peer", "drones": {"uav3": silent, "uav1": quiet},
+                "errors": ["uav9: missing records (see /tmp/x/*.log)"]}]
+    lines = drone_table(results).splitlines()     # type: ignore[arg-type]
+    assert lines[0].startswith("| cell | drone | setpoint % / longest silence ms")
+    assert lines[2].startswith("| n5_peer | uav1 | 100.0 / 140 | 99.5 / 60 | 100.0 / 210 | 14.9 | none |"), lines[2]
+    assert "| 0.0 / 40000 |" in lines[3] and lines[3].endswith("| silent_sensor x2, GCS shed 812 sensor |"), lines[3]
+    assert lines[4].startswith("| n5_peer | uav9 | no record |"), lines[4]
+    old = {k: v for k, v in quiet.items() if k not in ("alerts", "shed_by_gcs")}    # a run from before
+    assert drone_table([{"name": "old", "drones": {"uav1": old}}]).splitlines()[2].endswith("| not recorded |")
