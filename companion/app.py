@@ -53,6 +53,7 @@ from .offboard_session import SAFE_MODE, OffboardLifecycle, OffboardState
 from .params import CompanionParameters
 from .px4_worker import Px4Worker
 from .setpoint_gate import SetpointGate
+from .shedding import CameraShedding
 from .telemetry_bridge import TelemetryBridge
 
 log = logging.getLogger("companion")
@@ -111,6 +112,9 @@ class Companion:
         image = wired("image", DOWN)
         self.camera = (CameraStreamer(node, image.name, q[image.name], live, self.sent["image"],
                                       self.sent["image_strip"]) if config.camera else None)
+        camera = self.camera
+        self.shedding = (CameraShedding(lambda: camera.frames_sent, lambda: self.config.camera_rate_hz, self.events)
+                         if camera is not None else None)
         # Loss feedback (loss_feedback.py): image parity follows the loss the GCS measures.
         self.loss_monitor = LossMonitor(node, "drone") if config.profile.loss_feedback else None
         set_image_loss = self.camera.set_loss() if self.camera is not None else None
@@ -175,6 +179,8 @@ class Companion:
             self.events.event("lifecycle", wrong, "stream stopped")
         self.telemetry.check_sensor_rate(now)
         self._report_link_refusals(now)
+        if self.shedding is not None:
+            self.shedding.check(now)
 
     def _report_link_refusals(self, now: float) -> None:
         new = self.link_refusals.poll(now)
@@ -273,5 +279,6 @@ class Companion:
                 "failsafe": self.failsafe.summary(), "px4_worker": self.worker.summary(),
                 "repeater": self.node.repeater_stats(),
                 "link_refused": link_refusals(self.node.wire),
+                "shed": self.shedding.summary() if self.shedding is not None else {},
                 "logs": {"sent": {k: v.to_dict() for k, v in self.sent.items()},
                          "received": {"setpoint": received.to_dict()}}}

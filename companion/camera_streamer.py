@@ -39,6 +39,11 @@ class CameraStreamer:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
+    @property
+    def frames_sent(self) -> int:
+        """Frames sent so far (the camera thread's count: read as a plain int)."""
+        return self._seq
+
     def set_loss(self) -> Callable[[float], None] | None:
         """Where the measured loss goes (FEC parity follows it), or None when nothing adapts."""
         return self.publisher.set_loss if self.publisher.follows_loss else None
