@@ -37,8 +37,10 @@ class UdpServerTransport:
     down_reason: str | None = None
 
     def __init__(self, host: str, port: int) -> None:
+        # No SO_REUSEADDR: on UDP it would let a second process bind this port beside the first (a stale
+        # companion, another program), and the vehicle's datagrams and its replies would cross between them
+        # (two links locked on one vehicle). UDP has no TIME_WAIT: a restart binds again at once without it.
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         self.sock.bind((host, port))
         self.sock.setblocking(False)
         self.peer: Address | None = None

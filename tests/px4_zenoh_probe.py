@@ -4,7 +4,6 @@ PX4's tokens, commands and setpoints put as PX4 expects. Used by the simulator's
 from __future__ import annotations
 
 import math
-import socket
 import threading
 import time
 from collections.abc import Iterator
@@ -13,6 +12,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import zenoh
+from conftest import free_port
 
 from px4_zenoh.uorb import UorbCodec, load_types
 from zenoh_robot.wire.ros2 import pack_attachment, parse_any_token
@@ -22,12 +22,6 @@ CODECS = {n: UorbCodec.of(c) for n, c in TYPES.items()}
 OUT_TYPES = {"vehicle_status": "VehicleStatus", "vehicle_command_ack": "VehicleCommandAck",
              "failsafe_flags": "FailsafeFlags", "vehicle_land_detected": "VehicleLandDetected",
              "vehicle_local_position": "VehicleLocalPosition", "vehicle_control_mode": "VehicleControlMode"}
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def _conf(mode: str, key: str, endpoint: str) -> zenoh.Config:

@@ -10,7 +10,6 @@
 from __future__ import annotations
 
 import contextlib
-import socket
 import subprocess
 import threading
 import time
@@ -20,7 +19,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import pytest
-from conftest import linked_configs, python_proc, stop_process, wait_for
+from conftest import free_port, linked_configs, python_proc, stop_process, wait_for
 from px4_helpers import QUICK_WARMUP_S, wait_state_armable
 
 from companion.app import Companion
@@ -141,12 +140,6 @@ def take_off(r: Rig, alt: float = 2.5) -> None:
 
 
 # ------------------------------------------------------------------------ companion process
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @contextmanager
 def drone(drone_id: str, sysid: int = 1, *extra: str,
           backend: str = "mavlink") -> Iterator[tuple[Any, subprocess.Popen]]:
@@ -157,7 +150,7 @@ def drone(drone_id: str, sysid: int = 1, *extra: str,
     from px4_zenoh.sim import ZenohSimulator
     with contextlib.ExitStack() as stack:
         if backend == "mavlink":
-            port = _free_udp_port()
+            port = free_port()     # below the ephemeral range: no simulator's own port=0 socket draws it
             sim: Any = stack.enter_context(Simulator(sysid, port=0, target_port=port, params=QUICK_FLIGHT,
                                                      estimator_warmup_s=QUICK_WARMUP_S))
             px4 = f"udpin:127.0.0.1:{port}"

@@ -597,7 +597,13 @@ def test_commands_are_sealed_per_sender_and_forged_or_replayed_calls_refused(tra
         try:
             reply = client.call(Command("hold", client_id="gcs1"), timeout=5.0)
             assert reply.message == "ok gcs1" and [c.client_id for c in heard] == ["gcs1"]
-            legit = list(captured)      # the sealed copies of gcs1's call (the tap hears the rogue's own puts too)
+            # On multicast the tap's declaration may reach the GCS's session after that first call (a CI
+            # run's tap heard nothing): gcs1 calls again until the tap has a sealed copy to replay.
+            deadline = time.monotonic() + 10.0
+            while transport == "multicast" and not captured and time.monotonic() < deadline:
+                assert client.call(Command("hold", client_id="gcs1"), timeout=5.0).message == "ok gcs1"
+                time.sleep(0.2)
+            legit = list(captured)      # the sealed copies of gcs1's calls (the tap hears the rogue's own puts too)
             # gcs2 (a GCS of this fleet, uav1's too) claiming gcs1's id: its own key names it.
             with Node("gcs2", namespace="uav1", config=s.configs[2],
                       wire=sealed(ENVELOPE, Keyring(s.fleet, "gcs2"))) as gcs2:

@@ -7,8 +7,9 @@ within COM_OF_LOSS_T is enough, no warm-up), so the simulator must too: no sleep
 from __future__ import annotations
 
 import asyncio
-import socket
 import warnings
+
+from conftest import free_port
 
 with warnings.catch_warnings():
     warnings.simplefilter("ignore", FutureWarning)
@@ -16,12 +17,6 @@ with warnings.catch_warnings():
     from mavsdk.offboard import PositionNedYaw
 
 from px4_link.sim import Simulator
-
-
-def _free_port(kind: int = socket.SOCK_DGRAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 async def _fly(udp_port: int, grpc_port: int, sim: Simulator) -> None:
@@ -52,7 +47,7 @@ async def _fly(udp_port: int, grpc_port: int, sim: Simulator) -> None:
 
 
 def test_mavsdk_set_position_then_offboard_start_at_once_flies_and_lands() -> None:
-    udp_port, grpc_port = _free_port(), _free_port(socket.SOCK_STREAM)
+    udp_port, grpc_port = free_port(), free_port()    # below the ephemeral range (conftest)
     params = {"MPC_LAND_SPEED": 2.0, "MPC_TKO_SPEED": 3.0}
     with Simulator(1, port=0, target_port=udp_port, params=params) as sim:
         asyncio.run(asyncio.wait_for(_fly(udp_port, grpc_port, sim), timeout=55))

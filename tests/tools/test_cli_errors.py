@@ -95,3 +95,19 @@ def test_filter_is_never_evaluated_as_code():
         with pytest.raises(FilterError):
             Filter(bad)
     assert not Filter("'a' * 10 ** 9 == 1")(data)   # refused at run time, no memory blow-up
+
+
+def test_a_second_companion_on_a_px4_port_in_use_stops_with_one_line():
+    """Two links on one vehicle's port would cross its datagrams (the first companion's replies and the
+    second's): the port is bound exclusively, and the second start says why in one line."""
+    from px4_link.transport import UdpServerTransport
+    first = UdpServerTransport("127.0.0.1", 0)       # as a running companion holds it
+    try:
+        port = first.local_address[1]
+        with pytest.raises(OSError):
+            UdpServerTransport("127.0.0.1", port)
+        r = cli("companion", "--id", "tbusy", "--px4", f"udpin:127.0.0.1:{port}", "--duration", "5")
+    finally:
+        first.sock.close()
+    assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
+    assert r.stderr.strip().splitlines()[-1].startswith("zenoh-robot companion: address already in use"), r.stderr
