@@ -135,10 +135,19 @@ def test_two_drones_each_get_only_their_setpoints(ns: str) -> None:
         replies: dict[str, str] = {}
         # How long this may take is not what is asserted (each drone's own setpoints, never the other's): on
         # four loaded workers one drone's first setpoint had not arrived after 30 s (a CI rehearsal).
+        # The setpoints stream on a thread of their own, as a GCS's timer sends them: a blocking offboard_start
+        # on the test's thread must not starve the other drone's stream (its deadline failsafe then froze the
+        # target at the vehicle's position, 0.0, and held: seen in rehearsals, not the cross-talk asserted).
+        stop = threading.Event()
+
+        def stream() -> None:
+            while not stop.wait(0.05):
+                for d, pub in pubs.items():
+                    pub.publish(DroneSetpoint(Header.now(), OP, xs[d], 0.0, -2.0))
+        streamer = threading.Thread(target=stream, daemon=True)
+        streamer.start()
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline and not all(len(s) and xs[d] in s for d, s in seen.items()):
-            for d, pub in pubs.items():
-                pub.publish(DroneSetpoint(Header.now(), OP, xs[d], 0.0, -2.0))
             for d, sim in ((a, sim_a), (b, sim_b)):
                 obs = observers[d]
                 # A session each (offboard_start): only then do setpoints reach PX4.
@@ -150,6 +159,8 @@ def test_two_drones_each_get_only_their_setpoints(ns: str) -> None:
                 if sim.last_setpoint is not None:
                     seen[d].add(sim.last_setpoint.position[0])
             time.sleep(0.1)
+        stop.set()
+        streamer.join(2.0)
         # When it fails, say where the chain stopped: no state heard, offboard_start refused, or no setpoint.
         why = {d: {"state heard": observers[d].state is not None, "offboard_start": replies.get(d),
                    "setpoints received by the sim": sim.setpoints_received}
