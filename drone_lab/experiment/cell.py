@@ -263,7 +263,7 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
                     pass     # stopped below; its mission record says how far the landing got
             landed_s = round((time.time_ns() - t1) / 1e9, 2)
             if prober is not None:
-                prober.join(timeout=30.0)
+                prober.join(timeout=60.0)   # two tries of `gcs cmd --timeout 12` with their start-ups
             command = probe.get("result")
             link.set_loss(0)
             time.sleep(1.0)       # the last samples land
@@ -387,12 +387,13 @@ def _probe_reaches(spec: CellSpec) -> bool:
     return spec.transport.startswith("router") or (spec.profile == "resilient" and spec.transport == "default")
 
 
-def _command_probe(link: LossyLink, workdir: Path, timeout: float = 6.0, tries: int = 2) -> dict[str, Any]:
+def _command_probe(link: LossyLink, workdir: Path, timeout: float = 12.0, tries: int = 2) -> dict[str, Any]:
     """A service call GCS -> companion across the loss: ``gcs cmd uav1 hold`` from a second GCS. Any
     answer counts, a refusal too (this GCS holds no control): the query crossed both ways and the real
     companion answered it. A process that got no answer is followed by one more, as an operator would
     (a new client's declarations ride the router's TCP link, which stalls under loss: docs/lossy-link.md);
-    ``attempts`` says how many it took."""
+    ``attempts`` says how many it took. 12 s each: a new TCP connection's SYN is resent after 1, 2 and 4 s,
+    so at 30 % loss 6 s left both tries unanswered in about one CI rehearsal of six."""
     out: dict[str, Any] = {}
     for attempt in range(1, tries + 1):
         out = _command_once(link, workdir, timeout)
