@@ -121,6 +121,9 @@ class ModeOffboard(ZenohOffboard):
         ex = self.executor
         if mode == "AUTO.RTL" and ex is not None and ex.running and ex.step == "mode":
             self.leaving = True
+            # The stream stops before the completion goes out: the executor switches PX4 away at once, and a
+            # setpoint of ours must not reach PX4 after that (rehearsal 16 counted one outside the mode).
+            self.stop_stream()
             try:
                 if not self.mode.complete(True):
                     raise CommandFailed(CMD_SET_NAV_STATE, None, f"mode {self.mode.name!r} is not active: "
