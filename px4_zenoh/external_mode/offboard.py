@@ -131,7 +131,6 @@ class ModeOffboard(ZenohOffboard):
             finally:
                 self._active = False
                 self.leaving = False
-                self.stop_stream()
             return None
         return super().stop(mode)
 
