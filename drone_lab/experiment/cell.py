@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import signal
 import subprocess
 import sys
@@ -39,7 +40,7 @@ STARTUP_TIMEOUT_S = 60.0   # launch -> both apps up; streams began 6-11 s after 
 AIRBORNE_TIMEOUT_S = 100.0
 LANDING_TIMEOUT_S = 75.0    # the pattern's end -> the GCS's exit (land and disarm: the mission waits 40 s)
 PATTERN_SIZE_M = 10.0
-TAIL_S = 2.0                # the pattern goes on this long after the window: the land is never inside it
+TAIL_S = 3.0                # the pattern goes on this long after the window: the land is never inside it
 
 
 @dataclass(frozen=True)
@@ -253,7 +254,6 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
                 time.sleep(max(0.0, t0 / 1e9 + spec.duration - time.time()))
             t1 = time.time_ns()
             tx1 = {side: link.tx_bytes(side) for side in link.sides}
-            channel = link.timeline_summary(t0, t1)
             apps_ran = all(p.poll() is None for p in apps.values())
             # The loss stays on through the landing: the land command crosses it too.
             if airborne is not None:
@@ -279,6 +279,9 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
                 if p.poll() is None:
                     p.kill()
                     p.wait()
+    timed_t1 = t1
+    t1 = min(t1, _pattern_end_ns(workdir, spec.pattern_s) or t1)
+    channel = link.timeline_summary(t0, t1)
     result = analyse_cell(spec, workdir, t0, t1, {k: p.returncode for k, p in procs.items()})
     result["run"] = spec.run
     result["pattern"] = spec.pattern
@@ -301,7 +304,8 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
         result["mission_failed"] = f"never flew the pattern: {fl['mission_result']}"
         result.pop("invalid", None)
     # Everything each side put on the wire in the window (all streams, copies and joins included).
-    result["bandwidth_kBps"] = {side: (tx1[side] - tx0[side]) / 1000 / max(1e-9, (t1 - t0) / 1e9) for side in tx0}
+    result["bandwidth_kBps"] = {side: (tx1[side] - tx0[side]) / 1000 / max(1e-9, (timed_t1 - t0) / 1e9)
+                                for side in tx0}     # the bytes were read at the timed end
     result["startup_s"] = startup_s        # launch -> both apps started (None: not within the timeout)
     result.update(formation(workdir, launch_ns))
     if command is not None:
@@ -326,6 +330,8 @@ def run_cell(spec: CellSpec, workdir: Path) -> dict[str, Any]:
         result["session_formed_s"] = None   # what arrived came with the stop (Ctrl-C ends the open's retries)
         result.pop("invalid", None)
     result["window_ns"] = [t0, t1]
+    if timed_t1 > t1:
+        result["window_cut_s"] = round((timed_t1 - t1) / 1e9, 3)
     # What the link applied in the window (the bursty channel's fades), and its raw timeline.
     result["loss_model"] = spec.loss_model
     result["channel"] = channel
@@ -441,6 +447,18 @@ def _load(path: Path) -> dict[str, Any] | None:
         return data
     except (OSError, ValueError):
         return None
+
+
+def _pattern_end_ns(workdir: Path, pattern_s: float) -> int | None:
+    """When the GCS's pattern was to end (its start in the GCS's record, ``pattern_window``, plus its duration),
+    as wall ns; None if it never started. The window ends there at the latest: switching the loss on costs four
+    subprocesses, seconds on a loaded machine (rehearsal 16), so a window timed from it could outrun the
+    pattern's tail and take the land in. The planned end, not the one the record shows: a mission that failed
+    early must not cut its failure out of the window."""
+    gcs = _load(workdir / "gcs.json") or {}
+    window = (gcs.get("mission") or {}).get("pattern_window") or []
+    start = window[0] if window and isinstance(window[0], float) else None
+    return None if start is None or math.isnan(start) else int((start + pattern_s) * 1e9)
 
 
 def analyse_cell(spec: CellSpec, workdir: Path, t0: int, t1: int, exit_codes: dict[str, int]) -> dict[str, Any]:

@@ -54,6 +54,7 @@ class ModeOffboard(ZenohOffboard):
         self.mode = mode
         self.executor = executor
         self._stop = threading.Event()
+        self._send_lock = threading.Lock()   # a send in progress ends before stop_stream returns
         self._registrar = threading.Thread(target=self._keep_registered, name="px4mode-register", daemon=True)
         self._registrar.start()
 
@@ -79,11 +80,19 @@ class ModeOffboard(ZenohOffboard):
         if not core.can_send:
             return
         out = self.outgoing(sp, now)
-        if isinstance(out, PositionTarget):
-            sent = self.mode.trajectory((out.x, out.y, out.z), None, out.yaw)
-        else:
-            sent = self.mode.trajectory(None, (out.vx, out.vy, out.vz), out.yaw)
+        with self._send_lock:
+            if not self._streaming:
+                return      # stopped while this tick was on its way: nothing goes out after stop_stream
+            if isinstance(out, PositionTarget):
+                sent = self.mode.trajectory((out.x, out.y, out.z), None, out.yaw)
+            else:
+                sent = self.mode.trajectory(None, (out.vx, out.vy, out.vz), out.yaw)
         core.count("setpoints_sent" if sent else "setpoints_withheld")
+
+    def stop_stream(self) -> None:
+        super().stop_stream()
+        with self._send_lock:
+            pass            # a send that passed its check before the stop has gone out: the caller may switch
 
     def start(self, prestream_s: float = PRESTREAM_S, confirm_timeout: float = 3.0) -> CommandAck:
         core = self._zcore
@@ -116,8 +125,10 @@ class ModeOffboard(ZenohOffboard):
 
     def stop(self, mode: str | None = "AUTO.LOITER") -> CommandAck | None:
         """The GCS's rtl while the executor flies the mode: the mode is done (mode_completed), and the executor
-        schedules RTL itself; anything else leaves the mode as in OFFBOARD (a user's switch: PX4 puts the
-        autopilot back in charge)."""
+        schedules RTL itself; anything else leaves the mode by a switch (a user's switch: PX4 puts the autopilot
+        back in charge). Unlike OFFBOARD, the stream stops first: PX4 never fails an external mode for a pause
+        in its setpoints (the companion's check answers for it), while a setpoint of ours that reached PX4
+        after the switch would be flown against PX4's own flight task (CI stop 46 counted one)."""
         ex = self.executor
         if mode == "AUTO.RTL" and ex is not None and ex.running and ex.step == "mode":
             self.leaving = True
@@ -132,6 +143,7 @@ class ModeOffboard(ZenohOffboard):
                 self._active = False
                 self.leaving = False
             return None
+        self.stop_stream()
         return super().stop(mode)
 
     def _on_mode_change(self, old: str, new: str) -> list[Event]:

@@ -17,7 +17,11 @@ import pytest
 import zenoh
 from px4_zenoh_probe import Hover, Probe, client_session, probed_sim
 
+from px4_link.targets import PositionTarget
+from px4_zenoh import Px4ZenohLink
 from px4_zenoh.external_mode import BridgeBugError, BridgePolicy, ExternalMode, RegistrationError
+from px4_zenoh.external_mode.offboard import install
+from px4_zenoh.session import Px4Endpoint
 from px4_zenoh.sim import ZenohSimulator
 
 ARM, RTL_CMD = 400, 20
@@ -155,6 +159,38 @@ def test_fly_complete_and_failing_check_in_flight(px4: tuple[Probe, ZenohSimulat
         finally:
             hover.stop()
     assert all(n == 0 for n in sim.misrouted.values())
+
+
+def test_leaving_the_mode_stops_the_stream_before_the_switch(px4: tuple[Probe, ZenohSimulator, zenoh.Session]) -> None:
+    """The companion's land/hold through the mode: no setpoint of ours may reach PX4 after it left the mode (it
+    would fight PX4's own flight task), so the stream stops, and a send on its way ends, before the switch goes
+    out. Checked at the switch itself (a spy on the command), not by the race's rare outcome."""
+    probe, sim, _ = px4
+    with Px4ZenohLink(Px4Endpoint("client", probe.endpoint)) as link:
+        off = install(link, "zr leave", lambda: (True, ()))
+        try:
+            assert link.wait_connected(10.0) and sim.wait_for(lambda s: off.mode_name != "", 10.0)
+            off.set_setpoint(PositionTarget(0.0, 0.0, -3.0))
+            off.start()
+            link.action.arm()                  # raises if refused
+            assert sim.wait_for(lambda s: s.altitude > 2.0, 15.0), "did not climb in the mode"
+            at_switch: list[tuple[int, bool]] = []
+            send = link.core.send_command
+
+            def spy(*args: Any, **kwargs: Any) -> Any:
+                at_switch.append((off.mode.stats.setpoints_sent, off.streaming))
+                return send(*args, **kwargs)
+            link.core.send_command = spy      # type: ignore[method-assign]
+            off.stop("AUTO.LOITER")
+            sent_after = off.mode.stats.setpoints_sent
+            link.core.send_command = send      # type: ignore[method-assign]
+            assert at_switch and at_switch[0][1] is False, "still streaming when the switch went out"
+            assert sent_after == at_switch[0][0], "a setpoint went out after the switch"
+            assert sim.wait_for(lambda s: s.mode == "AUTO.LOITER", 3.0), sim.mode
+            time.sleep(0.3)                    # two stream ticks: nothing more goes out
+            assert off.mode.stats.setpoints_sent == sent_after and sim.commander.setpoints_outside_mode == 0
+        finally:
+            off.close()
 
 
 def test_fallback_when_the_component_process_dies() -> None:
