@@ -279,6 +279,7 @@ class Companion:
                 "failsafe": self.failsafe.summary(), "px4_worker": self.worker.summary(),
                 "repeater": self.node.repeater_stats(),
                 "link_refused": link_refusals(self.node.wire),
-                "shed": self.shedding.summary() if self.shedding is not None else {},
+                "shed": ({**self.shedding.summary(), "camera_nice": self.camera.nice}
+                         if self.shedding is not None and self.camera is not None else {}),
                 "logs": {"sent": {k: v.to_dict() for k, v in self.sent.items()},
                          "received": {"setpoint": received.to_dict()}}}

@@ -5,7 +5,8 @@ fec). Frames are numbered as a camera driver numbers them (``header.seq``), and 
 strip) sent is recorded, as the sender numbers it, for the experiment's fresh-frame figures.
 
 Threads: its own ``camera`` thread reads, encodes and publishes (never the executor that serves
-setpoints); ``start`` and ``close`` are called by the owner. The rate follows a live `param set`.
+setpoints), at a lower OS priority than the rest (priority.py); ``start`` and ``close`` are called by the
+owner. The rate follows a live `param set`.
 """
 from __future__ import annotations
 
@@ -22,8 +23,10 @@ from zenoh_robot.tools.stream_metrics import StreamRecorder
 
 from .camera import RateKeeper, open_source
 from .config import CompanionConfig
+from .priority import lower_thread_priority
 
 log = logging.getLogger("companion")   # the app's logger: log lines keep the name they always had
+CAMERA_NICE = 10   # the encoder runs on what the setpoint path, the state and (on a shared machine) the GCS leave
 
 
 class CameraStreamer:
@@ -38,6 +41,7 @@ class CameraStreamer:
         self.frame_listeners: list[Callable[[Any], None]] = []
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self.nice: int | None = None   # the camera thread's nice value once lowered (None: not possible here)
 
     @property
     def frames_sent(self) -> int:
@@ -58,6 +62,9 @@ class CameraStreamer:
             self._thread.join(timeout=2.0)
 
     def _loop(self) -> None:
+        self.nice = lower_thread_priority(CAMERA_NICE)
+        if self.nice is None:
+            log.info("camera: its thread's priority cannot be lowered here; it competes with the setpoint path")
         cfg = self._config()
         try:
             source = open_source(cfg.camera or "test", cfg.image_width, cfg.image_height)

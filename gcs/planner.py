@@ -32,6 +32,7 @@ from .patterns import PathPoint, make_pattern, path_distance
 
 MAX_LEAD_M = GCS_MAX_LEAD_M      # within the companion's max_offset_m (drone_contract.limits)
 MAX_TARGET_SPEED = GCS_MAX_TARGET_SPEED_MS   # within its max_speed
+LEAD_DT_MAX_S = 1.0   # a longer pause leads no further: the drone's step check then measures from the vehicle
 # A formation drone has reached its slot's path once its target is that path (no longer a lead towards it)
 # and the drone is this close to it; its path error counts from then on.
 PATH_JOIN_M = 1.0
@@ -76,6 +77,7 @@ class TargetPlanner:
         self._t0 = 0.0
         self._frozen: PathPoint | None = None
         self._led: PathPoint | None = None     # the last formation target
+        self._led_at: float | None = None      # when it was planned (this planner's clock)
         self.on_path = False               # joined its path: errors count from here
         self._target_on_path = False       # the target is the path itself (formation: no longer led)
         self.max_path_error = 0.0
@@ -97,7 +99,7 @@ class TargetPlanner:
         x, y, z = position
         toward = self._toward(-abs(self.altitude), z)   # climb (or descend) from where it is
         if not session_active:
-            self._anchor = self._led = None
+            self._anchor = self._led = self._led_at = None
             self.on_path = self._target_on_path = False
             self._hover = PathPoint(x, y, toward, self._hover.yaw if self._hover else 0.0)
             return self._hover
@@ -120,9 +122,15 @@ class TargetPlanner:
         p0, p = self.pattern(0.0), self.pattern(self._formation_clock.elapsed())
         px, py = self.slot[0] + p.x - p0.x, self.slot[1] + p.y - p0.y
         tx, ty = lead(x, y, px, py, MAX_LEAD_M)
-        # Led from the last target, never faster than MAX_TARGET_SPEED: no jump to refuse.
+        # Led from the last target, never faster than MAX_TARGET_SPEED over the time since it: no jump to refuse.
+        # By the clock, not by the call: a late timer tick is followed at once by the next one (the executor
+        # keeps the phase), and a step per call put two full steps 5-50 ms apart, which the drone's step
+        # check refused as 10 m/s (4 of 10 drones of a loaded swarm sweep, 2026-11-29).
+        now = self._clock()
         prev = self._led or hover
-        tx, ty = lead(prev.x, prev.y, tx, ty, MAX_TARGET_SPEED / self.rate_hz)
+        dt = 1.0 / self.rate_hz if self._led_at is None else min(max(now - self._led_at, 0.0), LEAD_DT_MAX_S)
+        tx, ty = lead(prev.x, prev.y, tx, ty, MAX_TARGET_SPEED * dt)
+        self._led_at = now
         self._target_on_path = self._target_on_path or (tx, ty) == (px, py)
         self._led = PathPoint(tx, ty, self._toward(p.z, z), p.yaw)
         return self._led

@@ -1,10 +1,15 @@
 """The companion names what it sheds (issue #42): a camera that cannot keep the rate asked raises one
 ``shedding`` event per episode, ends it when the rate is back, and the summary counts the frames short.
-The watch is driven with its own clock and counters: no process, no timing."""
+The watch is driven with its own clock and counters: no process, no timing. And the camera gives way by its
+thread's own OS priority (companion/priority.py), read back from the kernel."""
 from __future__ import annotations
+
+import os
+import threading
 
 import pytest
 
+from companion.priority import MAX_NICE, lower_thread_priority
 from companion.shedding import PERIOD_S, CameraShedding
 
 pytestmark = pytest.mark.fast
@@ -56,3 +61,45 @@ def test_a_rate_raised_live_starts_the_window_again() -> None:
     sent[0] += 150
     watch.check(t)
     assert events.got == [] and watch.summary()["camera_windows_short"] == 0
+
+
+def test_the_camera_thread_gives_way_by_its_own_nice_value_and_no_other_thread_does() -> None:
+    """Linux keeps a nice value per thread: the camera's is raised, the caller's (the setpoint path's) is not."""
+    base = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+    got: list[int | None] = []
+    seen: list[int] = []
+
+    def camera() -> None:
+        got.append(lower_thread_priority(10))
+        seen.append(os.getpriority(os.PRIO_PROCESS, threading.get_native_id()))
+    th = threading.Thread(target=camera)
+    th.start()
+    th.join()
+    assert got == [min(MAX_NICE, base + 10)] and seen == got
+    assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == base     # this thread untouched
+    assert os.getpriority(os.PRIO_PROCESS, os.getpid()) == base                    # nor the process's main
+
+
+def test_a_streaming_camera_runs_at_the_lowered_priority() -> None:
+    import time
+
+    from companion.camera_streamer import CAMERA_NICE, CameraStreamer
+    from companion.config import CompanionConfig
+    from zenoh_robot import Node, qos
+    from zenoh_robot.tools.stream_metrics import StreamRecorder
+
+    base = os.getpriority(os.PRIO_PROCESS, os.getpid())
+    cfg = CompanionConfig(camera="test", camera_rate_hz=20.0)
+    with Node("camera_nice", namespace=f"cn{os.getpid()}") as node:
+        cam = CameraStreamer(node, "image", qos.IMAGE, lambda: cfg, StreamRecorder(), StreamRecorder())
+        cam.start()
+        try:
+            deadline = time.monotonic() + 20.0
+            while cam.frames_sent < 2 and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert cam.frames_sent >= 2
+            assert cam._thread is not None and cam._thread.native_id is not None
+            assert os.getpriority(os.PRIO_PROCESS, cam._thread.native_id) == min(MAX_NICE, base + CAMERA_NICE)
+            assert cam.nice == min(MAX_NICE, base + CAMERA_NICE)
+        finally:
+            cam.close()

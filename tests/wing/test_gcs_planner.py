@@ -100,6 +100,24 @@ def test_a_drone_far_from_its_slot_is_led_there_within_reach_and_speed() -> None
         prev = t
 
 
+def test_a_led_target_keeps_its_speed_when_the_ticks_bunch() -> None:
+    """A loaded GCS's timer fires late, then at once again (the executor keeps the phase): the target moves
+    by the time between the two, not a step per call, so the drone's step check never sees 10 m/s
+    (the old per-call step: 0.5 m in 5 ms)."""
+    clock = FakeClock()
+    p = planner("hover", clock, formation="line", slot=(0.0, 40.0))
+    prev, at = p.target((0.0, 0.0, -5.0), session_active=True), clock.t
+    assert prev is not None
+    for gap in (0.1, 0.195, 0.005, 0.1, 0.099, 0.001, 0.3, 0.0):
+        clock.t += gap
+        t = p.target((0.0, 0.0, -5.0), session_active=True)
+        assert t is not None
+        moved = math.dist((t.x, t.y), (prev.x, prev.y))
+        assert moved <= MAX_TARGET_SPEED * (clock.t - at) + 1e-9, (gap, moved)
+        prev, at = t, clock.t
+    assert prev.y > 0.0      # and it does get on its way
+
+
 def test_the_path_error_counts_once_the_drone_has_joined_its_path() -> None:
     p = planner("line", formation="line", slot=(0.0, 10.0))
     p.track((0.0, 0.0, -5.0), offboard=True)      # no session yet: nothing counted

@@ -43,7 +43,9 @@ def test_mission_end_to_end(ns: str, tmp_path: Path, backend: str) -> None:
     assert streams["sensor"]["received"] > 200 and streams["sensor"]["rate_hz"] > 20
     assert streams["sensor"]["age_avg_ms"] < 100
     assert streams["state"]["received"] > 20
-    assert d["frames"] > 30 and streams["image"]["age_avg_ms"] < 300
+    # The camera gives way under load by design (companion/priority.py): frames flow and arrive within a second,
+    # however loaded the machine; their freshness on a quiet one is the benchmarks' (docs/benchmarks.md).
+    assert d["frames"] > 30 and streams["image"]["age_avg_ms"] < 1000
     assert d["max_path_error_m"] < 3.0
     assert d["final_state"]["landed"] and not d["final_state"]["armed"]
     # PX4 returns to OFFBOARD once disarmed after landing: the companion parks it, and its summary at
