@@ -226,9 +226,10 @@ class ModeList:
             self._next_ask = now + RETRY_S
             self._ack_until = now + ACK_WINDOW_S
             self._collecting, self._collecting_total = {}, 0   # a fresh answer, not a mix with an old one
+            # Counted before it goes: the answer can be complete (the receive thread) before send_message returns.
+            self.requests_sent += 1
         sysid, compid = self._core.vehicle_ids()
         enc = self._core.encoder()
         # param2 = 0: every mode, as QGC asks (PX4 request_message: mode_index 0 = all).
         self._core.send_message(enc.command_long_encode(sysid, compid, MAV_CMD_REQUEST_MESSAGE, confirmation,
                                                         AVAILABLE_MODES_ID, 0, 0, 0, 0, 0, 0))
-        self.requests_sent += 1

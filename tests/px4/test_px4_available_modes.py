@@ -12,6 +12,7 @@ import xml.etree.ElementTree as ET
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import pymavlink
 import pytest
@@ -289,6 +290,31 @@ def test_a_registered_mode_is_announced_by_the_monitor_and_asked_for_again() -> 
         assert link.wait_until(lambda: not any(m.name == "Follow Me" for m in link.available_modes())
                                and link.modes.complete, 6)
         assert _decode_frame(monitors[-1])[1] == {"seq": 2}
+
+
+def test_a_request_is_counted_before_its_answer_can_arrive() -> None:
+    """The request is counted before it goes: on a fast link the answer completes the list (the receive
+    thread) while send_message has not returned yet (rehearsal 18 saw the list complete and the count 0).
+    Shown deterministically: the send holds until the answer is in, and reads the count then."""
+    with sim_and_link(armable=False) as (sim, link, _events):
+        assert link.available_modes(5)
+        core = link.modes._core
+        send = core.send_message
+        counted_at_answer: list[int] = []
+
+        def send_and_wait_for_the_answer(msg: Any) -> Any:
+            out = send(msg)
+            if getattr(msg, "command", None) == 512 and getattr(msg, "param1", None) == 435:   # AVAILABLE_MODES
+                link.wait_until(lambda: any(m.name == "Follow Me" for m in link.modes.available()), 5.0)
+                counted_at_answer.append(link.modes.requests_sent)
+            return out
+        core.send_message = send_and_wait_for_the_answer
+        try:
+            sim.register_external_mode("Follow Me")        # the monitor: the link asks again
+            assert link.wait_until(lambda: bool(counted_at_answer), 8), "no second request"
+        finally:
+            core.send_message = send
+        assert counted_at_answer[0] == 2
 
 
 # ------------------------------------------------------------------ a scripted PX4 flying an external mode
