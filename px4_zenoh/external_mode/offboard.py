@@ -128,13 +128,12 @@ class ModeOffboard(ZenohOffboard):
         schedules RTL itself; anything else leaves the mode by a switch (a user's switch: PX4 puts the autopilot
         back in charge). Unlike OFFBOARD, the stream stops first: PX4 never fails an external mode for a pause
         in its setpoints (the companion's check answers for it), while a setpoint of ours that reached PX4
-        after the switch would be flown against PX4's own flight task (CI stop 46 counted one)."""
+        after the switch would be flown against PX4's own flight task (CI stop 46 counted one). The same for the
+        executor's completion: it switches PX4 away at once (rehearsal 16 counted one)."""
+        self.stop_stream()
         ex = self.executor
         if mode == "AUTO.RTL" and ex is not None and ex.running and ex.step == "mode":
             self.leaving = True
-            # The stream stops before the completion goes out: the executor switches PX4 away at once, and a
-            # setpoint of ours must not reach PX4 after that (rehearsal 16 counted one outside the mode).
-            self.stop_stream()
             try:
                 if not self.mode.complete(True):
                     raise CommandFailed(CMD_SET_NAV_STATE, None, f"mode {self.mode.name!r} is not active: "
@@ -143,7 +142,6 @@ class ModeOffboard(ZenohOffboard):
                 self._active = False
                 self.leaving = False
             return None
-        self.stop_stream()
         return super().stop(mode)
 
     def _on_mode_change(self, old: str, new: str) -> list[Event]:

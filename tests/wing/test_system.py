@@ -149,20 +149,22 @@ def test_two_drones_each_get_only_their_setpoints(ns: str) -> None:
         streamer = threading.Thread(target=stream, daemon=True)
         streamer.start()
         deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and not all(len(s) and xs[d] in s for d, s in seen.items()):
-            for d, sim in ((a, sim_a), (b, sim_b)):
-                obs = observers[d]
-                # A session each (offboard_start): only then do setpoints reach PX4.
-                if d not in started and obs.state is not None and obs.state.connected:
-                    res = obs.command("offboard_start")
-                    replies[d] = res.message
-                    if res.success:
-                        started.add(d)
-                if sim.last_setpoint is not None:
-                    seen[d].add(sim.last_setpoint.position[0])
-            time.sleep(0.1)
-        stop.set()
-        streamer.join(2.0)
+        try:
+            while time.monotonic() < deadline and not all(len(s) and xs[d] in s for d, s in seen.items()):
+                for d, sim in ((a, sim_a), (b, sim_b)):
+                    obs = observers[d]
+                    # A session each (offboard_start): only then do setpoints reach PX4.
+                    if d not in started and obs.state is not None and obs.state.connected:
+                        res = obs.command("offboard_start")
+                        replies[d] = res.message
+                        if res.success:
+                            started.add(d)
+                    if sim.last_setpoint is not None:
+                        seen[d].add(sim.last_setpoint.position[0])
+                time.sleep(0.1)
+        finally:        # the stream never outlives the node it publishes on
+            stop.set()
+            streamer.join(2.0)
         # When it fails, say where the chain stopped: no state heard, offboard_start refused, or no setpoint.
         why = {d: {"state heard": observers[d].state is not None, "offboard_start": replies.get(d),
                    "setpoints received by the sim": sim.setpoints_received}
