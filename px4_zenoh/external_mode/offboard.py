@@ -55,6 +55,8 @@ class ModeOffboard(ZenohOffboard):
         self.executor = executor
         self._stop = threading.Event()
         self._send_lock = threading.Lock()   # a send in progress ends before stop_stream returns
+        if executor is not None:
+            executor.on_step = self._executor_step
         self._registrar = threading.Thread(target=self._keep_registered, name="px4mode-register", daemon=True)
         self._registrar.start()
 
@@ -83,11 +85,21 @@ class ModeOffboard(ZenohOffboard):
         with self._send_lock:
             if not self._streaming:
                 return      # stopped while this tick was on its way: nothing goes out after stop_stream
+            ex = self.executor
+            if ex is not None and ex.step == "takeoff":
+                core.count("setpoints_withheld")   # PX4 flies the executor's takeoff, not the mode
+                return
             if isinstance(out, PositionTarget):
                 sent = self.mode.trajectory((out.x, out.y, out.z), None, out.yaw)
             else:
                 sent = self.mode.trajectory(None, (out.vx, out.vy, out.vz), out.yaw)
         core.count("setpoints_sent" if sent else "setpoints_withheld")
+
+    def _executor_step(self, what: str) -> None:
+        """The executor's thread, before a step's command goes out: a send on its way ends first, so no setpoint
+        of the mode reaches PX4 after the executor switched it away (rehearsal 21 counted one)."""
+        with self._send_lock:
+            pass
 
     def stop_stream(self) -> None:
         super().stop_stream()
