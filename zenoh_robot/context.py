@@ -18,10 +18,10 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import zenoh
 
-from ._wire.repeater import Repeater
 from .executor import Executor
 from .qos import QoSProfile
 from .qos_monitor import QoSMonitor
+from .repeater import Repeater
 
 if TYPE_CHECKING:
     from .graph import EndpointType, TopicEndpointInfo

@@ -56,9 +56,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from ._wire.repeater import REPEAT_INTERVAL_S
 from .message import Message, array, message, ros_field
 from .qos import QoSProfile, ReliabilityPolicy
+from .repeater import REPEAT_INTERVAL_S
 
 log = logging.getLogger("zenoh_robot.feedback")
 

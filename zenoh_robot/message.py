@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from operator import attrgetter
 from typing import Any, ClassVar
 
-from ._wire.validate import ValidationError, build_body_check, build_decoder  # noqa: F401  (ValidationError: re-exported)
+from .msg_validate import ValidationError, build_body_check, build_decoder  # noqa: F401  (ValidationError: re-exported)
 
 PRIMITIVES: dict[str, type] = {
     "bool": bool,
@@ -109,7 +109,7 @@ class Message:
     _fields_spec: ClassVar[tuple[FieldSpec, ...]]
     _to_wire: ClassVar[Callable[[Any], Any]]
     _from_wire: ClassVar[Callable[[Any], Any]]
-    # Set by @message (see _wire/validate.py): the generated fast path and the reference rules.
+    # Set by @message (see zenoh_robot/msg_validate.py): the generated fast path and the reference rules.
     _zr_try_from_wire: ClassVar[Callable[[Any], Any]]
     _zr_reference_decode: ClassVar[Callable[[Any], Any]]
     _zr_reference_from_wire: ClassVar[Callable[[Any], Any]]
@@ -229,7 +229,7 @@ def _build_codec(cls: type["Message"]) -> tuple[Callable[[Any], Any], Callable[[
             return out
 
     # Every field is checked against the schema (types, ranges, lengths, nested types): a body from
-    # the network must not hand a callback a str where it expects a float (see _wire/validate.py).
+    # the network must not hand a callback a str where it expects a float (see zenoh_robot/msg_validate.py).
     # The reference checker decides every body the generated fast path does not take as is.
     check_body = build_body_check(type_name, specs)
     reference_check = build_body_check(type_name, specs, reference=True)

@@ -18,7 +18,6 @@ from typing import TYPE_CHECKING, Any, TypeVar, overload
 import zenoh
 
 from . import names
-from ._wire.repeater import Repeater
 from .claim import NodeClaim, start_claim
 from .context import Endpoint, EntityContext
 from .executor import Executor, Timer
@@ -38,6 +37,7 @@ from .parameters import (
 from .publisher import Publisher
 from .qos import SYSTEM_DEFAULT, QoSProfile
 from .qos_monitor import QoSMonitor
+from .repeater import Repeater
 from .services import Client, Service, Services
 from .services.retry import _DEFAULT as _DEFAULT_RETRY
 from .services.service import Handler

@@ -8,13 +8,13 @@ import time
 from collections.abc import Callable
 from typing import Any, Generic, NamedTuple, TypeVar
 
-from ._wire.redundancy import MAX_HISTORY, REPEAT_KEY, RedundantHistory
 from .context import EntityContext
 from .graph import EndpointType, TopicEndpointInfo
 from .message import Message, require_message_type, type_support
 from .qos import QoSProfile
 from .qos_events import PublisherEvents
 from .qos_mapping import declare_publisher
+from .redundancy import MAX_HISTORY, REPEAT_KEY, RedundantHistory
 from .session_config import is_multicast_session
 
 M = TypeVar("M", bound=Message)
@@ -76,7 +76,7 @@ class Publisher(Generic[M]):
         self._plain = self._history is None and not self._repeats and self._attachment is None
         # The ROS 2 wire's common case: an attachment and nothing else (no extras to merge, no copies).
         self._attached_only = self._history is None and not self._repeats and self._attachment is not None
-        # With a deadline, copies are spread over most of it (see _wire/repeater.py); the rest
+        # With a deadline, copies are spread over most of it (see zenoh_robot/repeater.py); the rest
         # of the deadline is margin for the copy that does arrive to be processed.
         self._repeat_window = qos.deadline * REPEAT_WINDOW_FRACTION if qos.deadline and qos.repeat else None
         self.events = PublisherEvents(context, self, event_callbacks)

@@ -14,7 +14,7 @@ statistics hooks, the callback) is guarded: a failure is counted by kind (``malf
 ``type_mismatch``, ``hook_errors``, ``callback_errors``, ``internal_errors``), logged at
 a bounded rate (``ratelimit``), and the subscription keeps draining. Per-publisher
 tables are LRU-bounded; a forged sequence number cannot silence the real publisher
-(``_wire/redundancy.py`` says why).
+(``zenoh_robot/redundancy.py`` says why).
 
 Raw mode (rclpy's ``raw=True``), for tools that show what is on a topic without its
 Python type::
@@ -72,7 +72,6 @@ from typing import Any, Generic, TypeVar
 
 import zenoh
 
-from ._wire.redundancy import AHEAD, WINDOW, Deduplicator, check_extra
 from .context import EntityContext
 from .graph import ANY_TYPE_HASH, EndpointType, TopicEndpointInfo
 from .message import require_message_type, type_support
@@ -80,6 +79,7 @@ from .qos import DurabilityPolicy, HistoryPolicy, QoSProfile
 from .qos_events import SubscriptionEvents
 from .qos_mapping import declare_subscriber
 from .ratelimit import RateLimitedLog
+from .redundancy import AHEAD, WINDOW, Deduplicator, check_extra
 from .wire import DuplicateSample, MalformedSample
 
 M = TypeVar("M")

@@ -5,7 +5,7 @@
 netns.py). Per loss level and transport, a server process in the drone namespace serves a command
 service whose handler counts executions per call id; a client process in the GCS namespace calls
 it (``arm``, ``takeoff``, ``hold``, ``land`` in turn) with ``services.command_retry`` (adaptive:
-_wire/call_plan.py) and the given deadline. Transports: ``multicast`` is the resilient multicast
+zenoh_robot/services/call_plan.py) and the given deadline. Transports: ``multicast`` is the resilient multicast
 session (``SessionConfig.resilient(iface)``, calls ride puts); ``unicast`` is the resilient
 peer-to-peer UDP/TCP session the experiment cells build (cell.transport_for, calls ride queries).
 ``--start after`` switches the loss on only once the caller is linked (a unicast session does

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from zenoh_robot._wire import envelope
+from zenoh_robot import envelope
 
 pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
 

@@ -23,11 +23,10 @@ from conftest import linked_configs, wait_for
 from wire_helpers import raw_put
 
 from drone_contract.streams import PROFILES
-from zenoh_robot import Node
-from zenoh_robot._wire import envelope
-from zenoh_robot._wire.redundancy import ESTABLISHED, Deduplicator
+from zenoh_robot import Node, envelope
 from zenoh_robot.message import ValidationError
 from zenoh_robot.msgs import Setpoint
+from zenoh_robot.redundancy import ESTABLISHED, Deduplicator
 from zenoh_robot.subscription import MAX_TRACKED_PUBLISHERS, MessageInfo
 
 SETPOINT_QOS = PROFILES["resilient"].qos["setpoint"]

@@ -20,12 +20,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from wire_helpers import KEEP_ALL, ArmRequest, ArmResponse, raw_put
 
-from zenoh_robot import QoSProfile
-from zenoh_robot._wire import envelope
-from zenoh_robot._wire.redundancy import EPOCHS, Deduplicator
-from zenoh_robot._wire.validate import INT_RANGES
+from zenoh_robot import QoSProfile, envelope
 from zenoh_robot.message import Message, ValidationError
+from zenoh_robot.msg_validate import INT_RANGES
 from zenoh_robot.msgs import Header, Image, JointState, SensorCombined, Setpoint, Twist
+from zenoh_robot.redundancy import EPOCHS, Deduplicator
 from zenoh_robot.services import ServiceError
 from zenoh_robot.subscription import MAX_TRACKED_PUBLISHERS
 

@@ -304,7 +304,7 @@ def _spec_accepts(fields: list) -> bool:
 
 
 def test_the_tuple_unpack_accepts_exactly_the_envelopes_the_format_allows() -> None:
-    from zenoh_robot._wire import envelope
+    from zenoh_robot import envelope
     rng = np.random.default_rng(7)
     for data in (b"", b"\xc1", msgpack.packb({"a": 1}), b"\x93\x01\x02", msgpack.packb(["zr1"] * 7)):
         with pytest.raises(envelope.MalformedSample):

@@ -44,7 +44,7 @@ def test_fixed_array_length_is_checked_on_the_wire() -> None:
 
 
 def test_numpy_values_are_accepted_in_fields() -> None:
-    from zenoh_robot._wire import envelope
+    from zenoh_robot import envelope
     msg = SensorCombined(gyro_rad=np.array([1.0, 2.0, 3.0], dtype=np.float32))
     ts = type_support(SensorCombined)
     data = envelope.pack(ts.name, ts.hash, 1, 1, 0, ts.encode(msg))
@@ -123,6 +123,6 @@ def test_decoding_accepts_what_the_schema_allows() -> None:
     assert sp.x == 1.0 and type(sp.x) is float and sp.yaw != sp.yaw
     img = Image._from_wire([[1, "", 0], 1, 2, "mono8", 0, 2, [7, 255]])          # numpy-style list of bytes
     assert img.data == bytes([7, 255])
-    from zenoh_robot._wire import validate
+    from zenoh_robot import msg_validate as validate
     with pytest.raises(ValueError, match="at most"):
         String._from_wire(["x" * (validate.MAX_STRING_LEN + 1)])

@@ -253,7 +253,7 @@ def test_publish_returns_the_seq_and_stamp_the_subscriber_sees(pair) -> None:
 
 @pytest.mark.fast
 def test_raw_subscription_of_any_type_gets_envelope_fields_and_bytes(pair) -> None:
-    from zenoh_robot._wire import envelope
+    from zenoh_robot import envelope
     from zenoh_robot.subscription import RawMessage
     a, b = pair
     got: list = []

@@ -15,8 +15,7 @@ import msgpack
 import pytest
 from conftest import linked_configs, linked_nodes, python_proc, wait_for
 
-from zenoh_robot import Node, QoSProfile
-from zenoh_robot._wire import envelope
+from zenoh_robot import Node, QoSProfile, envelope
 from zenoh_robot.events import PublisherEventCallbacks, SubscriptionEventCallbacks
 from zenoh_robot.message import type_support
 from zenoh_robot.msgs import Float32, String

@@ -8,7 +8,7 @@ import pytest
 from conftest import linked_configs
 
 from zenoh_robot import Node
-from zenoh_robot._wire.redundancy import Deduplicator, RedundantHistory
+from zenoh_robot.redundancy import Deduplicator, RedundantHistory
 
 pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
 
@@ -117,7 +117,7 @@ def test_deadline_copies_are_spread_and_a_newer_payload_replaces_them() -> None:
     import threading
     import time
 
-    from zenoh_robot._wire.repeater import Repeater
+    from zenoh_robot.repeater import Repeater
 
     sent: list[tuple[float, bytes]] = []
     lock = threading.Lock()
@@ -150,7 +150,7 @@ def test_a_starved_repeater_counts_the_copies_it_sent_late() -> None:
     together): the repeater counts it, so a flight's record tells a starved thread from the link."""
     import threading
 
-    from zenoh_robot._wire.repeater import LATE_S, Repeater
+    from zenoh_robot.repeater import LATE_S, Repeater
 
     hold = threading.Event()
     sent: list[bytes] = []

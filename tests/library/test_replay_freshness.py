@@ -17,8 +17,7 @@ import zenoh
 from conftest import free_port, wait_for
 
 from drone_contract.messages import Command, CommandResult, DroneSetpoint, VehicleState
-from zenoh_robot import Node, SessionConfig
-from zenoh_robot._wire import envelope
+from zenoh_robot import Node, SessionConfig, envelope
 from zenoh_robot.keyring import Keyring
 from zenoh_robot.message import type_support
 from zenoh_robot.tools import keys

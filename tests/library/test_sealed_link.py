@@ -32,8 +32,7 @@ from cryptography.hazmat.primitives.kdf.hkdf import HKDF
 
 from drone_contract.messages import DroneSetpoint, VehicleState
 from drone_contract.streams import PROFILES
-from zenoh_robot import Node, SessionConfig, qos
-from zenoh_robot._wire import envelope
+from zenoh_robot import Node, SessionConfig, envelope, qos
 from zenoh_robot.keyring import Keyring, KeyringError
 from zenoh_robot.message import type_support
 from zenoh_robot.tools import keys

@@ -13,9 +13,8 @@ import pytest
 import zenoh
 from conftest import linked_nodes, wait_for
 
-from zenoh_robot import Message, RetryPolicy, message
+from zenoh_robot import Message, RetryPolicy, envelope, message
 from zenoh_robot import services as services_mod
-from zenoh_robot._wire import envelope
 from zenoh_robot.message import type_support
 from zenoh_robot.services import IdempotencyCache, ServiceError, ServiceTimeout, ServiceUnavailable
 from zenoh_robot.services import client as services_client
@@ -189,11 +188,11 @@ def test_cache_limits_bytes_ttl_and_waiters():
 
 
 def test_call_plan_meets_the_target_and_bounds_the_cost():
-    """The adaptive plan (_wire/call_plan.py): >= 99.9 % answered within 2 s at 50 % loss each way
+    """The adaptive plan (zenoh_robot/services/call_plan.py): >= 99.9 % answered within 2 s at 50 % loss each way
     with no measurement, >= 99 % at a measured 90 %, and never more copies than its caps."""
     import math
 
-    from zenoh_robot._wire import call_plan as cp
+    from zenoh_robot.services import call_plan as cp
 
     unknown = cp.call_plan(math.nan, 2.0)
     assert unknown.answered(0.5, 2.0) >= 0.999 and unknown.reply_copies > 1
@@ -218,7 +217,7 @@ def test_put_carried_call_sends_the_asked_reply_copies_once_per_burst(ns, monkey
     """The multicast path (puts on @rq / @rp), here over a loopback unicast link: the request asks
     for 4 reply copies (client loss 50 %), the slow handler runs once while the retries join it,
     and the joined duplicates are answered by one burst of 4 spread copies, not 4 per duplicate."""
-    from zenoh_robot._wire import call_plan as cp
+    from zenoh_robot.services import call_plan as cp
 
     monkeypatch.setattr(services_client, "is_multicast_session", lambda session: True)
     handler = Counting()

@@ -1,4 +1,4 @@
-"""Generated decoders (``_wire/validate.py`` build_decoder) behave exactly as the reference checker.
+"""Generated decoders (``zenoh_robot/msg_validate.py`` build_decoder) behave exactly as the reference checker.
 
 Message types of many shapes (every primitive, fixed arrays around the unroll limit, unbounded
 arrays, bytes, nested messages past the inline depth, arrays of messages, an empty message);
@@ -17,9 +17,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from zenoh_robot._wire import validate
-from zenoh_robot._wire.validate import INT_RANGES, decoder_source
+from zenoh_robot import msg_validate as validate
 from zenoh_robot.message import Message, message, ros_field, type_support
+from zenoh_robot.msg_validate import INT_RANGES, decoder_source
 from zenoh_robot.msgs import Header, Image, JointState, SensorCombined, Setpoint
 
 pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)

@@ -15,8 +15,7 @@ from typing import Any
 import pytest
 from conftest import linked_configs, wait_for
 
-from zenoh_robot import Node, QoSProfile
-from zenoh_robot._wire import envelope
+from zenoh_robot import Node, QoSProfile, envelope
 from zenoh_robot.graph import EndpointType, NodeInfo, TopicEndpointInfo, decode_qos, encode_qos
 from zenoh_robot.message import TypeSupport, type_support
 from zenoh_robot.msgs import Setpoint, String

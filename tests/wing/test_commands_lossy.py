@@ -5,7 +5,7 @@ service waits for PX4's ACK and mode (test_commands_through_the_real_companion_u
 
 Two network namespaces joined by a veth (netns.LossyLink, root), a server process and a client
 process (drone_lab/experiment/commands.py), 60 calls with a 2 s deadline per cell.
-At 50 %: >= 97 % answered within 2 s (the plan, _wire/call_plan.py, predicts > 99.9 %). At 70 %
+At 50 %: >= 97 % answered within 2 s (the plan, zenoh_robot/services/call_plan.py, predicts > 99.9 %). At 70 %
 the old behaviour (reply copies sent back to back, so one datagram: p = 0.3 * 0.3 per attempt,
 ~17 attempts in 2 s) answered ~80 %: the >= 95 % bound fails with it, and passes with spread
 reply copies and request copies 10-50 ms apart (predicted 99.99 %). Without the server's idempotency

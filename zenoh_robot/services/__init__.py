@@ -29,7 +29,7 @@ At-least-once delivery, at-most-once execution (lossy links):
   ``max_interval_s``) until a reply arrives or ``timeout`` passes; a reply to any attempt
   completes the call. :data:`ADAPTIVE_RETRY` instead sizes each call from the client's loss
   estimate (``client.set_loss``, e.g. fed by a LossMonitor; 50 % when none) and the deadline
-  (_wire/call_plan.py): a request copy every 10-50 ms, and on a multicast session the number of
+  (zenoh_robot/services/call_plan.py): a request copy every 10-50 ms, and on a multicast session the number of
   reply copies it asks for. A client's default (``create_client(..., retry=...)``) is no retry on
   a unicast session and ADAPTIVE_RETRY on a multicast session, where everything is best effort;
   :func:`command_retry` is ADAPTIVE_RETRY on both (a unicast link may be UDP). A ``busy``

@@ -19,12 +19,12 @@ from typing import Any, Generic, TypeVar
 
 import zenoh
 
-from .._wire import call_plan as plans
-from .._wire import envelope
+from .. import envelope
 from ..context import EntityContext
 from ..message import Message, TypeSupport, require_message_type, type_support
 from ..session_config import is_multicast_session
 from ..wire.sealed import service_seal
+from . import call_plan as plans
 from .errors import ServiceCallError, ServiceError, ServiceTimeout, ServiceUnavailable, decode_error
 from .keys import REPLY_CHUNK, REQUEST_CHUNK, service_name_of_key
 from .multicast import _best_effort_publisher, _parse_reply_attachment

@@ -34,6 +34,6 @@ def _best_effort_publisher(session: zenoh.Session, key: str) -> Any:
                                      priority=zenoh.Priority.INTERACTIVE_HIGH)
 
 
-# A reply on a multicast session goes out in spread copies (_wire/call_plan.py: as many as the
+# A reply on a multicast session goes out in spread copies (zenoh_robot/services/call_plan.py: as many as the
 # client asks for, or the server's own loss estimate needs); this many when neither says.
 MULTICAST_REPLY_COPIES = 2

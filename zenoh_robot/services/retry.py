@@ -9,7 +9,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from .._wire import call_plan as plans
+from . import call_plan as plans
 
 if TYPE_CHECKING:
     from ..node import Node
@@ -47,7 +47,7 @@ UNICAST_COMMAND_RETRY = RetryPolicy(interval_s=0.5, multiplier=2.0, max_interval
 
 @dataclass(frozen=True)
 class AdaptiveRetry:
-    """Retries sized per call from the client's loss estimate and the call's deadline (_wire/call_plan.py).
+    """Retries sized per call from the client's loss estimate and the call's deadline (call_plan.py).
 
     Request copies go out every ``plan.step_s`` (10-50 ms) until a reply or the deadline; on a
     multicast session the request asks the server for ``plan.reply_copies`` spread reply copies.

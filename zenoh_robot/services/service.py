@@ -23,12 +23,12 @@ from typing import Any, Generic, TypeVar
 import msgpack
 import zenoh
 
-from .._wire import call_plan as plans
-from .._wire import envelope
+from .. import envelope
 from ..context import EntityContext
 from ..message import Message, require_message_type, type_support, validated
 from ..ratelimit import RateLimitedLog
 from ..wire.sealed import StaleSample, service_seal
+from . import call_plan as plans
 from .errors import _error_payload
 from .idempotency import IdempotencyCache, Responder
 from .keys import DESCRIBE_PARAM, REPLY_CHUNK, REQUEST_CHUNK, service_name_of_key

@@ -6,7 +6,7 @@ A format implements :class:`WireFormat` and :class:`GraphFormat` and is chosen p
 ``Node(..., wire=fmt)``. Nodes of different formats do not see each other's samples or graph.
 See docs/guide.md, "Wire formats", and docs/ros2.md.
 """
-from .._wire.envelope import MalformedSample
+from ..envelope import MalformedSample
 from .envelope_format import ENVELOPE, EnvelopeWireFormat
 from .format import Decoder, GraphFormat, Header, SampleEncoder, WireFormat, WireSample
 from .ros2 import Ros2WireFormat, ros2_wire

@@ -1,11 +1,11 @@
 """The envelope, zenoh-robot's own wire format and the default one: a msgpack array per sample
-on the topic's own key (``_wire/envelope.py`` has the layout), and the ``@zr/lv`` graph tokens
+on the topic's own key (``zenoh_robot/envelope.py`` has the layout), and the ``@zr/lv`` graph tokens
 (``graph.py``). Its samples carry the extra map (redundancy, repeats) and no attachment."""
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from .._wire import envelope
+from .. import envelope
 from ..graph import ZR_GRAPH
 from .format import Decoder, GraphFormat, WireSample
 

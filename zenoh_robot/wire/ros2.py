@@ -30,7 +30,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
 
-from .._wire.envelope import MalformedSample
+from ..envelope import MalformedSample
 from ..graph import ANY_TYPE_HASH, EndpointType, NodeInfo, TopicEndpointInfo
 from ..qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSProfile, ReliabilityPolicy
 from .format import Decoder, GraphFormat, Header

@@ -23,7 +23,7 @@ an empty plaintext, encryption ``head``; no bytes are joined or copied to build 
 unless asked (it hides nothing a radio observer needs less than the timing; docs/security.md has the
 cost).
 
-Seal once, send many: a repeat (the same sample sent again by the repeater, ``_wire/repeater.py``)
+Seal once, send many: a repeat (the same sample sent again by the repeater, ``zenoh_robot/repeater.py``)
 carries the first copy's sealed bytes, so a sample costs one AEAD call to seal however many copies
 leave. Redundancy history is not a copy: each sample carries its own history, so it is a new sample
 with its own bytes, sealed once. Service calls (:class:`ServiceSeal`) still seal every retry and
@@ -87,7 +87,7 @@ from pathlib import Path
 from time import monotonic
 from typing import TYPE_CHECKING, Any, NamedTuple
 
-from .._wire.envelope import MalformedSample
+from ..envelope import MalformedSample
 from ..keyring import FLEET
 from .format import Decoder, GraphFormat, Header, SampleEncoder, WireFormat
 from .freshness import FRESH_S, OwnClock, ScopeClocks, own_clock
@@ -562,7 +562,7 @@ class ServiceSeal:
 
     def __init__(self, fmt: SealedWireFormat, service_key: str, request: TypeSupport | None,
                  response: TypeSupport | None) -> None:
-        from .._wire.envelope import unpack_fields
+        from ..envelope import unpack_fields
         self._fmt = fmt
         self._request_key = f"{service_key}/@rq"
         self._reply_key = f"{service_key}/@rp"

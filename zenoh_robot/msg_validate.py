@@ -43,7 +43,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from ..message import FieldSpec
+    from .message import FieldSpec
 
 MAX_STRING_LEN = 1 << 20          # characters in one string field
 MAX_SEQUENCE_LEN = 1 << 20        # elements in one unbounded array field

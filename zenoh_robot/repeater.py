@@ -28,7 +28,7 @@ import threading
 import time
 from collections.abc import Callable
 
-log = logging.getLogger("zenoh_robot._wire.repeater")
+log = logging.getLogger("zenoh_robot.repeater")
 
 # Not a multiple of common stream periods (5, 10, 33 ms): a copy must not share a batch with
 # the next original sample of a 200 Hz stream.
