@@ -8,7 +8,19 @@ topics used, their keys learnt from PX4's liveliness tokens). See docs/px4-zenoh
 Layering: drone wing. Imports the library (``zenoh_robot``) and ``px4_link``'s vehicle-side
 types so the companion drives either backend through one interface; px4_link never imports it.
 """
-from .link import Px4ZenohLink
-from .session import PX4_DEFAULT_ENDPOINT, Px4Endpoint, parse_px4_spec
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from px4_link.lazy import lazy_exports
+
+if TYPE_CHECKING:   # loaded on first use (px4_link/lazy.py: a Ctrl-C at start-up)
+    from .link import Px4ZenohLink
+    from .session import PX4_DEFAULT_ENDPOINT, Px4Endpoint, parse_px4_spec
 
 __all__ = ["Px4ZenohLink", "Px4Endpoint", "PX4_DEFAULT_ENDPOINT", "parse_px4_spec"]
+
+__getattr__ = lazy_exports(__name__, {
+    ".link": ("Px4ZenohLink",),
+    ".session": ("PX4_DEFAULT_ENDPOINT", "Px4Endpoint", "parse_px4_spec"),
+})

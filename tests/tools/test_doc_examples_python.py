@@ -5,8 +5,8 @@ A ```python block right after ``<!-- doc-test: python "REGEX" -->`` is run as a 
 its own: it must print a line matching REGEX (an example that spins is then stopped with Ctrl-C, as a user
 would; ``python ends "REGEX"``: one that ends by itself must then exit 0 unaided), and never print a
 traceback. ``<!-- doc-test: python -->`` (no REGEX): it must run for a few seconds without a traceback
-(``python ends``: end by itself with exit 0). Blocks without a marker are fragments (``...``, names
-defined elsewhere) and are not run.
+(``python ends``: end by itself with exit 0). Fragments (``...``, names defined elsewhere) are marked
+``fragment``: tests/tools/test_doc_blocks.py compiles them and resolves their imports.
 """
 from __future__ import annotations
 
