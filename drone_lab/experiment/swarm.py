@@ -398,6 +398,13 @@ def summarize(result: dict[str, Any], cell: SwarmCell) -> dict[str, Any]:
         "downlink_applied": sum(1 for d in ds if d.get("downlink") == "applied"),
         "load_avg_1m": (result.get("load_avg") or [float("nan")])[0],
         "setpoint_hz_min": _min([d["setpoint"]["rate_hz"] for d in ds]),
+        # While the GCS streams to it: the rate over the window also counts the silence after a drone landed
+        # (its stream ends there by design) and read 8.3 Hz where the GCS sent 9.97.
+        "setpoint_streamed_hz_min": _min([1000.0 / d["setpoint"]["period_avg_ms"] for d in ds
+                                          if d["setpoint"].get("period_avg_ms", 0) > 0]),
+        "setpoint_gap_p99_ms_max": max((d["setpoint"]["gap_p99_ms"] for d in ds
+                                        if d["setpoint"].get("gap_p99_ms") == d["setpoint"].get("gap_p99_ms")),
+                                       default=float("nan")),
         "setpoint_delivered_min": _min([d["setpoint"]["delivered_pct"] for d in ds]),
         "sensor_delivered_min": _min([d["sensor"]["delivered_pct"] for d in ds]),
         "sensor_delivered_avg": _mean([d["sensor"]["delivered_pct"] for d in ds]),

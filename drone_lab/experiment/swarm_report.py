@@ -203,6 +203,8 @@ FLIGHT_COLUMNS = [
     ("path_error_max_m", "path err max m", "{:.2f}"), ("offboard_share_min", "OFFBOARD % (worst)", "pct"),
     ("commands_ok_pct", "commands ok %", "{:.0f}"), ("command_latency_max_s", "cmd latency max s", "{:.2f}"),
     ("holds", "HOLDs", "{:.0f}"), ("setpoint_delivered_min", "setpoint % (min)", "{:.1f}"),
+    ("setpoint_streamed_hz_min", "setpoint Hz streamed (min)", "{:.2f}"),
+    ("setpoint_gap_p99_ms_max", "setpoint gap p99 ms (worst)", "{:.0f}"),
     ("sensor_delivered_min", "sensor % (min)", "{:.1f}"), ("image_fps_avg", "img fps", "{:.1f}"),
     ("cpu_gcs_pct", "GCS % core", "{:.0f}"), ("cpu_gcs_per_drone_pct", "GCS %/drone", "{:.1f}"),
     ("cpu_companion_avg_pct", "companion % core", "{:.0f}"), ("cpu_total_pct", "all % core", "{:.0f}"),
