@@ -57,6 +57,7 @@ from zenoh_robot.topic_statistics import with_cpu_budget
 
 from .alerts import Alerts
 from .config import GcsConfig
+from .decimation import SensorDecimation
 from .discovery import watch_drones
 from .downlink import DownlinkRates
 from .formation import slot
@@ -126,7 +127,9 @@ class DroneView:
         budget = {k: with_cpu_budget(node.enable_topic_statistics, v) for k, v in STREAM_CPU_BUDGET_PCT.items()}
         sensor, state, events = wired("sensor", DOWN), wired("state", DOWN), wired("events", DOWN)
         silent = self.alerts.silence_events      # "uav3 sensor: publisher seen, 0 samples in 5 s" (alerts.py)
-        self.shedding = SheddingWatch(self.alerts)   # what this GCS's own queues drop, named (shedding.py)
+        # What this GCS's own queues drop, named (shedding.py); the sensor then asked for less (decimation.py).
+        self.decimation = SensorDecimation(drone_id, SHEDDING_PERIOD_S)
+        self.shedding = SheddingWatch(self.alerts, self._shed_window)
         self.shedding.watch("sensor", node.create_subscription(
             message_of(sensor), f"{ns}/{sensor.name}", self._on_sensor, q[sensor.name],
             topic_statistics=budget["sensor"], event_callbacks=silent("sensor")))
@@ -146,6 +149,17 @@ class DroneView:
         self.commands = node.create_client(f"{ns}/{COMMAND_SERVICE}", Command, CommandResult, retry=command_retry(node))
         presence = wired("presence", UP)
         self.presence_pub = node.create_publisher(message_of(presence), f"{ns}/{presence.name}", q[presence.name])
+
+    def _shed_window(self, stream: str, received: int, dropped: int) -> None:   # the executor (a timer)
+        downlink = self.gcs.downlink
+        s = self.state
+        if stream != "sensor" or downlink is None or s is None or not self.gcs.config.decimate_sensor:
+            return
+        step = self.decimation.window(received, dropped, float(s.sensor_rate_requested_hz), self.in_control,
+                                      time.monotonic())
+        if step is not None:
+            self.alerts.raise_("decimated_sensor", step.text)
+            downlink.lower(self.id, "sensor_rate_hz", step.rate_hz, before=float(s.sensor_rate_requested_hz))
 
     # -- telemetry -------------------------------------------------------------------
     def _on_sensor(self, msg: SensorCombined, info: Any) -> None:
@@ -288,7 +302,8 @@ class Gcs:
         self._declare_parameters()
         rates = {k: v for k, v in (("sensor_rate_hz", config.sensor_rate_hz),
                                    ("camera_rate_hz", config.camera_rate_hz)) if v is not None}
-        self.downlink = DownlinkRates(node, rates, self._downlink_refused, config.client_id) if rates else None
+        self.downlink = (DownlinkRates(node, rates, self._downlink_refused, config.client_id)
+                         if rates or config.decimate_sensor else None)
         if self.downlink is not None:
             node.add_on_close(self.downlink.close)
         # The companion knows its controller is alive by this token (dropped when the session ends).
@@ -380,6 +395,8 @@ class Gcs:
         in an offboard session holds (AUTO.LOITER) before it is released (companion/command_desk.py),
         which waits for PX4: the drones are asked at once, each on its own thread."""
         results: dict[str, CommandResult] = {}
+        if self.downlink is not None:
+            self.downlink.restore()     # while still in control: the companion takes rates from its controller only
 
         def release(d: DroneView) -> None:
             results[d.id] = res = d.command("release_control", timeout=timeout)

@@ -115,6 +115,10 @@ def add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--camera-rate", type=float, metavar="HZ",
                    help="ask each drone, when it joins, for camera frames at this rate (its camera_rate_hz; "
                         "default: the drone's own, 30 fps)")
+    p.add_argument("--keep-sensor-rate", action="store_true",
+                   help="never ask a drone for less sensor when this GCS cannot keep up (default: a drone this "
+                        "GCS controls is asked for the rate it kept up with, said as an alert and put back "
+                        "when the GCS closes)")
     p.add_argument("--details", metavar="ID", help="dashboard: show this drone's streams as well")
     p.add_argument("--gcs-id", default=None,
                    help="this GCS's id, carried by its setpoints and commands (default user@host)")
@@ -216,6 +220,7 @@ def parse_run(args: argparse.Namespace) -> GcsRun:
                        save_every=args.save_every, client_id=client_id, take_control=args.take_control,
                        auto_fly=not args.mission, formation=resolve(args.formation, len(drones) or 2),
                        spacing=args.spacing, patterns=patterns, sensor_rate_hz=args.sensor_rate,
+                       decimate_sensor=not args.keep_sensor_rate,
                        camera_rate_hz=args.camera_rate)
     session = session_config(args, profile)
     wire, keyring = _link(args.link_keys, client_id, args.link_encrypt)

@@ -37,6 +37,8 @@ class GcsConfig:
     # Downlink rates asked of each drone when it joins (gcs/downlink.py); None: the companion's own.
     sensor_rate_hz: float | None = None
     camera_rate_hz: float | None = None
+    # A drone whose sensor this GCS cannot keep up with is asked for less (gcs/decimation.py).
+    decimate_sensor: bool = True
 
     def parameters(self) -> list[tuple[str, Any, str]]:
         """(name, value, description) of the read-only node parameters that show these settings."""
@@ -48,4 +50,5 @@ class GcsConfig:
                 ("client_id", self.client_id, "id carried by setpoints and commands"),
                 ("image_mode", self.profile.image_mode, "how images arrive"),
                 ("sensor_rate", self.sensor_rate_hz or 0.0, "sensor rate asked of each drone, Hz (0: not asked)"),
-                ("camera_rate", self.camera_rate_hz or 0.0, "camera rate asked of each drone, fps (0: not asked)")]
+                ("camera_rate", self.camera_rate_hz or 0.0, "camera rate asked of each drone, fps (0: not asked)"),
+                ("decimate_sensor", self.decimate_sensor, "ask a drone for less sensor when this GCS cannot keep up")]

@@ -15,6 +15,10 @@ Every outcome is reported once per join: applied (log), refused or unanswered (l
 the drone's ``failures``, which the dashboard shows); a failed request is asked again at the
 next join, never in a loop. Each rate is set on its own (as ``param set``): a refused one is
 named, and one applied beside it is said to be. Calls block, so they run on one worker thread, never the executor.
+
+A drone's own rates can be lowered beside the GCS's (``lower``: gcs/decimation.py, the sensor decimated at
+its source when this GCS cannot keep up); they are asked at once and at every later join, and put back to
+what the drone had when the GCS releases control or closes.
 """
 from __future__ import annotations
 
@@ -37,6 +41,7 @@ NOT_IN_CONTROL = "not in control: downlink left as is"
 REJOIN_S = 3.0       # a state after this much silence is a (re)join: ask again
 RECHECK_S = 5.0      # at most one "rate differs from the one applied" re-ask per drone per this
 CALL_TIMEOUT_S = 3.0
+RESTORE_S = 3.0      # closing puts lowered rates back within this (a drone gone must not hold the GCS's exit)
 PARAMS = {"sensor_rate_hz": "sensor", "camera_rate_hz": "camera"}
 
 
@@ -60,7 +65,7 @@ class DownlinkRates:
 
     def __init__(self, node: Node, rates: dict[str, float], report: Callable[[str, str], None],
                  client_id: str, timeout: float = CALL_TIMEOUT_S) -> None:
-        bad = {k: v for k, v in rates.items() if k not in PARAMS or not (math.isfinite(v) and v > 0)}
+        bad = {k: v for k, v in rates.items() if not _valid(k, v)}
         if bad:
             raise ValueError(f"downlink rates: {bad} (sensor_rate_hz, camera_rate_hz > 0)")
         self.node = node
@@ -69,6 +74,8 @@ class DownlinkRates:
         self.client_id = client_id     # this GCS: sent with the requests, compared with each drone's controller
         self._report = report          # (drone, refusal text): the drone's failures list
         self.status: dict[str, DownlinkStatus] = {}
+        self._lowered: dict[str, dict[str, float]] = {}    # drone -> rates lowered for it (lower())
+        self._before: dict[str, dict[str, float]] = {}     # drone -> what it had before: restored on close
         self._clients: dict[str, ParameterClient] = {}
         self._pending: list[str] = []  # bounded: a drone is at most once in it
         self._recheck_at: dict[str, float] = {}
@@ -77,11 +84,29 @@ class DownlinkRates:
         self._thread = threading.Thread(target=self._run, name="gcs-downlink", daemon=True)
         self._thread.start()
 
+    def rates_for(self, drone: str) -> dict[str, float]:
+        """What this GCS asks of ``drone``: its own rates, and any lowered for that drone."""
+        with self._cv:
+            return {**self.rates, **self._lowered.get(drone, {})}
+
+    def lower(self, drone: str, name: str, value: float, before: float) -> None:
+        """Ask ``drone`` for ``name`` = ``value`` now and at every later join (``before``: the drone's value
+        now, put back on close). Any thread; the call runs on the worker."""
+        if not _valid(name, value):
+            raise ValueError(f"downlink rate {name}={value!r}")
+        with self._cv:
+            self._lowered.setdefault(drone, {})[name] = float(value)
+            if math.isfinite(before) and before > 0:
+                self._before.setdefault(drone, {}).setdefault(name, float(before))
+        self.joined(drone)
+
     # -- joins (executor thread: never blocks) ---------------------------------------
     def on_state(self, drone: str, previous_at: float, now: float, sensor_requested_hz: float,
                  controller: str) -> None:
         """Called with every state (``controller``: the state's GCS in control): decides whether
         this is a join worth asking at."""
+        if not self.rates_for(drone):
+            return        # nothing to ask of this drone (a GCS that only lowers rates when it must)
         if controller != self.client_id:
             self._not_in_control(drone)
             return
@@ -89,7 +114,7 @@ class DownlinkRates:
         if st is None or st.status == "not_in_control" or previous_at == 0.0 or now - previous_at > REJOIN_S:
             self.joined(drone)
             return
-        want = self.rates.get("sensor_rate_hz")
+        want = self.rates_for(drone).get("sensor_rate_hz")
         # Restarted within REJOIN_S: its state shows its default rate again.
         if (st.status == "applied" and want is not None and math.isfinite(sensor_requested_hz)
                 and abs(sensor_requested_hz - want) > 1e-3 and now >= self._recheck_at.get(drone, 0.0)):
@@ -133,20 +158,21 @@ class DownlinkRates:
                     st.applied_at = time.monotonic()
                 st.answers.append(f"{status}: {detail}" if detail else status)
                 del st.answers[:-self.MAX_ANSWERS]
-            asked = ", ".join(f"{PARAMS[k]} {v:g} Hz" for k, v in self.rates.items())
+            asked = ", ".join(f"{PARAMS[k]} {v:g} Hz" for k, v in self.rates_for(drone).items())
             if status == "applied":
                 log.info("%s: downlink %s applied", drone, asked)
             else:   # once per join: the next join asks again
                 log.warning("%s: downlink %s %s: %s (asked again when it rejoins)", drone, asked, status, detail)
                 self._report(drone, f"downlink {status}: {detail}")
 
-    def _ask(self, drone: str) -> tuple[str, str]:
+    def _ask(self, drone: str, rates: dict[str, float] | None = None) -> tuple[str, str]:
+        rates = self.rates_for(drone) if rates is None else rates
         try:
             client = self._clients.get(drone)
             if client is None:
                 client = self._clients[drone] = ParameterClient(self.node, f"/{drone}/companion", self.timeout,
                                                                           self.client_id)
-            params = [Parameter(k, ParameterType.DOUBLE, float(v)) for k, v in self.rates.items()]
+            params = [Parameter(k, ParameterType.DOUBLE, float(v)) for k, v in rates.items()]
             results = client.set(params)
         except Exception as exc:   # timeout, no server, a closing session: reported, never raised
             return "unanswered", f"{type(exc).__name__}: {exc}"[:200]
@@ -166,3 +192,25 @@ class DownlinkRates:
             self._cv.notify()
         if self._thread is not threading.current_thread():
             self._thread.join(timeout=self.timeout + 3.0)
+        self.restore()
+
+    def restore(self) -> None:
+        """What was lowered goes back to what the drone had: a GCS's overload ends with the GCS (called before
+        it releases control: the companion takes rates from its controller only; again on close, a no-op
+        then). One try per drone (the session may be closing or the drone gone: said, never raised)."""
+        with self._cv:
+            before = {d: dict(r) for d, r in self._before.items()}
+            self._before.clear()
+        end = time.monotonic() + RESTORE_S
+        for drone, rates in before.items():
+            shown = ", ".join(f"{PARAMS[k]} {v:g} Hz" for k, v in rates.items())
+            status, detail = self._ask(drone, rates) if time.monotonic() < end else ("skipped", "closing")
+            if status == "applied":
+                log.info("%s: downlink %s restored", drone, shown)
+            else:
+                log.warning("%s: downlink %s not restored (%s: %s); `zenoh-robot param set /%s/companion` sets it",
+                            drone, shown, status, detail, drone)
+
+
+def _valid(name: str, value: float) -> bool:
+    return name in PARAMS and math.isfinite(value) and value > 0

@@ -14,6 +14,7 @@ ints (a racy read is off by one sample at most, never torn).
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -31,8 +32,9 @@ class _Seen:
 
 
 class SheddingWatch:
-    def __init__(self, alerts: Alerts) -> None:
+    def __init__(self, alerts: Alerts, on_window: Callable[[str, int, int], None] | None = None) -> None:
         self._alerts = alerts
+        self._on_window = on_window     # (stream, received, dropped) of every window: decimation.py
         self._subs: dict[str, Any] = {}
         self._last: dict[str, _Seen] = {}
         self.windows_shedding: dict[str, int] = {}   # per stream: windows with drops (the summary's figure)
@@ -55,6 +57,8 @@ class SheddingWatch:
             last = self._last[stream]
             self._last[stream] = now
             received, dropped = now.received - last.received, now.dropped - last.dropped
+            if self._on_window is not None:
+                self._on_window(stream, received, dropped)
             if dropped > 0:
                 self.windows_shedding[stream] = self.windows_shedding.get(stream, 0) + 1
                 self.dropped[stream] = self.dropped.get(stream, 0) + dropped

@@ -41,6 +41,9 @@ def summarize(gcs: Gcs, profile: str) -> dict[str, Any]:
             "alerts": d.alerts.log, "alerts_now": d.alerts.now, "state_ignored": d.source.ignored,
             # Samples this GCS's own queues dropped, per stream (gcs/shedding.py): load here, not loss there.
             "shed_by_gcs": dict(d.shedding.dropped),
+            # The sensor rate this GCS asked the drone down to when it could not keep up (gcs/decimation.py).
+            "sensor_decimated": {"steps": d.decimation.steps, "rate_hz": d.decimation.last_hz}
+            if d.decimation.steps else None,
             "downlink": gcs.downlink.status[d.id].as_dict()
             if gcs.downlink is not None and d.id in gcs.downlink.status else None,
             # Raw (seq, stamp, arrival) records for offline analysis (the experiment joins them

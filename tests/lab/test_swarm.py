@@ -187,7 +187,9 @@ def test_gcs_asks_each_drone_for_its_downlink_and_again_after_a_restart(ns: str,
     """--sensor-rate 50 --camera-rate 10: every companion applies both (its state shows the sensor rate it
     asks of PX4, frames arrive at ~10 fps, not 30); a companion restarted with its defaults is asked again."""
     procs: list[subprocess.Popen[str]] = []
-    with swarm(ns, tmp_path, 2, "test", procs=procs, pattern="hover", sensor_rate_hz=50.0, camera_rate_hz=10.0) as g:
+    # The rates asked, exactly: a loaded machine must not have the GCS lower them as well (gcs/decimation.py).
+    with swarm(ns, tmp_path, 2, "test", procs=procs, pattern="hover", sensor_rate_hz=50.0, camera_rate_hz=10.0,
+               decimate_sensor=False) as g:
         dl = g.downlink
         assert dl is not None
         # The downlink is every GCS's: only the GCS in control sets it (gcs/downlink.py).
@@ -217,7 +219,8 @@ def test_gcs_asks_each_drone_for_its_downlink_and_again_after_a_restart(ns: str,
 def test_a_refused_downlink_is_reported_once_and_named(ns: str, tmp_path: Path) -> None:
     """A camera rate the companion refuses (500 fps > its 120 limit): the GCS reports the refusal, once, on the
     drone's failures, naming it; the sensor rate asked with it is set on its own and applied."""
-    with swarm(ns, tmp_path, 1, "none", pattern="hover", sensor_rate_hz=50.0, camera_rate_hz=500.0) as g:
+    with swarm(ns, tmp_path, 1, "none", pattern="hover", sensor_rate_hz=50.0, camera_rate_hz=500.0,
+               decimate_sensor=False) as g:
         dl = g.downlink
         assert all(r.success for r in g.take_control().values())   # only the GCS in control sets the downlink
         d = next(iter(g.drones.values()))
