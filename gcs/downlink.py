@@ -151,22 +151,24 @@ class DownlinkRates:
                 drone = self._pending.pop(0)
                 st = self.status[drone]
                 st.status, st.asked = "asking", st.asked + 1
-            status, detail = self._ask(drone)
+            rates = self.rates_for(drone)
+            status, detail = self._ask(drone, rates)
             with self._cv:
                 st.status, st.detail = status, detail
                 if status == "applied":
                     st.applied_at = time.monotonic()
                 st.answers.append(f"{status}: {detail}" if detail else status)
                 del st.answers[:-self.MAX_ANSWERS]
-            asked = ", ".join(f"{PARAMS[k]} {v:g} Hz" for k, v in self.rates_for(drone).items())
+                if self._lowered.get(drone, {}).items() - rates.items() and drone not in self._pending:
+                    self._pending.append(drone)     # lowered while this ask was under way: ask for that too
+            asked = ", ".join(f"{PARAMS[k]} {v:g} Hz" for k, v in rates.items())
             if status == "applied":
                 log.info("%s: downlink %s applied", drone, asked)
             else:   # once per join: the next join asks again
                 log.warning("%s: downlink %s %s: %s (asked again when it rejoins)", drone, asked, status, detail)
                 self._report(drone, f"downlink {status}: {detail}")
 
-    def _ask(self, drone: str, rates: dict[str, float] | None = None) -> tuple[str, str]:
-        rates = self.rates_for(drone) if rates is None else rates
+    def _ask(self, drone: str, rates: dict[str, float]) -> tuple[str, str]:
         try:
             client = self._clients.get(drone)
             if client is None:
