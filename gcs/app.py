@@ -128,7 +128,7 @@ class DroneView:
         sensor, state, events = wired("sensor", DOWN), wired("state", DOWN), wired("events", DOWN)
         silent = self.alerts.silence_events      # "uav3 sensor: publisher seen, 0 samples in 5 s" (alerts.py)
         # What this GCS's own queues drop, named (shedding.py); the sensor then asked for less (decimation.py).
-        self.decimation = SensorDecimation(drone_id, SHEDDING_PERIOD_S)
+        self.decimation = SensorDecimation(drone_id)
         self.shedding = SheddingWatch(self.alerts, self._shed_window)
         self.shedding.watch("sensor", node.create_subscription(
             message_of(sensor), f"{ns}/{sensor.name}", self._on_sensor, q[sensor.name],
@@ -150,13 +150,13 @@ class DroneView:
         presence = wired("presence", UP)
         self.presence_pub = node.create_publisher(message_of(presence), f"{ns}/{presence.name}", q[presence.name])
 
-    def _shed_window(self, stream: str, received: int, dropped: int) -> None:   # the executor (a timer)
+    def _shed_window(self, stream: str, received: int, dropped: int, seconds: float) -> None:   # the executor
         downlink = self.gcs.downlink
         s = self.state
         if stream != "sensor" or downlink is None or s is None or not self.gcs.config.decimate_sensor:
             return
-        step = self.decimation.window(received, dropped, float(s.sensor_rate_requested_hz), self.in_control,
-                                      time.monotonic())
+        step = self.decimation.window(received, dropped, seconds, float(s.sensor_rate_requested_hz),
+                                      self.in_control, time.monotonic())
         if step is not None:
             self.alerts.raise_("decimated_sensor", step.text)
             downlink.lower(self.id, "sensor_rate_hz", step.rate_hz, before=float(s.sensor_rate_requested_hz))

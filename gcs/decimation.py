@@ -35,27 +35,27 @@ class Step:
 class SensorDecimation:
     """One drone's decision: ``window()`` per shedding window, ``Step`` when the drone should send less."""
 
-    def __init__(self, drone_id: str, period_s: float) -> None:
+    def __init__(self, drone_id: str) -> None:
         self.drone_id = drone_id
-        self.period_s = period_s
         self.next_at = -math.inf
         self.steps = 0           # asked in all (the summary's figure)
         self.last_hz = math.nan
         self._over = 0           # windows in a row over SHARE
 
-    def window(self, received: int, dropped: int, asked_hz: float, in_control: bool, now: float) -> Step | None:
-        """``received``/``dropped``: this window's counts at the GCS's queue; ``asked_hz``: the drone's sensor
-        rate now (its state's ``sensor_rate_requested_hz``)."""
+    def window(self, received: int, dropped: int, seconds: float, asked_hz: float, in_control: bool,
+               now: float) -> Step | None:
+        """``received``/``dropped``: this window's counts at the GCS's queue, over ``seconds``; ``asked_hz``: the
+        drone's sensor rate now (its state's ``sensor_rate_requested_hz``)."""
         self._over = self._over + 1 if received > 0 and dropped >= SHARE * received else 0
-        if not in_control or self._over < WINDOWS or now < self.next_at:
+        if not in_control or self._over < WINDOWS or now < self.next_at or not seconds > 0:
             return None
-        kept = (received - dropped) / self.period_s
+        kept = (received - dropped) / seconds
         rate = float(max(MIN_HZ, math.floor(KEEP * kept)))
         if not (math.isfinite(asked_hz) and rate < 0.9 * asked_hz):
             return None      # at the floor already, or the drone sends little enough
         self.next_at = now + STEP_S
         self.steps += 1
         self.last_hz = rate
-        text = (f"{self.drone_id} sensor: this GCS kept {kept:.0f} of {received / self.period_s:.0f} samples/s; "
+        text = (f"{self.drone_id} sensor: this GCS kept {kept:.0f} of {received / seconds:.0f} samples/s; "
                 f"asked the drone for {rate:g} Hz (was {asked_hz:g}) until this GCS closes")
         return Step(rate, kept, text)

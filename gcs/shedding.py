@@ -14,6 +14,7 @@ ints (a racy read is off by one sample at most, never torn).
 """
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -29,12 +30,15 @@ WATCHED = ("sensor", "image")
 class _Seen:
     received: int = 0
     dropped: int = 0
+    at: float = 0.0      # monotonic time of the look
 
 
 class SheddingWatch:
-    def __init__(self, alerts: Alerts, on_window: Callable[[str, int, int], None] | None = None) -> None:
+    def __init__(self, alerts: Alerts, on_window: Callable[[str, int, int, float], None] | None = None) -> None:
         self._alerts = alerts
-        self._on_window = on_window     # (stream, received, dropped) of every window: decimation.py
+        # (stream, received, dropped, seconds) of every window: decimation.py. The seconds are the clock's: a
+        # starved executor runs the check late, and a nominal period would overstate the rates.
+        self._on_window = on_window
         self._subs: dict[str, Any] = {}
         self._last: dict[str, _Seen] = {}
         self.windows_shedding: dict[str, int] = {}   # per stream: windows with drops (the summary's figure)
@@ -47,18 +51,18 @@ class SheddingWatch:
             return
         self._subs[stream] = subscription
         c = subscription.counters
-        self._last[stream] = _Seen(c.received, c.dropped)
+        self._last[stream] = _Seen(c.received, c.dropped, time.monotonic())
 
     def check(self) -> None:
         """One window (the executor's timer, every PERIOD_S)."""
         for stream, sub in self._subs.items():
             c = sub.counters
-            now = _Seen(int(c.received), int(c.dropped))
+            now = _Seen(int(c.received), int(c.dropped), time.monotonic())
             last = self._last[stream]
             self._last[stream] = now
             received, dropped = now.received - last.received, now.dropped - last.dropped
             if self._on_window is not None:
-                self._on_window(stream, received, dropped)
+                self._on_window(stream, received, dropped, now.at - last.at)
             if dropped > 0:
                 self.windows_shedding[stream] = self.windows_shedding.get(stream, 0) + 1
                 self.dropped[stream] = self.dropped.get(stream, 0) + dropped

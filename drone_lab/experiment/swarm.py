@@ -468,8 +468,8 @@ def run_sweep(out: Path, cells: list[SwarmCell], say: Any = print) -> list[dict[
             flown = (f"flew {s['flew_ok']}/{cell.drones}, path error mean {s['path_error_mean_m']:.2f} m max "
                      f"{s['path_error_max_m']:.2f} m, OFFBOARD >= {100 * s['offboard_share_min']:.0f} %, commands "
                      f"{s['commands_ok_pct']:.0f} % ok; ") if cell.fly else ""
-            say(f"swarm: {cell.name}: {flown}setpoints >= {s['setpoint_hz_min']:.1f} Hz "
-                f"({s['setpoint_delivered_min']:.1f} %), "
+            say(f"swarm: {cell.name}: {flown}setpoints >= {s['setpoint_streamed_hz_min']:.1f} Hz while streamed, "
+                f"p99 gap {s['setpoint_gap_p99_ms_max']:.0f} ms ({s['setpoint_delivered_min']:.1f} %), "
                 f"sensor >= {s['sensor_delivered_min']:.1f} %, images {s['image_fps_avg']:.1f} fps, "
                 f"GCS {s['cpu_gcs_pct']:.0f} % CPU" + (f"; errors: {res['errors']}" if res["errors"] else ""))
             f.write(json.dumps(res, default=str, allow_nan=True) + "\n")

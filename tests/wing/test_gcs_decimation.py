@@ -22,13 +22,23 @@ PROFILE = stream_profile("resilient")
 
 @pytest.mark.fast
 def test_two_windows_losing_a_fifth_ask_for_what_was_kept() -> None:
-    d = SensorDecimation("uav3", 5.0)
-    assert d.window(received=600, dropped=300, asked_hz=200.0, in_control=True, now=95.0) is None   # one: a stall?
-    step = d.window(received=600, dropped=300, asked_hz=200.0, in_control=True, now=100.0)
+    d = SensorDecimation("uav3")
+    # One window is not yet an overload (a loaded moment's stall); the second in a row is.
+    assert d.window(received=600, dropped=300, seconds=5.0, asked_hz=200.0, in_control=True, now=95.0) is None
+    step = d.window(received=600, dropped=300, seconds=5.0, asked_hz=200.0, in_control=True, now=100.0)
     assert step is not None and step.kept_hz == 60.0 and step.rate_hz == 48.0    # 80 % of 300 kept in 5 s
     assert step.text == ("uav3 sensor: this GCS kept 60 of 120 samples/s; asked the drone for 48 Hz (was 200) "
                          "until this GCS closes")
     assert d.steps == 1 and d.last_hz == 48.0
+
+
+@pytest.mark.fast
+def test_rates_are_over_the_windows_own_length() -> None:
+    """A starved executor runs the check late: 600 samples over 7.5 s are 80/s, not 120."""
+    d = SensorDecimation("uav3")
+    assert d.window(900, 450, 7.5, 200.0, True, 0.0) is None
+    step = d.window(900, 450, 7.5, 200.0, True, 7.5)
+    assert step is not None and step.kept_hz == 60.0 and step.rate_hz == 48.0 and "kept 60 of 120" in step.text
 
 
 @pytest.mark.fast
@@ -42,25 +52,25 @@ def test_two_windows_losing_a_fifth_ask_for_what_was_kept() -> None:
 ])
 def test_no_step_without_an_overload_this_gcs_may_act_on(received: int, dropped: int, asked: float,
                                                          in_control: bool) -> None:
-    d = SensorDecimation("uav3", 5.0)
-    assert [d.window(received, dropped, asked, in_control, t) for t in (0.0, 5.0, 10.0)] == [None] * 3
+    d = SensorDecimation("uav3")
+    assert [d.window(received, dropped, 5.0, asked, in_control, t) for t in (0.0, 5.0, 10.0)] == [None] * 3
 
 
 @pytest.mark.fast
 def test_a_quiet_window_between_resets_the_count() -> None:
-    d = SensorDecimation("uav3", 5.0)
-    assert d.window(600, 300, 200.0, True, 0.0) is None
-    assert d.window(600, 0, 200.0, True, 5.0) is None
-    assert d.window(600, 300, 200.0, True, 10.0) is None and d.steps == 0
+    d = SensorDecimation("uav3")
+    assert d.window(600, 300, 5.0, 200.0, True, 0.0) is None
+    assert d.window(600, 0, 5.0, 200.0, True, 5.0) is None
+    assert d.window(600, 300, 5.0, 200.0, True, 10.0) is None and d.steps == 0
 
 
 @pytest.mark.fast
 def test_steps_are_spaced_and_floored() -> None:
-    d = SensorDecimation("uav3", 5.0)
-    assert d.window(600, 300, 200.0, True, -5.0) is None
-    assert d.window(600, 300, 200.0, True, 0.0) is not None
-    assert d.window(250, 200, 48.0, True, STEP_S - 0.1) is None       # the last step must take effect first
-    step = d.window(250, 240, 48.0, True, STEP_S)                       # kept 2/s: the floor
+    d = SensorDecimation("uav3")
+    assert d.window(600, 300, 5.0, 200.0, True, -5.0) is None
+    assert d.window(600, 300, 5.0, 200.0, True, 0.0) is not None
+    assert d.window(250, 200, 5.0, 48.0, True, STEP_S - 0.1) is None       # the last step must take effect first
+    step = d.window(250, 240, 5.0, 48.0, True, STEP_S)                       # kept 2/s: the floor
     assert step is not None and step.rate_hz == MIN_HZ and d.steps == 2
 
 
