@@ -64,7 +64,7 @@ from .formation import slot
 from .patterns import PathPoint, make_pattern
 from .planner import FormationClock, Position, TargetPlanner
 from .shedding import PERIOD_S as SHEDDING_PERIOD_S
-from .shedding import SheddingWatch
+from .shedding import SheddingWatch, Window
 from .vehicle_identity import StateSource, watch_claims
 
 log = logging.getLogger("gcs")
@@ -150,13 +150,12 @@ class DroneView:
         presence = wired("presence", UP)
         self.presence_pub = node.create_publisher(message_of(presence), f"{ns}/{presence.name}", q[presence.name])
 
-    def _shed_window(self, stream: str, received: int, dropped: int, seconds: float) -> None:   # the executor
+    def _shed_window(self, stream: str, w: Window) -> None:   # the executor (a timer)
         downlink = self.gcs.downlink
         s = self.state
         if stream != "sensor" or downlink is None or s is None or not self.gcs.config.decimate_sensor:
             return
-        step = self.decimation.window(received, dropped, seconds, float(s.sensor_rate_requested_hz),
-                                      self.in_control, time.monotonic())
+        step = self.decimation.window(w, float(s.sensor_rate_requested_hz), self.in_control, time.monotonic())
         if step is not None:
             self.alerts.raise_("decimated_sensor", step.text)
             downlink.lower(self.id, "sensor_rate_hz", step.rate_hz, before=float(s.sensor_rate_requested_hz))

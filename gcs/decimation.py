@@ -18,6 +18,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from .shedding import Window
+
 SHARE = 0.2      # a window losing a fifth of its samples here: overload, not a hiccup (N=5: 1-13 in 40 s)
 KEEP = 0.8       # of the rate this GCS kept up with: room for the rest of its work
 MIN_HZ = 10.0    # below this the sensor stream says little; the GCS sheds at its queue instead
@@ -42,20 +44,22 @@ class SensorDecimation:
         self.last_hz = math.nan
         self._over = 0           # windows in a row over SHARE
 
-    def window(self, received: int, dropped: int, seconds: float, asked_hz: float, in_control: bool,
-               now: float) -> Step | None:
-        """``received``/``dropped``: this window's counts at the GCS's queue, over ``seconds``; ``asked_hz``: the
-        drone's sensor rate now (its state's ``sensor_rate_requested_hz``)."""
+    def window(self, w: Window, asked_hz: float, in_control: bool, now: float) -> Step | None:
+        """``w``: this window at the GCS's queue; ``asked_hz``: the drone's sensor rate now (its state's
+        ``sensor_rate_requested_hz``). What the GCS kept up with is the samples it delivered (once each):
+        arrivals count a sample's copies too (the resilient profile sends each sensor sample twice)."""
+        received, dropped, seconds = w.received, w.dropped, w.seconds
         self._over = self._over + 1 if received > 0 and dropped >= SHARE * received else 0
         if not in_control or self._over < WINDOWS or now < self.next_at or not seconds > 0:
             return None
-        kept = (received - dropped) / seconds
+        kept = w.delivered / seconds
         rate = float(max(MIN_HZ, math.floor(KEEP * kept)))
         if not (math.isfinite(asked_hz) and rate < 0.9 * asked_hz):
             return None      # at the floor already, or the drone sends little enough
         self.next_at = now + STEP_S
         self.steps += 1
         self.last_hz = rate
-        text = (f"{self.drone_id} sensor: this GCS kept {kept:.0f} of {received / seconds:.0f} samples/s; "
-                f"asked the drone for {rate:g} Hz (was {asked_hz:g}) until this GCS closes")
+        text = (f"{self.drone_id} sensor: this GCS delivered {kept:.0f} samples/s and its queue dropped {dropped:,} "
+                f"of {received:,} arrivals in {seconds:.0f} s; asked the drone for {rate:g} Hz (was {asked_hz:g}) "
+                "until this GCS closes")
         return Step(rate, kept, text)

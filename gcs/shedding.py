@@ -30,15 +30,28 @@ WATCHED = ("sensor", "image")
 class _Seen:
     received: int = 0
     dropped: int = 0
+    delivered: int = 0
     at: float = 0.0      # monotonic time of the look
 
 
+@dataclass(frozen=True)
+class Window:
+    """One window of a stream at this GCS: arrivals (a sample's copies each count), those its queue dropped,
+    the samples delivered (once each), over ``seconds`` of the clock (a starved executor looks late)."""
+    received: int
+    dropped: int
+    delivered: int
+    seconds: float
+
+
+def _seen(c: Any) -> _Seen:
+    return _Seen(int(c.received), int(c.dropped), int(getattr(c, "delivered", 0)), time.monotonic())
+
+
 class SheddingWatch:
-    def __init__(self, alerts: Alerts, on_window: Callable[[str, int, int, float], None] | None = None) -> None:
+    def __init__(self, alerts: Alerts, on_window: Callable[[str, Window], None] | None = None) -> None:
         self._alerts = alerts
-        # (stream, received, dropped, seconds) of every window: decimation.py. The seconds are the clock's: a
-        # starved executor runs the check late, and a nominal period would overstate the rates.
-        self._on_window = on_window
+        self._on_window = on_window     # every window of every stream: decimation.py
         self._subs: dict[str, Any] = {}
         self._last: dict[str, _Seen] = {}
         self.windows_shedding: dict[str, int] = {}   # per stream: windows with drops (the summary's figure)
@@ -51,18 +64,18 @@ class SheddingWatch:
             return
         self._subs[stream] = subscription
         c = subscription.counters
-        self._last[stream] = _Seen(c.received, c.dropped, time.monotonic())
+        self._last[stream] = _seen(c)
 
     def check(self) -> None:
         """One window (the executor's timer, every PERIOD_S)."""
         for stream, sub in self._subs.items():
             c = sub.counters
-            now = _Seen(int(c.received), int(c.dropped), time.monotonic())
+            now = _seen(c)
             last = self._last[stream]
             self._last[stream] = now
             received, dropped = now.received - last.received, now.dropped - last.dropped
             if self._on_window is not None:
-                self._on_window(stream, received, dropped, now.at - last.at)
+                self._on_window(stream, Window(received, dropped, now.delivered - last.delivered, now.at - last.at))
             if dropped > 0:
                 self.windows_shedding[stream] = self.windows_shedding.get(stream, 0) + 1
                 self.dropped[stream] = self.dropped.get(stream, 0) + dropped

@@ -14,65 +14,70 @@ from drone_contract.messages import VehicleState
 from drone_contract.streams import stream_profile
 from gcs.app import DroneView, Gcs, GcsConfig
 from gcs.decimation import MIN_HZ, STEP_S, SensorDecimation
+from gcs.shedding import Window
 from gcs.summary import summarize
 from zenoh_robot import Node
 
 PROFILE = stream_profile("resilient")
 
 
+def W(received: int, dropped: int, delivered: int, seconds: float = 5.0) -> Window:
+    return Window(received, dropped, delivered, seconds)
+
+
 @pytest.mark.fast
-def test_two_windows_losing_a_fifth_ask_for_what_was_kept() -> None:
+def test_two_windows_losing_a_fifth_ask_for_what_was_delivered() -> None:
     d = SensorDecimation("uav3")
-    # One window is not yet an overload (a loaded moment's stall); the second in a row is.
-    assert d.window(received=600, dropped=300, seconds=5.0, asked_hz=200.0, in_control=True, now=95.0) is None
-    step = d.window(received=600, dropped=300, seconds=5.0, asked_hz=200.0, in_control=True, now=100.0)
-    assert step is not None and step.kept_hz == 60.0 and step.rate_hz == 48.0    # 80 % of 300 kept in 5 s
-    assert step.text == ("uav3 sensor: this GCS kept 60 of 120 samples/s; asked the drone for 48 Hz (was 200) "
-                         "until this GCS closes")
+    # 600 samples sent twice each (the resilient profile's copy): 1,200 arrivals, half dropped at the queue,
+    # 300 samples delivered. One such window is not yet an overload (a loaded moment's stall); two in a row are.
+    assert d.window(W(1200, 600, 300), asked_hz=200.0, in_control=True, now=95.0) is None
+    step = d.window(W(1200, 600, 300), asked_hz=200.0, in_control=True, now=100.0)
+    assert step is not None and step.kept_hz == 60.0 and step.rate_hz == 48.0    # 80 % of the 60/s delivered
+    assert step.text == ("uav3 sensor: this GCS delivered 60 samples/s and its queue dropped 600 of 1,200 "
+                         "arrivals in 5 s; asked the drone for 48 Hz (was 200) until this GCS closes")
     assert d.steps == 1 and d.last_hz == 48.0
 
 
 @pytest.mark.fast
 def test_rates_are_over_the_windows_own_length() -> None:
-    """A starved executor runs the check late: 600 samples over 7.5 s are 80/s, not 120."""
+    """A starved executor runs the check late: 450 samples delivered over 7.5 s are 60/s, not 90."""
     d = SensorDecimation("uav3")
-    assert d.window(900, 450, 7.5, 200.0, True, 0.0) is None
-    step = d.window(900, 450, 7.5, 200.0, True, 7.5)
-    assert step is not None and step.kept_hz == 60.0 and step.rate_hz == 48.0 and "kept 60 of 120" in step.text
+    assert d.window(W(1800, 900, 450, 7.5), 200.0, True, 0.0) is None
+    step = d.window(W(1800, 900, 450, 7.5), 200.0, True, 7.5)
+    assert step is not None and step.kept_hz == 60.0 and step.rate_hz == 48.0
 
 
 @pytest.mark.fast
-@pytest.mark.parametrize(("received", "dropped", "asked", "in_control"), [
-    (600, 13, 200.0, True),      # a hiccup (N=5 dropped 1-13 in 40 s): shed at the queue, named there
-    (600, 300, 200.0, False),    # a monitoring GCS never changes a drone's downlink
-    (0, 0, 200.0, True),         # nothing arrived: the silent-stream alert's case, not this one
-    (100, 90, 10.0, True),       # at the floor already
-    (600, 150, 50.0, True),      # kept 90/s of 120: 72 Hz asked is above the drone's 50 already
-    (600, 300, math.nan, True),  # the drone's rate unknown: nothing to compare with
+@pytest.mark.parametrize(("w", "asked", "in_control"), [
+    (W(1200, 13, 590), 200.0, True),      # a hiccup (N=5 dropped 1-13 in 40 s): shed at the queue, named there
+    (W(1200, 600, 300), 200.0, False),    # a monitoring GCS never changes a drone's downlink
+    (W(0, 0, 0), 200.0, True),            # nothing arrived: the silent-stream alert's case, not this one
+    (W(200, 180, 10), 10.0, True),        # at the floor already
+    (W(1200, 300, 450), 50.0, True),      # delivered 90/s: 72 Hz would be above the drone's 50 already
+    (W(1200, 600, 300), math.nan, True),  # the drone's rate unknown: nothing to compare with
+    (W(1200, 600, 300, 0.0), 200.0, True),  # no time passed: no rate
 ])
-def test_no_step_without_an_overload_this_gcs_may_act_on(received: int, dropped: int, asked: float,
-                                                         in_control: bool) -> None:
+def test_no_step_without_an_overload_this_gcs_may_act_on(w: Window, asked: float, in_control: bool) -> None:
     d = SensorDecimation("uav3")
-    assert [d.window(received, dropped, 5.0, asked, in_control, t) for t in (0.0, 5.0, 10.0)] == [None] * 3
+    assert [d.window(w, asked, in_control, t) for t in (0.0, 5.0, 10.0)] == [None] * 3
 
 
 @pytest.mark.fast
 def test_a_quiet_window_between_resets_the_count() -> None:
     d = SensorDecimation("uav3")
-    assert d.window(600, 300, 5.0, 200.0, True, 0.0) is None
-    assert d.window(600, 0, 5.0, 200.0, True, 5.0) is None
-    assert d.window(600, 300, 5.0, 200.0, True, 10.0) is None and d.steps == 0
+    assert d.window(W(1200, 600, 300), 200.0, True, 0.0) is None
+    assert d.window(W(1200, 0, 600), 200.0, True, 5.0) is None
+    assert d.window(W(1200, 600, 300), 200.0, True, 10.0) is None and d.steps == 0
 
 
 @pytest.mark.fast
 def test_steps_are_spaced_and_floored() -> None:
     d = SensorDecimation("uav3")
-    assert d.window(600, 300, 5.0, 200.0, True, -5.0) is None
-    assert d.window(600, 300, 5.0, 200.0, True, 0.0) is not None
-    assert d.window(250, 200, 5.0, 48.0, True, STEP_S - 0.1) is None       # the last step must take effect first
-    step = d.window(250, 240, 5.0, 48.0, True, STEP_S)                       # kept 2/s: the floor
+    assert d.window(W(1200, 600, 300), 200.0, True, -5.0) is None
+    assert d.window(W(1200, 600, 300), 200.0, True, 0.0) is not None
+    assert d.window(W(480, 400, 40), 48.0, True, STEP_S - 0.1) is None      # the last step must take effect first
+    step = d.window(W(480, 460, 10), 48.0, True, STEP_S)                    # delivered 2/s: the floor
     assert step is not None and step.rate_hz == MIN_HZ and d.steps == 2
-
 
 def test_a_gcs_that_cannot_keep_up_asks_its_drone_for_less_and_puts_it_back(
         ns: str, monkeypatch: pytest.MonkeyPatch) -> None:
