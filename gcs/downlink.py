@@ -203,6 +203,9 @@ class DownlinkRates:
         with self._cv:
             before = {d: dict(r) for d, r in self._before.items()}
             self._before.clear()
+            for drone, rates in before.items():   # else the next state (the rate restored) would re-ask the lower one
+                for name in rates:
+                    self._lowered.get(drone, {}).pop(name, None)
         end = time.monotonic() + RESTORE_S
         for drone, rates in before.items():
             shown = ", ".join(f"{PARAMS[k]} {v:g} Hz" for k, v in rates.items())
