@@ -76,6 +76,7 @@ class DownlinkRates:
         self.status: dict[str, DownlinkStatus] = {}
         self._lowered: dict[str, dict[str, float]] = {}    # drone -> rates lowered for it (lower())
         self._before: dict[str, dict[str, float]] = {}     # drone -> what it had before: restored on close
+        self._restored = False                             # restore() ran: nothing is lowered after it
         self._clients: dict[str, ParameterClient] = {}
         self._pending: list[str] = []  # bounded: a drone is at most once in it
         self._recheck_at: dict[str, float] = {}
@@ -95,6 +96,8 @@ class DownlinkRates:
         if not _valid(name, value):
             raise ValueError(f"downlink rate {name}={value!r}")
         with self._cv:
+            if self._restored:
+                return        # the GCS is letting go of its drones: what it lowers now would outlive it
             self._lowered.setdefault(drone, {})[name] = float(value)
             if math.isfinite(before) and before > 0:
                 self._before.setdefault(drone, {}).setdefault(name, float(before))
@@ -201,6 +204,7 @@ class DownlinkRates:
         it releases control: the companion takes rates from its controller only; again on close, a no-op
         then). One try per drone (the session may be closing or the drone gone: said, never raised)."""
         with self._cv:
+            self._restored = True
             before = {d: dict(r) for d, r in self._before.items()}
             self._before.clear()
             for drone, rates in before.items():   # else the next state (the rate restored) would re-ask the lower one

@@ -108,12 +108,13 @@ def test_a_gcs_that_cannot_keep_up_asks_its_drone_for_less_and_puts_it_back(
             assert view.command("take_control").success
             slow.set()
             assert wait_for(lambda: "decimated_sensor" in view.alerts.now, 30), (view.alerts.now, view.alerts.log)
-            text = view.alerts.now["decimated_sensor"]
-            asked = view.decimation.last_hz
-            assert MIN_HZ <= asked < 0.9 * 200.0 and f"asked the drone for {asked:g} Hz (was 200)" in text, text
-            assert wait_for(lambda: rate(view) == asked, 15), rate(view)      # the drone took it
+            text = next(a for a in view.alerts.log if a.startswith("decimated_sensor"))    # the first step
+            asked = float(text.split("asked the drone for ")[1].split(" Hz")[0])
+            assert MIN_HZ <= asked < 0.9 * 200.0 and "(was 200)" in text, text
+            # The drone took it (a loaded machine may have stepped down once more since: 10 s apart).
+            assert wait_for(lambda: rate(view) == view.decimation.last_hz <= asked, 15), rate(view)
             s = summarize(gcs, "resilient")["drones"][ns]
-            assert s["sensor_decimated"]["rate_hz"] == asked and s["shed_by_gcs"]["sensor"] > 0
+            assert s["sensor_decimated"]["rate_hz"] <= asked and s["shed_by_gcs"]["sensor"] > 0
             slow.clear()
             gcs.release_control()                   # as the CLI does on exit: the rate goes back first
         with Node("observer") as observer:          # what any node now sees of the drone
