@@ -64,7 +64,7 @@ from .formation import slot
 from .patterns import PathPoint, make_pattern
 from .planner import FormationClock, Position, TargetPlanner
 from .shedding import PERIOD_S as SHEDDING_PERIOD_S
-from .shedding import SheddingWatch, Window
+from .shedding import SheddingWatch
 from .vehicle_identity import StateSource, watch_claims
 
 log = logging.getLogger("gcs")
@@ -129,7 +129,7 @@ class DroneView:
         silent = self.alerts.silence_events      # "uav3 sensor: publisher seen, 0 samples in 5 s" (alerts.py)
         # What this GCS's own queues drop, named (shedding.py); the sensor then asked for less (decimation.py).
         self.decimation = SensorDecimation(drone_id)
-        self.shedding = SheddingWatch(self.alerts, self._shed_window)
+        self.shedding = SheddingWatch(self.alerts, lambda stream, w: self.decimation.on_window(self, stream, w))
         self.shedding.watch("sensor", node.create_subscription(
             message_of(sensor), f"{ns}/{sensor.name}", self._on_sensor, q[sensor.name],
             topic_statistics=budget["sensor"], event_callbacks=silent("sensor")))
@@ -149,16 +149,6 @@ class DroneView:
         self.commands = node.create_client(f"{ns}/{COMMAND_SERVICE}", Command, CommandResult, retry=command_retry(node))
         presence = wired("presence", UP)
         self.presence_pub = node.create_publisher(message_of(presence), f"{ns}/{presence.name}", q[presence.name])
-
-    def _shed_window(self, stream: str, w: Window) -> None:   # the executor (a timer)
-        downlink = self.gcs.downlink
-        s = self.state
-        if stream != "sensor" or downlink is None or s is None or not self.gcs.config.decimate_sensor:
-            return
-        step = self.decimation.window(w, float(s.sensor_rate_requested_hz), self.in_control, time.monotonic())
-        if step is not None:
-            self.alerts.raise_("decimated_sensor", step.text)
-            downlink.lower(self.id, "sensor_rate_hz", step.rate_hz, before=float(s.sensor_rate_requested_hz))
 
     # -- telemetry -------------------------------------------------------------------
     def _on_sensor(self, msg: SensorCombined, info: Any) -> None:
@@ -301,8 +291,8 @@ class Gcs:
         self._declare_parameters()
         rates = {k: v for k, v in (("sensor_rate_hz", config.sensor_rate_hz),
                                    ("camera_rate_hz", config.camera_rate_hz)) if v is not None}
-        self.downlink = (DownlinkRates(node, rates, self._downlink_refused, config.client_id)
-                         if rates or config.decimate_sensor else None)
+        on = rates or config.decimate_sensor
+        self.downlink = DownlinkRates(node, rates, self._downlink_refused, config.client_id) if on else None
         if self.downlink is not None:
             node.add_on_close(self.downlink.close)
         # The companion knows its controller is alive by this token (dropped when the session ends).

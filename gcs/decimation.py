@@ -16,7 +16,9 @@ priority on the drone (companion/priority.py) and the lazy receiver here.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
+from typing import Any
 
 from .shedding import Window
 
@@ -43,6 +45,17 @@ class SensorDecimation:
         self.steps = 0           # asked in all (the summary's figure)
         self.last_hz = math.nan
         self._over = 0           # windows in a row over SHARE
+
+    def on_window(self, view: Any, stream: str, w: Window) -> None:
+        """SheddingWatch's window of ``view`` (a gcs.app.DroneView), on the executor: a step is asked of the
+        drone through the GCS's downlink and raised on the drone's alerts."""
+        downlink, s = view.gcs.downlink, view.state
+        if stream != "sensor" or downlink is None or s is None or not view.gcs.config.decimate_sensor:
+            return
+        step = self.window(w, float(s.sensor_rate_requested_hz), view.in_control, time.monotonic())
+        if step is not None:
+            view.alerts.raise_("decimated_sensor", step.text)
+            downlink.lower(view.id, "sensor_rate_hz", step.rate_hz, before=float(s.sensor_rate_requested_hz))
 
     def window(self, w: Window, asked_hz: float, in_control: bool, now: float) -> Step | None:
         """``w``: this window at the GCS's queue; ``asked_hz``: the drone's sensor rate now (its state's
