@@ -169,6 +169,20 @@ def wait_for(predicate: Callable[[], bool], timeout: float = 5.0, interval: floa
     return predicate()
 
 
+def settled(read: Callable[[], object], quiet_s: float = 0.3, timeout: float = 5.0) -> bool:
+    """``read()`` stopped changing for ``quiet_s`` (a sender's pending copies have all arrived)."""
+    end = time.monotonic() + timeout
+    last, since = read(), time.monotonic()
+    while time.monotonic() < end:
+        time.sleep(0.05)
+        now = read()
+        if now != last:
+            last, since = now, time.monotonic()
+        elif time.monotonic() - since >= quiet_s:
+            return True
+    return False
+
+
 def python_proc(*args: str, env: dict[str, str] | None = None, **kw) -> subprocess.Popen:
     """A real child process running this venv's Python, output captured as text."""
     full_env = dict(os.environ, PYTHONUNBUFFERED="1", **(env or {}))

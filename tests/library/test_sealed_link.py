@@ -25,7 +25,7 @@ from typing import Any
 
 import pytest
 import zenoh
-from conftest import free_port, wait_for
+from conftest import free_port, settled, wait_for
 from cryptography.hazmat.primitives import hashes
 from cryptography.hazmat.primitives.ciphers.aead import ChaCha20Poly1305
 from cryptography.hazmat.primitives.kdf.hkdf import HKDF
@@ -327,20 +327,6 @@ def test_rogue_tries_are_refused_and_counted_while_the_link_flows(transport: str
         assert s.drone.wire.snapshot()["opened"] > opened  # type: ignore[attr-defined]
 
 
-def _settled(read: Any, quiet_s: float = 0.3, timeout: float = 5.0) -> bool:
-    """``read()`` stopped changing for ``quiet_s`` (a publisher's pending copies have all left)."""
-    end = time.monotonic() + timeout
-    last, since = read(), time.monotonic()
-    while time.monotonic() < end:
-        time.sleep(0.05)
-        now = read()
-        if now != last:
-            last, since = now, time.monotonic()
-        elif time.monotonic() - since >= quiet_s:
-            return True
-    return False
-
-
 @pytest.mark.parametrize("transport", TRANSPORTS)
 def test_repeats_are_sealed_once_arrive_once_and_replayed_copies_are_duplicates(transport: str, fleet: Path) -> None:
     """The resilient setpoint stream (redundancy, up to 64 copies a sample): one seal per sample, not
@@ -351,14 +337,14 @@ def test_repeats_are_sealed_once_arrive_once_and_replayed_copies_are_duplicates(
         assert s.setpoint_pub.repeats > 1
         s.setpoints_paused.set()
         drone_wire, gcs_wire = s.drone.wire, s.gcs.wire
-        assert _settled(lambda: drone_wire.snapshot()["duplicate"]), "setpoint copies never stopped"  # type: ignore[attr-defined]
+        assert settled(lambda: drone_wire.snapshot()["duplicate"]), "setpoint copies never stopped"  # type: ignore[attr-defined]
         gcs0, drone0 = gcs_wire.snapshot(), drone_wire.snapshot()  # type: ignore[attr-defined]
         malformed0, taken = s.setpoint_sub.counters.malformed, len(s.captured)
         n, base = 12, 1e6
         for i in range(n):
             s.setpoint_pub.publish(DroneSetpoint(client_id="gcs1", x=base + i))
             time.sleep(0.08)
-        assert _settled(lambda: drone_wire.snapshot()["duplicate"]), "setpoint copies never stopped"  # type: ignore[attr-defined]
+        assert settled(lambda: drone_wire.snapshot()["duplicate"]), "setpoint copies never stopped"  # type: ignore[attr-defined]
         gcs1, drone1 = gcs_wire.snapshot(), drone_wire.snapshot()  # type: ignore[attr-defined]
         mine = [sp.x for sp in s.setpoints if sp.x >= base]
         assert mine and mine[-1] == base + n - 1 and len(mine) == len(set(mine)), mine   # each sample once
