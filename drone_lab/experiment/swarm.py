@@ -386,6 +386,11 @@ def _min(xs: list[float]) -> float:
     return min(xs) if xs else float("nan")
 
 
+def _max(xs: list[float]) -> float:
+    xs = [x for x in xs if x == x]
+    return max(xs) if xs else float("nan")
+
+
 def summarize(result: dict[str, Any], cell: SwarmCell) -> dict[str, Any]:
     ds = list(result["drones"].values())
     cpu = result["cpu_pct"]
@@ -402,9 +407,7 @@ def summarize(result: dict[str, Any], cell: SwarmCell) -> dict[str, Any]:
         # (its stream ends there by design) and read 8.3 Hz where the GCS sent 9.97.
         "setpoint_streamed_hz_min": _min([1000.0 / d["setpoint"]["period_avg_ms"] for d in ds
                                           if d["setpoint"].get("period_avg_ms", 0) > 0]),
-        "setpoint_gap_p99_ms_max": max((d["setpoint"]["gap_p99_ms"] for d in ds
-                                        if d["setpoint"].get("gap_p99_ms") == d["setpoint"].get("gap_p99_ms")),
-                                       default=float("nan")),
+        "setpoint_gap_p99_ms_max": _max([d["setpoint"].get("gap_p99_ms", float("nan")) for d in ds]),
         "setpoint_delivered_min": _min([d["setpoint"]["delivered_pct"] for d in ds]),
         "sensor_delivered_min": _min([d["sensor"]["delivered_pct"] for d in ds]),
         "sensor_delivered_avg": _mean([d["sensor"]["delivered_pct"] for d in ds]),

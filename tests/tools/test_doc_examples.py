@@ -12,42 +12,28 @@ import shlex
 import signal
 import subprocess
 from collections.abc import Iterator
-from pathlib import Path
 
 import pytest
 from cli_helpers import CLI_ARGS, cli
 from conftest import Lines, fresh_domain, kill_process, python_proc
+from doc_helpers import ROOT, blocks
 
-DOC = Path(__file__).resolve().parents[2] / "docs" / "cli.md"
-MARKER = re.compile(r"<!--\s*doc-test:\s*(?P<needs>[^>]*?)\s*-->")
+DOC = ROOT / "docs" / "cli.md"
 UNTIL_CTRL_C = "# until Ctrl-C"
 
 
-def doc_commands(text: str, needs: str) -> list[str]:
-    """The command lines of the code blocks marked ``doc-test: <needs>``, continuation lines joined."""
+def doc_commands(needs: str) -> list[str]:
+    """The command lines of DOC's blocks marked ``doc-test: <needs>``, continuation lines joined."""
     out: list[str] = []
-    lines = text.splitlines()
-    for i, line in enumerate(lines):
-        m = MARKER.search(line)
-        if not m or m["needs"] != needs:
+    for block in blocks(DOC):
+        if block.kind != needs:
             continue
-        block: list[str] = []
-        for code in lines[i + 1:]:
-            if code.startswith("```"):
-                if block:
-                    break
-                continue
-            if not code.strip() and not block:
-                continue     # the blank line that keeps the comment and the code apart in Markdown
-            if not code.strip() or not (code.startswith("    ") or code.startswith("zenoh-robot")):
-                break
-            block.append(code.strip())
-        joined = " ".join(block).replace("\\ ", "")
+        joined = " ".join(line.strip() for line in block.lines if line.strip()).replace("\\ ", "")
         out += [c.strip() for c in re.split(r"(?=\bzenoh-robot )", joined) if c.strip()]
     return out
 
 
-COMMANDS = doc_commands(DOC.read_text(), "companion uav1")
+COMMANDS = doc_commands("companion uav1")
 
 
 def test_the_marked_examples_cover_the_everyday_commands():

@@ -17,25 +17,19 @@ from pathlib import Path
 
 import pytest
 from conftest import Lines, fresh_domain, kill_process, python_proc
+from doc_helpers import all_blocks
 
-ROOT = Path(__file__).resolve().parents[2]
-MARKER = re.compile(r'<!--\s*doc-test:\s*python(?P<ends>\s+ends)?(?:\s+"(?P<expect>[^"]*)")?\s*-->')
+PYTHON = re.compile(r'python(?P<ends>\s+ends)?(?:\s+"(?P<expect>[^"]*)")?')
 QUIET_S = 3.0     # an example that prints nothing by design runs this long, then gets Ctrl-C
 
 
 def marked_blocks() -> list[tuple[str, str | None, bool, str]]:
     """(where, expected line or None, whether it ends by itself, code) of every marked Python block."""
     out: list[tuple[str, str | None, bool, str]] = []
-    for doc in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]:
-        lines = doc.read_text().splitlines()
-        for i, line in enumerate(lines):
-            m = MARKER.search(line)
-            if not m:
-                continue
-            start = next(j for j in range(i + 1, len(lines)) if lines[j].startswith("```python")) + 1
-            end = next(j for j in range(start, len(lines)) if lines[j].startswith("```"))
-            out.append((f"{doc.relative_to(ROOT)}:{start}", m["expect"], bool(m["ends"]),
-                        "\n".join(lines[start:end]) + "\n"))
+    for block in all_blocks():
+        m = PYTHON.fullmatch(block.kind or "") if block.lang == "python" else None
+        if m:
+            out.append((block.where, m["expect"], bool(m["ends"]), "\n".join(block.lines) + "\n"))
     return out
 
 
