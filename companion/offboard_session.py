@@ -109,6 +109,7 @@ class OffboardLifecycle:
     def leave(self, mode: str, why: str) -> None:
         """Switch PX4 to ``mode`` while still streaming, then stop the stream: PX4 never
         sees the stream end in OFFBOARD, and nothing streams afterwards."""
+        self.link.offboard.will_leave()         # before the session ends: an external mode's check stays yes
         with self._lock:
             was = self._state
             self._go(OffboardState.IDLE, why)   # first: no setpoint arriving now restarts anything
@@ -125,6 +126,7 @@ class OffboardLifecycle:
         with self._lock:
             if self._state is not OffboardState.ACTIVE:
                 return False
+            self.link.offboard.will_leave()
             self._go(OffboardState.FAILSAFE_HOLD, why)
         try:
             self.link.offboard.stop(mode=SAFE_MODE)

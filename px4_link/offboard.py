@@ -158,6 +158,10 @@ class Offboard:
         self._active = True
         return ack
 
+    def will_leave(self) -> None:
+        """The caller is about to switch PX4 away from the session's mode (``stop``). OFFBOARD needs no notice:
+        the stream runs until the switch (px4_zenoh's external mode holds its check's answer over the switch)."""
+
     def stop(self, mode: str | None = "AUTO.LOITER") -> CommandAck | None:
         """Leave OFFBOARD cleanly: switch to ``mode`` while still streaming (PX4 never sees
         a loss), then stop the stream. ``mode=None`` only stops the stream."""

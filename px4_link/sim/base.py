@@ -69,6 +69,7 @@ class SimulatorBase:
                                    estimator_warmup_s=estimator_warmup_s,
                                    offboard_loss_latency_s=offboard_loss_latency_s)
         self.failsafes = Failsafes(self.params, self.commander)
+        self.commander.link_check = self.failsafes.arming_refusal
         # faults (sim/faults.py): times from the start of this simulator
         self.faults = FaultSchedule()
         for f in faults:

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -166,6 +167,8 @@ class Commander:
     # COM_OF_LOSS_T -> failsafe latency: the MAVLink build's (OFFBOARD_LOSS_LATENCY_S) by default; PX4's
     # Zenoh build reacts in ~0.1 s (px4_zenoh_traces loss: 1.096 s), which px4_zenoh.sim passes.
     offboard_loss_latency_s: float = OFFBOARD_LOSS_LATENCY_S
+    # the GCS-link arming check (sim/failsafe.py rcAndDataLinkCheck), wired by the simulator
+    link_check: Callable[[], str | None] | None = None
 
     def __post_init__(self) -> None:
         self._lock = threading.RLock()
@@ -316,22 +319,31 @@ class Commander:
             self.last_setpoint = sp
             self._sp_last = sp.time
 
-    def arming_refusal(self) -> str | None:
-        """Why PX4's canArm(nav_state) would fail now (None: it can arm), disarmed.
-        HealthAndArmingChecks: every check, plus the current mode's requirements and
-        mode_req_prevent_arming (mode_requirements.cpp)."""
+    def can_arm_refusal(self) -> str | None:
+        """Why PX4's canArm(nav_state) fails now (None: it passes): every health and arming check, plus the
+        current mode's requirements and mode_req_prevent_arming (HealthAndArmingChecks, mode_requirements.cpp).
+        Commander.cpp evaluates it at 10 Hz into vehicle_status.pre_flight_checks_pass, the verdict a client
+        waits on before it arms."""
         if self.preflight_failure() is not None:
             return "Arming denied: Resolve system health failures first"
-        if self.landed_state != ON_GROUND:
-            return "Arming denied: not landed"
+        if self.link_check is not None and (why := self.link_check()) is not None:
+            return why
+        return self._mode_arming_refusal()
+
+    def _mode_arming_refusal(self) -> str | None:
         if self.mode in NO_ARM_MODES:
             return f"Arming denied: not possible in {self.mode}"
         if self.mode == "OFFBOARD" and not self.offboard_signal_ok():
             return "Arming denied: no offboard signal"
         why = self._can_run(self.mode)
-        if why is not None:
-            return f"Arming denied: {why}"
-        return None
+        return None if why is None else f"Arming denied: {why}"
+
+    def arming_refusal(self) -> str | None:
+        """Why an ARM command would be refused now (None: it is accepted), disarmed: canArm, on the ground."""
+        refusal = self.can_arm_refusal()
+        if refusal is None and self.landed_state != ON_GROUND:
+            return "Arming denied: not landed"
+        return refusal
 
     def armable(self) -> bool:
         """What PX4's pre-arm checks would say now (SYS_STATUS PREARM_CHECK health)."""

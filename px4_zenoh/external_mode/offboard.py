@@ -22,10 +22,11 @@ Threading: as px4_link's Offboard; the registration runs on its own daemon threa
 """
 from __future__ import annotations
 
+import functools
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from px4_link.commands import CommandAck, CommandFailed, CommandTemporarilyRejected
@@ -44,6 +45,11 @@ from .rtl import RETURN_ALT_M, ReturnHome
 
 log = logging.getLogger(__name__)
 RETRY_S = 2.0
+# How long the check answers yes while the companion switches PX4 away from the mode it still flies: a "no" in
+# that moment (the session has just ended) would make PX4 fail the mode (RTL) instead of taking the switch.
+HANDOVER_S = 2.0
+CHECKS_PERIOD_S = 0.1       # Commander.cpp runs its health and arming checks at 10 Hz
+MODE_SHOWN_S = 1.0         # the executor's mode step: PX4's vehicle_status shows the mode within a status or two
 POSITION_FRESH_S = 1.0     # an older local position is no position for the replacement RTL
 
 
@@ -55,6 +61,7 @@ class ModeOffboard(ZenohOffboard):
         self.executor = executor
         self._stop = threading.Event()
         self._send_lock = threading.Lock()   # a send in progress ends before stop_stream returns
+        self._handover_until = 0.0
         if executor is not None:
             executor.on_step = self._executor_step
         self._registrar = threading.Thread(target=self._keep_registered, name="px4mode-register", daemon=True)
@@ -122,7 +129,7 @@ class ModeOffboard(ZenohOffboard):
         if not self.mode.wait(lambda: self.mode.verdict[0], confirm_timeout):
             raise CommandTemporarilyRejected(CMD_SET_NAV_STATE, None, f"mode {self.mode.name!r} cannot run yet: "
                                              + ", ".join(self.mode.verdict[1]))
-        ack = core.send_command(CMD_SET_NAV_STATE, float(self.mode.mode_id))
+        ack = self._select(confirm_timeout)
         if not core.wait_until(lambda: core.state.mode == name, confirm_timeout):
             raise CommandFailed(CMD_SET_NAV_STATE, ack.result,
                                 f"mode {self.mode.name!r} ({name}) accepted but PX4 shows {core.state.mode}")
@@ -135,6 +142,33 @@ class ModeOffboard(ZenohOffboard):
             self.executor.request()
         return ack
 
+    def will_leave(self) -> None:
+        self._handover_until = time.monotonic() + HANDOVER_S
+
+    @property
+    def handing_over(self) -> bool:
+        """A switch away from the mode is under way (``will_leave``) while PX4 still flies it: the check answers
+        yes, for at most HANDOVER_S, so PX4 takes the companion's switch rather than failing the mode."""
+        return time.monotonic() < self._handover_until and self.mode.active
+
+    def answer(self, check: Check) -> tuple[bool, Sequence[str]]:
+        """The mode's arming check: ``check``'s verdict, but yes while handing over (rehearsal 26 and CI stop 46:
+        the GCS's rtl ended the session, the next check said "no offboard session" before PX4 had taken the
+        executor's RTL, and PX4's failsafe RTL took the executor out of charge)."""
+        return (True, ()) if self.handing_over else check()
+
+    def _select(self, timeout: float) -> CommandAck:
+        """The switch to the mode. Armed, PX4 takes it only once its 10 Hz checks have read a yes from the mode's
+        check, which may be a period behind the yes we sent: a refusal while our answer is yes is tried again."""
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                return self._zcore.send_command(CMD_SET_NAV_STATE, float(self.mode.mode_id))
+            except CommandTemporarilyRejected:
+                if time.monotonic() > deadline or not self.mode.verdict[0]:
+                    raise
+                time.sleep(CHECKS_PERIOD_S)
+
     def stop(self, mode: str | None = "AUTO.LOITER") -> CommandAck | None:
         """The GCS's rtl while the executor flies the mode: the mode is done (mode_completed), and the executor
         schedules RTL itself; anything else leaves the mode by a switch (a user's switch: PX4 puts the autopilot
@@ -142,11 +176,15 @@ class ModeOffboard(ZenohOffboard):
         in its setpoints (the companion's check answers for it), while a setpoint of ours that reached PX4
         after the switch would be flown against PX4's own flight task (CI stop 46 counted one). The same for the
         executor's completion: it switches PX4 away at once (rehearsal 16 counted one)."""
+        self.will_leave()
         self.stop_stream()
         ex = self.executor
         if mode == "AUTO.RTL" and ex is not None and ex.running and ex.step == "mode":
             self.leaving = True
             try:
+                # the executor has sent the mode's switch; PX4's status may not show it yet (an rtl 50 ms after
+                # it was refused for "not active" in a rehearsal): the completion waits for the mode to fly
+                self.mode.wait(lambda: self.mode.active or not ex.running, MODE_SHOWN_S)
                 if not self.mode.complete(True):
                     raise CommandFailed(CMD_SET_NAV_STATE, None, f"mode {self.mode.name!r} is not active: "
                                         "its completion was not reported")
@@ -197,6 +235,7 @@ def install(link: Any, name: str, check: Check, *, replace_internal_mode: str | 
     new = ModeOffboard(core, old.geofence, old._validator.max_speed, mode, old.velocity_timeout_s,
                        ModeExecutor(mode) if executor else None)
     link.offboard = new
+    mode.check = functools.partial(new.answer, check)
     core.add_mode_namer(_namer(mode, None))
     return new
 

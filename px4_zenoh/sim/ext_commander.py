@@ -113,8 +113,8 @@ class ExtCommander(Commander):
             return None
         return super()._can_run(mode)
 
-    def arming_refusal(self) -> str | None:
-        refusal = super().arming_refusal()
+    def _mode_arming_refusal(self) -> str | None:
+        refusal = super()._mode_arming_refusal()
         if refusal is not None:
             return refusal
         report = self.mm.report

@@ -93,7 +93,7 @@ class VehicleView:
             latest_disarming_reason=self.disarm_reason, failsafe=c.failsafe,
             vehicle_type=VEHICLE_TYPE_ROTARY_WING, system_type=MAV_TYPE_QUADROTOR, system_id=self.sysid,
             component_id=1, gcs_connection_lost=self.failsafes.gcs_connection_lost, power_input_valid=True,
-            pre_flight_checks_pass=c.preflight_failure() is None and self.failsafes.arming_refusal() is None)
+            pre_flight_checks_pass=c.can_arm_refusal() is None)
 
     def vehicle_land_detected(self, t_us: int) -> Any:
         landed = self.commander.landed_state == ON_GROUND

@@ -116,12 +116,13 @@ def test_failing_check_refuses_arming_with_the_reason(px4: tuple[Probe, ZenohSim
                                                     ("no GCS holds control",))) as mode:
         mode.register()
         assert mode.select() == ACCEPTED      # disarmed: PX4 always accepts the switch
-        time.sleep(0.5)
+        assert sim.wait_for(lambda s: s.mode_management.report.cannot_arm.get(EXT1) == "no GCS holds control", 3.0)
+        # PX4's vehicle_status carries canArm(nav_state), the check's answer included: what a client waits on
+        status(probe, lambda m: m.nav_state == EXT1 and not m.pre_flight_checks_pass, 3.0, time.monotonic())
         assert arm(probe) == TEMP_REJECTED
-        assert sim.mode_management.report.cannot_arm[EXT1] == "no GCS holds control"
         assert mode.verdict == (False, ("no GCS holds control",))
         ready.set()
-        time.sleep(0.5)
+        status(probe, lambda m: m.nav_state == EXT1 and m.pre_flight_checks_pass, 3.0, time.monotonic())
         assert arm(probe) == ACCEPTED
 
 
@@ -189,6 +190,48 @@ def test_leaving_the_mode_stops_the_stream_before_the_switch(px4: tuple[Probe, Z
             assert sim.wait_for(lambda s: s.mode == "AUTO.LOITER", 3.0), sim.mode
             time.sleep(0.3)                    # two stream ticks: nothing more goes out
             assert off.mode.stats.setpoints_sent == sent_after and sim.commander.setpoints_outside_mode == 0
+        finally:
+            off.close()
+
+
+def test_a_switch_away_holds_the_checks_yes_until_px4_takes_it(
+        px4: tuple[Probe, ZenohSimulator, zenoh.Session]) -> None:
+    """The companion ends its session (its check turns to "no offboard session") just before it switches PX4 away:
+    PX4, asking every ~310 ms, must not read that "no" while it still flies the mode, or it fails the mode (RTL)
+    instead of taking the switch (rehearsal 26). ``will_leave`` holds the yes while PX4 flies the mode, for
+    HANDOVER_S at most: placed here by holding the switch back over two check periods, then by never sending it."""
+    from px4_zenoh.external_mode.offboard import HANDOVER_S
+    probe, sim, _ = px4
+    session = threading.Event()
+    session.set()
+    with Px4ZenohLink(Px4Endpoint("client", probe.endpoint)) as link:
+        off = install(link, "zr handover",
+                      lambda: (True, ()) if session.is_set() else (False, ("no offboard session",)))
+        try:
+            assert link.wait_connected(10.0) and sim.wait_for(lambda s: off.mode_name != "", 10.0)
+            off.set_setpoint(PositionTarget(0.0, 0.0, -3.0))
+            off.start()
+            link.action.arm()
+            assert sim.wait_for(lambda s: s.altitude > 2.0, 15.0), "did not climb in the mode"
+            off.will_leave()
+            session.clear()
+            asked = off.mode.stats.check_requests
+            assert off.mode.wait(lambda: off.mode.stats.check_requests >= asked + 2, 3.0)
+            assert sim.mode == off.mode_name and not sim.failsafe_log, (sim.mode, sim.failsafe_log)
+            off.stop("AUTO.LOITER")
+            assert sim.wait_for(lambda s: s.mode == "AUTO.LOITER", 3.0), sim.mode
+            assert not sim.failsafe_log and off.mode.wait(lambda: off.mode.verdict == (False, ("no offboard session",)),
+                                                          3.0), off.mode.verdict
+            # bounded: a leave that never sends its switch gets the honest answer after HANDOVER_S
+            session.set()
+            off.start()
+            assert sim.mode == off.mode_name
+            t_leave = time.monotonic()
+            off.will_leave()
+            session.clear()
+            assert sim.wait_for(lambda s: s.mode == "AUTO.RTL", 5.0 + HANDOVER_S), sim.mode
+            print(f"\na leave without its switch: PX4's fallback {time.monotonic() - t_leave:.2f} s after it began")
+            assert time.monotonic() - t_leave > HANDOVER_S * 0.9 and sim.failsafe_log[-1].cause == "external mode"
         finally:
             off.close()
 

@@ -23,8 +23,12 @@ from px4_helpers import QUICK_WARMUP_S, wait_state_armable
 from px4_zenoh_probe import Hover, client_session, probed_sim
 from rigs import OP, QUICK_FLIGHT, Observer
 
+from px4_link.targets import PositionTarget
+from px4_zenoh import Px4ZenohLink
 from px4_zenoh.external_mode import BridgeBugError, BridgePolicy, ExternalMode, ModeExecutor, ReturnHome
 from px4_zenoh.external_mode.bridge import ENV_FIXED
+from px4_zenoh.external_mode.offboard import install
+from px4_zenoh.session import Px4Endpoint
 from px4_zenoh.sim import ZenohSimulator
 from zenoh_robot import Node
 
@@ -257,6 +261,49 @@ def test_executor_sequence_and_a_failsafe_taking_charge() -> None:
             executor.close()
             mode.close()
             session.close()
+
+
+def test_an_rtl_as_the_executor_selects_its_mode_completes_it_and_flies_rtl(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The GCS's rtl arriving as the executor's mode step begins, before PX4's status shows the mode (a rehearsal
+    saw one 50 ms after, refused as "not active", and the failsafe RTL that followed took the executor out of
+    charge): ``stop`` waits for the mode, completes it, and the executor flies RTL, in charge throughout. Placed
+    at the step itself: the rtl is sent from the executor's own step hook."""
+    monkeypatch.setenv(ENV_FIXED, "1")
+    with probed_sim(seed=26, estimator_warmup_s=1.0, rates="lean", params=QUICK_FLIGHT, bridge_fixed=True) \
+            as (probe, sim), Px4ZenohLink(Px4Endpoint("client", probe.endpoint)) as link:
+        off = install(link, "zr race", lambda: (True, ()), executor=True)
+        ex = off.executor
+        assert ex is not None
+        outcome: list[object] = []
+        step = ex.on_step
+
+        def rtl() -> None:
+            try:
+                outcome.append(off.stop("AUTO.RTL"))
+            except Exception as e:   # noqa: BLE001 - the test reports it
+                outcome.append(e)
+
+        def at_step(what: str) -> None:
+            if step is not None:
+                step(what)
+            if what == "mode":     # before the mode's switch goes out
+                threading.Thread(target=rtl, daemon=True).start()
+        ex.on_step = at_step
+        try:
+            assert link.wait_connected(10.0) and sim.wait_for(lambda s: off.mode_name != "", 10.0)
+            off.set_setpoint(PositionTarget(0.0, 0.0, -3.0))
+            off.start()
+            assert sim.wait_for(lambda s: bool(ex.log) and ex.log[-1][1].startswith(("done", "deactivated", "aborted"))
+                                or any(isinstance(o, Exception) for o in outcome), 60.0), (ex.log, sim.mode)
+            steps = [w for _, w in ex.log]
+            assert steps == ["activated", "arm", "takeoff", "mode", "rtl", "done: landed and disarmed"], \
+                (steps, outcome)
+            assert outcome == [None]
+            assert (EXT1, 0) in [(n, r) for _, n, r in sim.mode_completed_log]
+            assert sim.delivered["/fmu/in/vehicle_command_mode_executor"] == 4 and sim.executor_refusals == 0
+            assert not any(e.cause == "external mode" for e in sim.failsafe_log), sim.failsafe_log
+        finally:
+            off.close()
 
 
 @pytest.mark.usefixtures("own_domain")

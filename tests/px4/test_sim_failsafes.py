@@ -135,11 +135,15 @@ def test_gcs_loss_returns_after_com_dl_loss_t_and_only_gcs_heartbeats_count() ->
     """mavlink_receiver.cpp (MAV_TYPE_GCS heartbeats, 2.5 s timeout checked every 1.25 s),
     Commander.cpp (COM_DL_LOSS_T), failsafe.cpp (NAV_DLL_ACT 2 Return)."""
     with sim_and_link(params={"NAV_DLL_ACT": 2, "COM_DL_LOSS_T": 5, "COM_FAIL_ACT_T": 0.0},
-                      sim_kwargs=QUICK) as (sim, link, events):
+                      sim_kwargs=QUICK, armable=False) as (sim, link, events):
         # The simulator answers the first address it hears (as PX4's UDP link): px4_link's.
         assert wait_for(lambda: sim.protocol is not None and sim.protocol.stats.messages_received > 0, 5)
         time.sleep(1.5)   # px4_link's own heartbeats flow meanwhile
         assert sim.gcs_connection_lost, "the companion's ONBOARD_CONTROLLER heartbeats counted as a GCS"
+        # rcAndDataLinkCheck.cpp: with NAV_DLL_ACT set, no arming without a GCS
+        assert wait_for(lambda: sim.commander.arming_refusal() == "Preflight Fail: No connection to the GCS", 10), \
+            sim.commander.arming_refusal()
+        assert not sim.armable
         with gcs_heartbeats(sim.port) as stop:
             assert wait_for(lambda: not sim.gcs_connection_lost, 3)
             _airborne(sim, link)
