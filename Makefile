@@ -39,10 +39,10 @@ lint: install
 # 2. the `serial` tests (loss in network namespaces, swarms): two modules at a time.
 # 3. the `alone` tests (CPU hogs, 0.3 s leases, ROS 2 peers, 3 ms spacing): nothing beside them.
 # Exit code 5 (ARGS selected nothing in a pass) is no failure.
-# Two, for now: on three and four workers (pass 1 in 490-600 s instead of 800-880 s) three of five CI
-# rehearsals failed a test the load starved (a simulator silent for 3 s, a publisher that never matched:
-# docs/testing.md); `WORKERS=4 make test` where speed matters more than that risk.
-WORKERS ?= 2
+# Three: pass 1 in ~740 s instead of ~1,080 s on two (the sum of its test times is ~2,160 s and the machine
+# stays 20-30 % idle). On three or four, three of five CI rehearsals of 2026-11-28 failed a test the load starved
+# (docs/testing.md, "Workers"). `WORKERS=2 make test` where a loaded machine makes that a risk.
+WORKERS ?= 3
 # Each pass ends with its slowest tests, so a CI log says where the time went (docs/testing.md).
 DURATIONS ?= --durations=15
 # Compiled modules are kept (in .venv, out of the tree) even where the environment turns them off

@@ -149,7 +149,9 @@ def discover_graph(node: "Node", timeout: float, found: Callable[[], bool] = lam
 
     A fresh session returns from open once it reaches one peer; the others, and their
     entities, arrive over the next moments: a quiet spell is the sign they all have. A session
-    that connected during the spell has not sent its tokens yet, so it restarts the spell.
+    that connected during the spell has not sent its tokens yet, so it restarts the spell. A spell
+    before any peer was reached says nothing (a loaded machine scouts slowly): with no peer, the
+    whole timeout is waited.
     """
     if not timeout > 0:
         raise CliError(f"--timeout must be > 0 seconds, got {timeout:g}")
@@ -158,7 +160,7 @@ def discover_graph(node: "Node", timeout: float, found: Callable[[], bool] = lam
     peers = set(node.peers())
     while True:
         since = node.graph.changes
-        ready = found()
+        ready = bool(peers) and found()
         left = end - time.monotonic()
         if left <= 0:
             return
