@@ -152,9 +152,9 @@ class ModeOffboard(ZenohOffboard):
         return time.monotonic() < self._handover_until and self.mode.active
 
     def answer(self, check: Check) -> tuple[bool, Sequence[str]]:
-        """The mode's arming check: ``check``'s verdict, but yes while handing over (rehearsal 26 and CI stop 46:
-        the GCS's rtl ended the session, the next check said "no offboard session" before PX4 had taken the
-        executor's RTL, and PX4's failsafe RTL took the executor out of charge)."""
+        """The mode's arming check: ``check``'s verdict, but yes while handing over (rehearsal 26: the GCS's rtl
+        ended the session, the next check said "no offboard session" before PX4 had taken the executor's RTL,
+        and PX4's failsafe RTL took the executor out of charge)."""
         return (True, ()) if self.handing_over else check()
 
     def _select(self, timeout: float) -> CommandAck:
