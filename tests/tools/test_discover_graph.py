@@ -2,12 +2,13 @@
 a graph that has been quiet because no peer was reached yet is not a settled graph."""
 from __future__ import annotations
 
+import tempfile
 import threading
+from pathlib import Path
 
 import pytest
-from conftest import linked_configs
 
-from zenoh_robot import Node, msgs
+from zenoh_robot import Node, SessionConfig, msgs
 from zenoh_robot.tools.cli.topic import GRAPH_QUIET, discover_graph
 
 pytestmark = pytest.mark.fast
@@ -17,7 +18,12 @@ def test_a_peer_reached_after_a_quiet_spell_is_still_discovered(ns: str) -> None
     """`topic find` under load printed nothing (a 3-worker test run): the CLI's session had reached no peer when
     its first GRAPH_QUIET spell ended, and it took the empty graph for the whole one. The talker here connects
     only after two spells; discovery waits for a peer (up to its timeout) and then learns the talker's topic."""
-    listen, connect = linked_configs()
+    # A Unix socket of its own, not a loopback port: a port drawn at random can be one that another test's
+    # leftover session still dials, and that stranger is a peer reached (seen once in a full pass).
+    tmp = tempfile.TemporaryDirectory(prefix="zr-dg-")
+    ep = f"unixsock-stream/{Path(tmp.name) / 'cli.sock'}"
+    listen = SessionConfig(listen=[ep], multicast_scouting=False, shared_memory=False)
+    connect = SessionConfig(listen=[], connect=[ep], multicast_scouting=False, shared_memory=False)
     opened = threading.Event()
     done = threading.Event()
 
@@ -39,3 +45,4 @@ def test_a_peer_reached_after_a_quiet_spell_is_still_discovered(ns: str) -> None
         finally:
             done.set()
             t.join(5.0)
+            tmp.cleanup()
