@@ -41,6 +41,10 @@ QUICK_FLIGHT = {**FAST, "COM_SPOOLUP_TIME": 0.3, "MPC_TKO_RAMP_T": 0.5, "COM_DIS
 PROFILE = stream_profile("resilient")
 OP = "test-op"   # the GCS id of drone()'s tests: their processes and nodes share it
 SETPOINT_QOS = qos.RESILIENT.replace(deadline=SETPOINT_DEADLINE)   # what the companion accepts
+# The HIGHRES_IMU rate rig()'s and drone()'s companions ask of PX4 unless a test asks another: the default
+# (200 Hz asked, ~123 Hz given) doubles an idle companion's and its simulator's CPU (17 % of a core against
+# 10 %), which three test workers on two cores pay for every flight; the sensor's tests ask it themselves.
+RIG_SENSOR_HZ = 20.0
 
 
 # ------------------------------------------------------------------------ in-process rig
@@ -104,6 +108,7 @@ def rig(ns: str, **config: object) -> Iterator[Rig]:
             Node("companion", namespace=ns, config=listen, executor=MultiThreadedExecutor(3)) as cnode, \
             Node("ground", config=connect, executor=MultiThreadedExecutor(2)) as ground:
         assert link.wait_connected(5.0)
+        config.setdefault("sensor_rate_hz", RIG_SENSOR_HZ)
         comp = Companion(cnode, link, CompanionConfig(drone_id=ns, camera=None, **config))  # type: ignore[arg-type]
         for n in (cnode, ground):
             threading.Thread(target=n.spin, daemon=True).start()
@@ -160,7 +165,8 @@ def drone(drone_id: str, sysid: int = 1, *extra: str,
             sim = stack.enter_context(ZenohSimulator(connect=ep, sysid=sysid, params=QUICK_FLIGHT,
                                                      estimator_warmup_s=QUICK_WARMUP_S))
             px4 = f"zenoh:{ep}"
-        proc = python_proc("-m", "companion", "--id", drone_id, "--px4", px4, "--camera-rate", "15", *extra)
+        rate = () if "--sensor-rate" in extra else ("--sensor-rate", f"{RIG_SENSOR_HZ:g}")
+        proc = python_proc("-m", "companion", "--id", drone_id, "--px4", px4, "--camera-rate", "15", *rate, *extra)
         try:
             yield sim, proc
         finally:

@@ -83,14 +83,16 @@ def _codec(name: str) -> Any:
 
 
 def _same_outcome(fn_a: Any, fn_b: Any) -> Any:
-    """Both raise, or both return the same value (returned)."""
+    """Both raise, or both return the same value (returned). Same by repr where == cannot say: a flipped
+    bit can make a float NaN, which both decoders read as NaN, and NaN != NaN (seen in a full pass)."""
     try:
         a = fn_a()
     except Exception:
         with pytest.raises(Exception):
             fn_b()
         return None
-    assert fn_b() == a
+    b = fn_b()
+    assert b == a or repr(b) == repr(a)
     return a
 
 

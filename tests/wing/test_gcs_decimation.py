@@ -98,7 +98,7 @@ def test_a_gcs_that_cannot_keep_up_asks_its_drone_for_less_and_puts_it_back(
         s = view.state if view is not None else (obs[-1] if obs else None)
         return float(s.sensor_rate_requested_hz) if s is not None else math.nan
 
-    with drone(ns) as (_sim, _proc):
+    with drone(ns, 1, "--sensor-rate", "200") as (_sim, _proc):
         with Node("gcs") as node:
             gcs = Gcs(node, GcsConfig(drones=[ns], profile=PROFILE, client_id=OP, pattern="hover", auto_fly=False))
             spin(node)

@@ -29,7 +29,7 @@ pytestmark = pytest.mark.usefixtures("own_domain")
 @BACKENDS
 def test_mission_end_to_end(ns: str, tmp_path: Path, backend: str) -> None:
     record, companion_record = tmp_path / "gcs.json", tmp_path / "companion.json"
-    with drone(ns, 1, "--record", str(companion_record), backend=backend) as (sim, companion):
+    with drone(ns, 1, "--record", str(companion_record), "--sensor-rate", "200", backend=backend) as (sim, companion):
         gcs = gcs_proc("--drones", ns, "--mission", "--duration", "4", "--pattern", "square", "--size", "4",
                        "--altitude", "2.5", "--record", str(record))
         out, _ = gcs.communicate(timeout=120)
