@@ -212,7 +212,7 @@ def lookup_type(name: str, ros2: bool = False) -> type[Message]:
         return ros2_lookup(name)
     if is_msg_file(name):
         return load_msg_file(name)
-    _register_drone_types()
+    register_message_types()
     try:
         return lookup(name)
     except KeyError as exc:
@@ -234,15 +234,25 @@ def ros2_lookup(name: str) -> type[Message]:
 _plugins_loaded = False
 
 
-def _register_drone_types() -> None:
-    """Import the message modules applications declare (entry-point group ``zenoh_robot.messages``),
-    so the tools read /uav1/state by name without importing the drone system themselves."""
+# The library's message types outside zenoh_robot.msgs: registered when their module is imported, which a
+# command that only reads the graph (topic hz of /uav1/image's ImageSlice, bag record) would never do.
+LIBRARY_MESSAGE_MODULES = ("zenoh_robot.msgs", "zenoh_robot.image.sliced", "zenoh_robot.image.fec",
+                           "zenoh_robot.loss_feedback", "zenoh_robot.parameters.service")
+
+
+def register_message_types() -> None:
+    """Register every message type a command may meet by name: the library's own, and those of the
+    modules applications declare (entry-point group ``zenoh_robot.messages``), so the tools read
+    /uav1/state by name without importing the drone system themselves."""
     global _plugins_loaded
     if _plugins_loaded:
         return
     _plugins_loaded = True
+    import importlib
     from importlib.metadata import entry_points
 
+    for name in LIBRARY_MESSAGE_MODULES:
+        importlib.import_module(name)
     for ep in entry_points(group="zenoh_robot.messages"):
         with contextlib.suppress(Exception):   # a broken plugin costs its types, not the command
             ep.load()
