@@ -36,13 +36,15 @@ lint: install
 # 1. the parallel pass: $(WORKERS) pytest-xdist workers, one module each at a time (its shared processes start
 #    once; the longest modules first, conftest's LONGEST_FIRST). Most tests wait on flights and processes,
 #    not on the CPU: two workers left a 2-core machine 57 % idle.
-# 2. the `serial` tests (loss in network namespaces, swarms): two modules at a time.
+# 2. the `serial` tests (loss in network namespaces, swarms): $(SERIAL_WORKERS) modules at a time.
 # 3. the `alone` tests (CPU hogs, 0.3 s leases, ROS 2 peers, 3 ms spacing): nothing beside them.
 # Exit code 5 (ARGS selected nothing in a pass) is no failure.
 # Three: pass 1 in ~740 s instead of ~1,080 s on two (the sum of its test times is ~2,160 s and the machine
 # stays 20-30 % idle). On three or four, three of five CI rehearsals of 2026-11-28 failed a test the load starved
 # (docs/testing.md, "Workers"). `WORKERS=2 make test` where a loaded machine makes that a risk.
 WORKERS ?= 3
+# Pass 2 on three: 184 s instead of ~255 s on two, the machine still ~40 % idle (2026-11-29, docs/testing.md).
+SERIAL_WORKERS ?= 3
 # Each pass ends with its slowest tests, so a CI log says where the time went (docs/testing.md).
 DURATIONS ?= --durations=15
 # Compiled modules are kept (in .venv, out of the tree) even where the environment turns them off
@@ -54,7 +56,7 @@ test: install sysdeps lint
 	@rc=0; \
 	$(BIN)/python -m pytest -n $(WORKERS) --dist loadscope --no-loadscope-reorder -m "not serial" $(DURATIONS) $(ARGS) \
 		|| rc=$$?; \
-	$(BIN)/python -m pytest -n 2 --dist loadscope --no-loadscope-reorder -m "serial and not alone" $(DURATIONS) $(ARGS) \
+	$(BIN)/python -m pytest -n $(SERIAL_WORKERS) --dist loadscope --no-loadscope-reorder -m "serial and not alone" $(DURATIONS) $(ARGS) \
 		|| { r=$$?; [ $$r = 5 ] || rc=$$r; }; \
 	$(BIN)/python -m pytest -m alone $(DURATIONS) $(ARGS) || { r=$$?; [ $$r = 5 ] || rc=$$r; }; \
 	[ $$rc = 0 ] || [ $$rc = 5 ]
