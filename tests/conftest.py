@@ -29,8 +29,8 @@ from drone_lab.experiment.stall_runs import wait_ready  # noqa: F401  (one READY
 pytest_plugins = ["bag_helpers", "pty_px4"]
 
 # Files whose tests run after the parallel pass (`-m serial`): what they assert depends on the machine's
-# load. A few of them at a time (pass 2: the Makefile's SERIAL_WORKERS), except the ALONE_FILES and SERIAL_TESTS, which have the machine
-# to themselves (pass 3): a neighbouring flight is load they cannot take.
+# load. A few of them at a time (pass 2: the Makefile's SERIAL_WORKERS), except the ALONE_FILES and
+# SERIAL_TESTS, which have the machine to themselves (pass 3): a neighbouring flight is load they cannot take.
 ALONE_FILES = frozenset({
     "test_stall_multicast.py",                     # CPU hogs by design
     "test_qos_events.py",                          # 0.3 s liveliness leases: a starved spin misses one
@@ -60,7 +60,7 @@ FAST_FILES = frozenset({
 
 
 def pytest_configure(config: pytest.Config) -> None:
-    config.addinivalue_line("markers", "serial: runs after the parallel pass, a few modules at a time (see SERIAL_FILES)")
+    config.addinivalue_line("markers", "serial: runs after the parallel pass, a few modules at once (SERIAL_FILES)")
     config.addinivalue_line("markers", "alone: a serial test that runs with nothing beside it (see ALONE_FILES)")
     config.addinivalue_line("markers", "fast: starts no process and opens no socket beyond in-process loopback "
                                        "Zenoh sessions; `make test-fast` runs these (docs/testing.md)")
