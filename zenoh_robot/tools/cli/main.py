@@ -208,8 +208,8 @@ def _run_main(argv: list[str] | None, parser: argparse.ArgumentParser | None) ->
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
-    # The applications' message types (entry points), which every command may meet on the graph: once
-    # registered as a side effect of building the whole command tree, which a command no longer builds.
+    # The message types any command may meet on the graph (the library's image and parameter types, the
+    # applications' entry points): once registered as a side effect of building the whole command tree.
     from .common import register_message_types
     register_message_types()
     try:
