@@ -231,7 +231,7 @@ def ros2_lookup(name: str) -> type[Message]:
         raise CliError(one_line(str(exc.args[0] if exc.args else exc))) from None
 
 
-_plugins_loaded = False
+_types_registered = False
 
 
 # The library's message types outside zenoh_robot.msgs: registered when their module is imported, which a
@@ -244,10 +244,10 @@ def register_message_types() -> None:
     """Register every message type a command may meet by name: the library's own, and those of the
     modules applications declare (entry-point group ``zenoh_robot.messages``), so the tools read
     /uav1/state by name without importing the drone system themselves."""
-    global _plugins_loaded
-    if _plugins_loaded:
+    global _types_registered
+    if _types_registered:
         return
-    _plugins_loaded = True
+    _types_registered = True
     import importlib
     from importlib.metadata import entry_points
 

@@ -97,16 +97,16 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     that a one-shot command (``topic list``, ``node info``) would pay at every start.
     """
     if command is not None:
-        parser = _parser(command)
-        if command in _subparsers(parser).choices:
+        parser, sub = _parser(command)
+        if command in sub.choices:
             return parser
-    return _parser(None)
+    return _parser(None)[0]
 
 
-def _parser(only: str | None) -> argparse.ArgumentParser:
+def _parser(only: str | None) -> tuple[argparse.ArgumentParser, SubParsers]:
     parser = Parser(prog="zenoh-robot", description=(__doc__ or "").splitlines()[0])
     _common_flags(parser)
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub = cast(SubParsers, parser.add_subparsers(dest="command", metavar="COMMAND"))
     for name in SUBCOMMANDS:
         if only is not None and name != only:
             continue
@@ -118,7 +118,7 @@ def _parser(only: str | None) -> argparse.ArgumentParser:
             raise
         module.register(sub)
     if only in sub.choices:
-        return parser
+        return parser, sub
     for ep in sorted(entry_points(group="zenoh_robot.cli"), key=lambda e: e.name):
         if only is not None and ep.name != only:
             continue
@@ -126,11 +126,7 @@ def _parser(only: str | None) -> argparse.ArgumentParser:
             ep.load()(sub)
         except (ImportError, AttributeError) as exc:   # one broken plugin must not take the CLI down
             print(f"zenoh-robot: subcommand {ep.name!r} unavailable: {exc}", file=sys.stderr)
-    return parser
-
-
-def _subparsers(parser: argparse.ArgumentParser) -> _SubParsers:
-    return next(a for a in parser._actions if isinstance(a, _SubParsers))
+    return parser, sub
 
 
 def _command_of(argv: Sequence[str]) -> str | None:
