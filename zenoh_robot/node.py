@@ -491,7 +491,14 @@ class Node:
             self._graph.close()
         if self._claim is not None:
             self._claim.close()
-        self.session.close()
+        try:
+            self.session.close()
+        except zenoh.ZError as exc:
+            # Zenoh gives up on a close that outlasts its timeout (a peer in a large mesh slow to take the
+            # undeclarations; seen in 1 of 150 CLI runs beside 20 peers). Everything of ours is undeclared by
+            # now, and close() raising would hide the error that ended a with-block, or print a traceback
+            # at a CLI's exit: said once, as a warning.
+            self._logger.warning("Zenoh session close did not complete: %s", str(exc).split(" at ")[0])
 
     destroy_node = close
 

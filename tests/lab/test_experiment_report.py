@@ -11,7 +11,9 @@ import pytest
 
 from drone_lab.experiment.report import MAX_SLICES, groups, main, markdown_report, oldest_strip_ages
 
-pytestmark = pytest.mark.fast   # in-process only (conftest: the fast tier)
+# In-process only, but the two tests that draw the figures are not in the fast tier: matplotlib's first use on
+# a machine builds its font cache by running `fc-list` (a process; conftest's fast tier refuses one).
+FAST = pytest.mark.fast
 
 MS = 1_000_000
 
@@ -45,6 +47,7 @@ def sweep() -> list[dict[str, Any]]:
     ]
 
 
+@FAST
 def test_one_table_set_per_start_and_transport_with_every_column(sweep: list[dict[str, Any]]) -> None:
     assert list(groups(sweep)) == [("after", "default"), ("after", "unicast")]
     md = markdown_report(sweep)
@@ -60,6 +63,7 @@ def test_one_table_set_per_start_and_transport_with_every_column(sweep: list[dic
     assert "| 0% | best_effort | raw |" in md
 
 
+@FAST
 def test_invalid_and_broken_cells_are_listed_not_tabled(sweep: list[dict[str, Any]]) -> None:
     md = markdown_report(sweep)
     assert not any(line.startswith(("| 10% | resilient", "| 90% | reliable")) for line in md.splitlines())
@@ -67,6 +71,7 @@ def test_invalid_and_broken_cells_are_listed_not_tabled(sweep: list[dict[str, An
     assert "- 90% reliable: error: missing records" in md
 
 
+@FAST
 def test_oldest_strip_age_follows_the_picture_a_sliced_viewer_shows() -> None:
     # Frame 0: strips 0 and 1 at t=0; frame 1: only strip 0 arrives (strip 1 lost), 100 ms later.
     # The picture then still shows frame 0's strip 1: the oldest strip is 100 ms + transit old.
@@ -114,6 +119,7 @@ def test_report_files_commands_joined_and_sliced_ages_from_the_raw_record(tmp_pa
     assert "Command success per loss: not in this report" in markdown_report(sweep)
 
 
+@FAST
 def test_a_cell_where_the_link_failed_the_stack_is_a_zero_not_a_gap() -> None:
     """Both apps ran through the window but the GCS, never hearing its drone, sent nothing: the thesis's
     "nothing arrives", tabled as 0 % and named, not dropped as a measurement fault to rerun."""
@@ -135,6 +141,7 @@ def _flown(profile: str, loss: float, run: int, age: float, share: float = 1.0, 
         "path_error_window": {"mean_m": 0.2 + run / 100, "max_m": 0.8}, "commands": cmds}, **extra)
 
 
+@FAST
 def test_runs_give_median_and_range_and_the_flight_table_shows_what_the_vehicle_did() -> None:
     """Issue #29: three runs of a cell are one row (median [min-max]); the flight table says what PX4 did
     (OFFBOARD share, failsafes, the target's age at the vehicle, path error, commands); a bursty row is
@@ -162,6 +169,7 @@ def test_runs_give_median_and_range_and_the_flight_table_shows_what_the_vehicle_
     assert streams.endswith("| 69.1 | 507.1 |")
 
 
+@FAST
 def test_a_flight_that_failed_before_its_window_counts_as_a_failed_flight() -> None:
     """From start-up a session or a command may not cross the loss: the mission fails before the window
     and no setpoint is sent in it. That is a failed flight (0/1 in the table, listed with its reason),

@@ -347,3 +347,33 @@ def test_timers_added_cancelled_and_reset_while_the_executor_waits(ns: str) -> N
         other.cancel()
         node.shutdown()
         t.join(2.0)
+
+
+@pytest.mark.fast
+def test_a_zenoh_close_that_times_out_is_a_warning_not_an_exception(ns: str, caplog) -> None:
+    """Zenoh's session close can give up on its timeout (a CLI in a mesh of ~40 peers, 1 run in 150): close()
+    and the with-block end without raising (which would hide the error that ended the block, or print a
+    traceback at a CLI's exit) and say so once."""
+    import zenoh
+
+    class SlowToClose:
+        def __init__(self, real: zenoh.Session) -> None:
+            self.real = real
+
+        def close(self) -> None:
+            raise zenoh.ZError("close operation timed out! at close.rs:135")
+
+        def __getattr__(self, name: str):
+            return getattr(self.real, name)
+
+    with linked_nodes(ns) as (a, _b):
+        real = a.session
+        a.session = SlowToClose(real)   # type: ignore[assignment]
+        try:
+            with caplog.at_level(logging.WARNING, logger="zenoh_robot"):
+                a.close()
+        finally:
+            real.close()
+    warned = [r.getMessage() for r in caplog.records if "close did not complete" in r.getMessage()]
+    assert warned == ["Zenoh session close did not complete: close operation timed out!"], warned
+    assert a.closed
