@@ -1,9 +1,16 @@
 """Zenoh session configuration: our defaults, validated endpoints, JSON5 files.
 
 Defaults follow the verified Zenoh 1.10 facts in docs/architecture.md: ``max_links`` 2 so a peer can
-hold a TCP link (reliable samples) *and* a UDP link (best-effort samples); shared
-memory only when every endpoint is loopback, because across hosts or namespaces it
-would silently bypass the network under test.
+hold a TCP link (reliable samples) *and* a UDP link (best-effort samples) where it is given a
+``udp/`` endpoint; shared memory only when every endpoint is loopback, because across hosts or
+namespaces it would silently bypass the network under test.
+
+UDP only where asked for (docs/architecture.md, "UDP only where asked for"): a session given no
+``udp/`` endpoint listens on TCP and never dials a scouted peer's UDP locator. Zenoh sends reliable
+messages (declarations included) on *any* link when no reliable one exists yet (its link selection's
+"any match"), and a transport a peer opened through our UDP locator carried its first declarations
+over UDP: a datagram the host dropped (receive buffer full) lost a subscriber or token declaration for
+the transport's lifetime ("Unknown wire expr" in Zenoh's log; a stream or node never seen).
 
 Two options keep systems apart (docs/security.md):
 - ``domain`` (or env ``ZR_DOMAIN``), like ROS_DOMAIN_ID: domain N > 0 sets Zenoh's session
@@ -31,6 +38,8 @@ from zenoh_robot import acl
 MODES = ("peer", "client", "router")
 PROTOCOLS = ("tcp", "udp", "quic", "tls", "ws", "unixsock-stream", "serial", "unixpipe", "vsock")
 SECURE_PROTOCOLS = ("tls", "quic")
+# Zenoh's whitelist of link protocols (opened and accepted); without UDP for a session not asked for UDP.
+LINK_PROTOCOLS = "transport/link/protocols"
 MAX_DOMAIN = 232            # ROS_DOMAIN_ID's range: one number means the same thing to both worlds
 # The resilient transport's group. Not 224.0.0.251 (mDNS: every printer and phone on the LAN
 # answers there) and not in 224.0.0.0/24 at all (IANA-assigned link-local protocols): 239.255/16
@@ -247,7 +256,7 @@ def _is_loopback(endpoint: str) -> bool:
 @dataclass
 class SessionConfig:
     mode: str = "peer"
-    listen: list[str] = field(default_factory=lambda: ["tcp/0.0.0.0:0", "udp/0.0.0.0:0"])
+    listen: list[str] = field(default_factory=lambda: ["tcp/0.0.0.0:0"])
     connect: list[str] = field(default_factory=list)
     multicast_scouting: bool = True
     shared_memory: bool | None = None      # None: on only if every endpoint is loopback
@@ -293,7 +302,7 @@ class SessionConfig:
         for f in ("ca.pem", f"{self.name}.pem", f"{self.name}.key"):
             if not (keys / f).is_file():
                 raise SessionConfigError(f"secure: {keys / f} missing (zenoh-robot keys init/issue {self.name})")
-        if self.listen == ["tcp/0.0.0.0:0", "udp/0.0.0.0:0"]:    # the plain default, never meant here
+        if self.listen == ["tcp/0.0.0.0:0"]:    # the plain default, never meant here
             self.listen = ["tls/0.0.0.0:0"]
         plain = [e for e in self.listen + self.connect if e.split("/", 1)[0] not in SECURE_PROTOCOLS]
         if plain:
@@ -315,7 +324,7 @@ class SessionConfig:
     @classmethod
     def localhost(cls, **kw: Any) -> "SessionConfig":
         """Everything on this host: loopback endpoints, scouting on, shared memory allowed."""
-        kw.setdefault("listen", ["tcp/127.0.0.1:0", "udp/127.0.0.1:0"])
+        kw.setdefault("listen", ["tcp/127.0.0.1:0"])
         return cls(**kw)
 
     @classmethod
@@ -338,6 +347,15 @@ class SessionConfig:
         kw.setdefault("keep_alive", 100)
         kw.setdefault("extra", {"transport/multicast/join_interval": 250})
         return cls(**kw)
+
+    def uses_udp(self) -> bool:
+        """A ``udp/`` endpoint (unicast or multicast) among listen and connect: UDP links are asked for."""
+        return any(e.startswith("udp/") for e in self.listen + self.connect)
+
+    def _link_protocols(self) -> dict[str, Any]:
+        if self.uses_udp():     # (a whitelist in ``extra`` wins, as every key there does)
+            return {}
+        return {LINK_PROTOCOLS: [p for p in PROTOCOLS if p != "udp"]}
 
     def to_json5(self) -> dict[str, Any]:
         """The settings as a nested Zenoh config (for a ``--zenoh`` file or another process)."""
@@ -370,7 +388,10 @@ class SessionConfig:
                 raise SessionConfigError(f"{self.source}: {zenoh_problem(exc, _read_text(self.source))}") from None
         else:
             conf = zenoh.Config()
-        for key, value in self._values().items():
+        values = self._values()
+        if self.source and conf.get_json(LINK_PROTOCOLS) != "null":
+            values.pop(LINK_PROTOCOLS, None)    # the file's own whitelist stands
+        for key, value in values.items():
             try:
                 conf.insert_json5(key, json.dumps(value))
             except Exception as exc:
@@ -384,6 +405,7 @@ class SessionConfig:
             "connect/endpoints": [slow_redial(e) for e in udp_first(self.connect)] if self.lossy else self.connect,
             "scouting/multicast/enabled": self.multicast_scouting,
             "transport/unicast/max_links": self.max_links,
+            **self._link_protocols(),
             "transport/shared_memory/enabled": self.shared_memory_enabled,
             "transport/unicast/accept_timeout": int(self.accept_timeout_s * 1000),
         }

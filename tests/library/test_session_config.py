@@ -42,7 +42,8 @@ def test_shared_memory_only_on_loopback_unless_asked() -> None:
 
 def test_shipped_json5_configs_load() -> None:
     peer = SessionConfig.from_file(ROOT / "configs" / "zenoh" / "peer.json5")
-    assert peer.mode == "peer" and "udp/0.0.0.0:0" in peer.listen and peer.max_links == 2
+    assert peer.mode == "peer" and peer.listen == ["tcp/0.0.0.0:0"] and peer.max_links == 2
+    assert "udp" not in peer.to_zenoh().get_json("transport/link/protocols")   # UDP only where asked for
     client = SessionConfig.from_file(ROOT / "configs" / "zenoh" / "client.json5")
     assert client.mode == "client" and client.connect and not client.multicast_scouting
     router = SessionConfig.from_file(ROOT / "configs" / "zenoh" / "router.json5")
