@@ -133,12 +133,17 @@ def ns() -> str:
     return f"t{secrets.token_hex(4)}"
 
 
+def _worker_slot() -> tuple[int, int]:
+    """(k, n): this is pytest-xdist worker k of n ((0, 1) outside xdist)."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0")
+    n = max(1, int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")))
+    return int(worker.removeprefix("gw") or 0) % n, n
+
+
 def fresh_domain() -> int:
     """A random Zenoh domain (ZR_DOMAIN, 1..232) that no test running at the same time on another
     pytest-xdist worker can draw: worker k of n draws only domains d with d % n == k."""
-    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0")
-    n = max(1, int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")))
-    k = int(worker.removeprefix("gw") or 0) % n
+    k, n = _worker_slot()
     return secrets.choice([d for d in range(1, 233) if d % n == k])
 
 
@@ -193,11 +198,14 @@ def python_proc(*args: str, env: dict[str, str] | None = None, **kw) -> subproce
 def free_port() -> int:
     """A port free for both TCP and UDP on 127.0.0.1, drawn below Linux's ephemeral range (32768+): a port
     the kernel hands out is handed out again to the next outgoing connection of any process, so between
-    this check and the test's own bind another process could take it (seen under a swarm sweep)."""
+    this check and the test's own bind another process could take it (seen under a swarm sweep). Worker k of n
+    draws only ports p with p % n == k: two workers' tests, each between its draw and its bind, once drew the
+    same port (a router's "Address already in use", pass 1 on five workers)."""
     import random
     import socket
+    k, n = _worker_slot()
     for _ in range(200):
-        port = random.randrange(20000, 32000)
+        port = random.randrange(20000 + k, 32000, n)
         with socket.socket() as t, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as u:
             try:
                 t.bind(("127.0.0.1", port))
