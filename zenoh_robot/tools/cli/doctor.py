@@ -206,7 +206,7 @@ def _mtu(node: "Node", config: "SessionConfig") -> list[Check]:
     batch = batch_size(config)
     udp_ifaces = sorted({iface for link in node.session.info.links() if str(link.src).startswith("udp/")
                          for iface in link.interfaces if iface in mtus and iface != "lo"})
-    listens_udp = any(e.startswith("udp/") for e in config.listen + config.connect)
+    listens_udp = config.uses_udp()
     shown = ", ".join(f"{k} {v}" for k, v in mtus.items())
     too_small = [i for i in udp_ifaces if batch > mtus[i] - UDP_IP_HEADERS]
     if too_small:
