@@ -49,7 +49,9 @@ class QoSMonitor:
 
     def _run(self) -> None:
         while not self._closed:
-            self._wake.wait(self._period)
+            # Nothing registered: nothing to check until register() or close() sets the wake (an idle
+            # wake-up costs ~0.15 ms of CPU; executor.py says where that was measured).
+            self._wake.wait(self._period if self._entities else None)
             self._wake.clear()
             if self._closed:
                 return
