@@ -21,6 +21,10 @@ COMMAND_SERVICE = "command"
 # passes by itself (the stream has not reached the drone yet, e.g. a lossy link at start-up), so a
 # mission may ask again while it streams.
 NO_SETPOINTS_YET = "no recent setpoints"
+# The other one that passes by itself: PX4 has sent no local position yet (it sends LOCAL_POSITION_NED only
+# once its estimator has one: seconds after boot, longer without GPS; px4_link/targets.py refuses a position
+# target until then). A swarm start-up on a loaded machine met it (one drone of ten refused at once).
+POSITION_UNKNOWN = "vehicle position unknown"
 
 
 class CommandName(enum.StrEnum):

@@ -25,7 +25,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from drone_contract.commands import NO_SETPOINTS_YET
+from drone_contract.commands import NO_SETPOINTS_YET, POSITION_UNKNOWN
 from drone_contract.messages import CommandResult
 
 from .app import DroneView, Gcs
@@ -33,7 +33,7 @@ from .app import DroneView, Gcs
 ON_FAILURE = ("continue", "hold")
 # PX4 SITL passes its pre-arm checks ~4 s after boot; a real vehicle's GPS fix can take longer.
 ARMABLE_TIMEOUT_S = 30.0
-OFFBOARD_START_WAIT_S = 15.0   # asking again while the drone has none of our setpoints yet
+OFFBOARD_START_WAIT_S = 15.0   # asking again while the drone has none of our setpoints or no position yet
 
 
 class MissionFailed(Exception):
@@ -109,16 +109,19 @@ class Mission:
                                                      "this domain, reachable with these Zenoh flags?)")
 
     def start_offboard(self) -> None:
-        # Refused for want of our setpoints, asked again while they stream (a lossy link at start-up
-        # may carry none of the first ones); any other refusal, or none reaching it in time, fails.
+        # Refused for want of our setpoints (a lossy link at start-up may carry none of the first ones) or
+        # of PX4's local position (its estimator has none yet), asked again while that lasts; any other
+        # refusal, or one that does not pass in time, fails.
         end = time.monotonic() + OFFBOARD_START_WAIT_S
         while True:
             res = self._send("offboard_start")
-            if res.success or not res.message.startswith(NO_SETPOINTS_YET) or time.monotonic() >= end:
+            passing = res.message.startswith(NO_SETPOINTS_YET) or POSITION_UNKNOWN in res.message
+            if res.success or not passing or time.monotonic() >= end:
                 self._step("offboard_start", res.success, res.message)
                 return
-            self.log(f"mission: {self.drone.id}: offboard_start refused ({res.message}); asking again while the "
-                     "setpoints stream")
+            self.log(f"mission: {self.drone.id}: offboard_start refused ({res.message}); asking again while "
+                     + ("the setpoints stream" if res.message.startswith(NO_SETPOINTS_YET) else
+                        "PX4 has no local position"))
             self._until(lambda: False, 1.0)
 
     def wait_armable(self) -> None:

@@ -97,6 +97,13 @@ def _config(mode: str, listen: list[str], connect: list[str]) -> dict[str, Any]:
             "transport": {"unicast": {"max_links": 2}, "shared_memory": {"enabled": False}}}
 
 
+def cell_endpoints(port: int) -> list[str]:
+    """Where a cell's GCS or router listens and the others connect. TCP only: a UDP link beside it can carry a
+    transport's first declarations, and one lost there hides an entity for the link's life (docs/architecture.md,
+    "UDP only where asked for"); on one host UDP buys nothing."""
+    return [f"tcp/127.0.0.1:{port}"]
+
+
 def cpu_ticks(pid: int) -> int | None:
     """utime + stime of a process and its waited children, in clock ticks (None once it is gone)."""
     try:
@@ -122,7 +129,7 @@ def run_cell(cell: SwarmCell, workdir: Path) -> dict[str, Any]:
     prefix = f"sw{secrets.token_hex(2)}"
     ids = [f"{prefix}_{i + 1}" for i in range(cell.drones)]
     port = _free_port()
-    endpoints = [f"tcp/127.0.0.1:{port}", f"udp/127.0.0.1:{port}"]
+    endpoints = cell_endpoints(port)
     if cell.mode == "router":
         gcs_conf, drone_conf = _config("client", [], endpoints), _config("client", [], endpoints)
     elif cell.mode == "peer":
@@ -511,8 +518,7 @@ def swarm_launch(drones: int, camera: str = "test", prefix: str = "uav") -> str:
         "processes:",
         "  - name: router",
         "    exec: zenoh-robot router --no-scouting --status 10",
-        "    args: [\"--listen\", \"tcp/127.0.0.1:7447\", \"--listen\", \"udp/127.0.0.1:7447\",",
-        "           \"--duration\", \"$(arg duration)\"]",
+        "    args: [\"--listen\", \"tcp/127.0.0.1:7447\", \"--duration\", \"$(arg duration)\"]",
     ]
     for i, d in enumerate(ids):
         lines += [

@@ -247,6 +247,20 @@ def test_swarm_launch_files_ask_a_swarm_sized_downlink() -> None:
         assert f'camera_rate: {{default: "{SWARM_CAMERA_FPS:g}"' in text
 
 
+@pytest.mark.fast
+def test_swarm_sessions_hold_no_udp_link() -> None:
+    """The issue's silent stream: a UDP link that opens before the TCP one carries the transport's first
+    declarations, and the host dropping one hides a stream or node for the link's life. The sweep, the swarm
+    launch files and the client config they use connect over TCP only (docs/architecture.md)."""
+    from conftest import ROOT
+
+    from drone_lab.experiment.swarm import cell_endpoints, swarm_launch
+    assert [e.split("/")[0] for e in cell_endpoints(7447)] == ["tcp"]
+    assert "udp/" not in swarm_launch(3) and "udp/" not in swarm_launch(10)
+    client = (Path(ROOT) / "configs" / "zenoh" / "client.json5").read_text()
+    assert "udp/" not in client.split("{", 1)[1], "configs/zenoh/client.json5 connects over UDP"
+
+
 def test_swarm_report_marginal_cost_is_the_slope_within_one_downlink() -> None:
     from drone_lab.experiment.swarm_report import with_marginal
 

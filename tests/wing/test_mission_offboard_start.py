@@ -8,7 +8,7 @@ from typing import Any
 
 import pytest
 
-from drone_contract.commands import NO_SETPOINTS_YET
+from drone_contract.commands import NO_SETPOINTS_YET, POSITION_UNKNOWN
 from drone_contract.messages import CommandResult, VehicleState
 from gcs import mission
 
@@ -47,6 +47,24 @@ def test_offboard_start_is_asked_again_while_the_setpoints_have_not_arrived(monk
     out, why = _fly(drone)
     assert drone.asked == ["offboard_start"] * 3
     assert [c["ok"] for c in out["commands"]] == [False, False, True]
+    assert [s["step"] for s in out["steps"] if s["ok"]] == ["drone connected", "offboard_start"]
+    assert why.startswith("armable")
+
+
+def test_offboard_start_is_asked_again_while_px4_has_no_local_position(monkeypatch: Any) -> None:
+    """Ten drones started on two cores: one's PX4 had sent no LOCAL_POSITION_NED yet when the mission asked,
+    and its flight failed at once. Real PX4 has none until its estimator converges, seconds after boot."""
+    from px4_link.targets import PositionTarget, TargetRefused, TargetValidator
+
+    with pytest.raises(TargetRefused) as refused:
+        TargetValidator().check_against_vehicle(PositionTarget(0.0, 0.0, -5.0), None, 5.0)
+    # What the companion answers (companion/setpoint_gate.py prefixes it), as the mission reads it.
+    message = f"setpoints refused: {refused.value}"
+    assert POSITION_UNKNOWN in message
+    monkeypatch.setattr(mission, "ARMABLE_TIMEOUT_S", 0.2)
+    drone = _Drone([CommandResult(False, message), CommandResult(True, "OFFBOARD", "OFFBOARD")])
+    out, why = _fly(drone)
+    assert drone.asked == ["offboard_start"] * 2
     assert [s["step"] for s in out["steps"] if s["ok"]] == ["drone connected", "offboard_start"]
     assert why.startswith("armable")
 
