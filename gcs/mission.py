@@ -115,13 +115,12 @@ class Mission:
         end = time.monotonic() + OFFBOARD_START_WAIT_S
         while True:
             res = self._send("offboard_start")
-            passing = res.message.startswith(NO_SETPOINTS_YET) or POSITION_UNKNOWN in res.message
-            if res.success or not passing or time.monotonic() >= end:
+            no_setpoints = res.message.startswith(NO_SETPOINTS_YET)
+            if res.success or not (no_setpoints or POSITION_UNKNOWN in res.message) or time.monotonic() >= end:
                 self._step("offboard_start", res.success, res.message)
                 return
             self.log(f"mission: {self.drone.id}: offboard_start refused ({res.message}); asking again while "
-                     + ("the setpoints stream" if res.message.startswith(NO_SETPOINTS_YET) else
-                        "PX4 has no local position"))
+                     + ("the setpoints stream" if no_setpoints else "PX4 has no local position"))
             self._until(lambda: False, 1.0)
 
     def wait_armable(self) -> None:
