@@ -4,13 +4,15 @@ Zenoh callbacks only enqueue (a subscription schedules itself at most once until
 has been drained), so the ready queue is bounded by the number of entities plus a
 bounded number of events; the work itself is queued in each entity's bounded queue.
 
-Hand-off without a thread hop (issue #30): a framework thread of our own (a channel
-subscription's waiter, never one of Zenoh's) that has work while the single-threaded executor
-sits idle in a free-running ``spin()`` may run that work itself (``run_here``): the executor's
-run lock keeps callbacks one at a time, exactly as if the executor had run it, and the sample
-skips the wake-up of a second thread (p50 latency, docs/benchmarks.md). Never while the
-executor is busy, never while a caller spins with ``until``/``timeout`` or ``spin_once`` (they
-must see the work they wait for run in their own loop), never on a multi-threaded executor.
+Hand-off without a thread hop (issues #30, #43): a delivery thread that has work while the
+single-threaded executor sits idle in a free-running ``spin()`` may run that work itself
+(``run_here``): a channel subscription's waiter, or zenoh-python's per-subscriber delivery thread
+for a lone sample (never a thread of Zenoh's own runtime: ``zenoh_robot/subscription.py`` says how
+long a drain may hold one). The executor's run lock keeps callbacks one at a time, exactly as if
+the executor had run it, and the sample skips the wake-up of a second thread (CPU per message and
+p50 latency, docs/benchmarks.md). Never while the executor is busy, never while a caller spins
+with ``until``/``timeout`` or ``spin_once`` (they must see the work they wait for run in their own
+loop), never on a multi-threaded executor.
 """
 from __future__ import annotations
 

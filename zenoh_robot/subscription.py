@@ -34,9 +34,18 @@ are delivered, each naming its own type.
 
 Two receive paths (``Node.create_subscription(..., receive=...)``):
 
-- ``"callback"`` (the default): a Python callback on Zenoh's thread copies each sample into the
+- ``"callback"`` (the default): a Python callback on zenoh-python's delivery thread for this subscriber
+  (one per subscriber, fed by Zenoh's receive thread through a channel of 256) copies each sample into the
   bounded queue above and wakes the executor. Counters are exact at arrival (``received``,
   ``dropped``, ``oversize``), the queue is bounded by count and by bytes, ``pending`` is exact.
+  A sample that comes alone (over IN_PLACE_GAP_NS after the one before) while a single-threaded
+  executor sits idle in a free-running ``spin()`` is handled right there, under the executor's run lock
+  (``Executor.run_here``): callbacks stay one at a time, and the sample skips the wake-up of a second
+  thread, which was most of this path's cost over raw zenoh-python at 10 Hz-1 kHz (docs/benchmarks.md).
+  Samples close behind each other go to the executor, which drains them in batches while the delivery
+  thread takes the next ones. A subscription whose drain once ran over IN_PLACE_SLOW_NS there is the
+  executor's from then on: a long callback on the delivery thread would fill its channel and then hold
+  Zenoh's receive thread for the peer, and every topic it carries.
 - ``"channel"``: no Python on Zenoh's threads per sample. Zenoh keeps the samples in its own
   channel and the executor drains it in batches (``try_recv`` until empty, at most
   DRAIN_BATCH per turn). The executor is woken once per burst, not per sample: a waiter thread
@@ -93,6 +102,12 @@ MAX_SAMPLE_BYTES = 32 << 20
 MAX_QUEUED_BYTES = 128 << 20
 MAX_TRACKED_PUBLISHERS = 1024   # per-publisher tables (sequence, reported mismatches): LRU beyond this
 RECEIVE_PATHS = ("callback", "channel")
+# The callback path runs a drain in place while the executor is idle (see _on_sample) only as long as none
+# has taken longer than this: meanwhile the subscription's samples wait in zenoh-python's delivery channel
+# (256), and once that is full Zenoh's receive thread for the peer waits too (docs/benchmarks.md measured
+# ~3,000 samples held in all). 20 ms is 20 samples of a 1 kHz stream.
+IN_PLACE_SLOW_NS = 20_000_000
+IN_PLACE_GAP_NS = 300_000    # ... and only for a sample that came this long after the one before it
 DEFAULT_RECEIVE = "callback"    # every guarantee exact (see the module doc); "channel" is opt-in
 
 
@@ -200,6 +215,8 @@ class Subscription(Generic[M]):
         self._executor = context.executor
         self._run_here: Callable[[Callable[[], None]], bool] = getattr(self._executor, "run_here", _never_here)
         self._drain_work = self._drain     # one bound method, not a new one per scheduling
+        self._in_place = True   # callback path: may a drain run on the delivery thread (_on_sample)
+        self._last_arrival_ns = 0
         self._lifespan_ns = int(qos.lifespan * 1e9) if qos.lifespan else None
         self.sample_hooks: list[Callable[[M, MessageInfo], None]] = []
         self._statistics: Any = None   # a TopicStatisticsCollector when statistics are enabled
@@ -274,10 +291,32 @@ class Subscription(Generic[M]):
                 self._make_room(size)
             queue.append((data, now, attachment))
             self._queued_bytes += size
+            sparse = now - self._last_arrival_ns > IN_PLACE_GAP_NS
+            self._last_arrival_ns = now
             if self._scheduled:
                 return      # the drain already queued picks this one up: one executor wake-up per drain
             self._scheduled = True
+        # A sample that came alone to an idle executor: handle it here, on zenoh-python's delivery thread
+        # for this subscriber (one thread hop, as raw zenoh-python's callback), instead of waking the
+        # executor (a second hop). Samples close behind each other go to the executor, which drains them
+        # in batches while this thread takes the next ones from Zenoh (measured: a flood handled in place
+        # ran at 0.7x the rate, docs/benchmarks.md).
+        if sparse and self._in_place and self._run_here(self._drain_in_place):
+            return
         self._executor.submit(self._drain_work)
+
+    def _drain_in_place(self) -> None:
+        # Under the executor's run lock (Executor.run_here). The delivery thread's channel is bounded and
+        # holds Zenoh's receive thread for this peer when full (see IN_PLACE_SLOW_NS): a subscription whose
+        # drain once took that long here goes back to the executor for good.
+        start = _perf_ns()
+        try:
+            self._drain_work()
+        finally:
+            if _perf_ns() - start > IN_PLACE_SLOW_NS:
+                self._in_place = False
+                self.log.info("callbacks of %r run on the executor from now on: one took over %d ms run on "
+                              "the delivery thread", self.topic, IN_PLACE_SLOW_NS // 1_000_000)
 
     # -- channel path: waiter thread -------------------------------------------------
     def _wait_loop(self) -> None:
