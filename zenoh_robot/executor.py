@@ -129,6 +129,20 @@ class Executor:
         finally:
             self._run_lock.release()
 
+    def enter_in_place(self) -> bool:
+        """``run_here`` for a caller that runs its work inline (no callable made per sample): True means the
+        run lock is held and the caller must call :meth:`leave_in_place` once its work is done."""
+        if self._idle_free <= 0 or not self._run_lock.acquire(blocking=False):
+            return False
+        if self._idle_free <= 0 or self._shutdown.is_set():
+            self._run_lock.release()
+            return False
+        self.ran_in_place += 1
+        return True
+
+    def leave_in_place(self) -> None:
+        self._run_lock.release()
+
     def shutdown(self) -> None:
         self._shutdown.set()
         self._ready.put(None)

@@ -215,7 +215,9 @@ class Subscription(Generic[M]):
         self._executor = context.executor
         self._run_here: Callable[[Callable[[], None]], bool] = getattr(self._executor, "run_here", _never_here)
         self._drain_work = self._drain     # one bound method, not a new one per scheduling
-        self._in_place = True   # callback path: may a drain run on the delivery thread (_on_sample)
+        # Callback path: may a lone sample be handled on the delivery thread (_on_sample)?
+        self._enter_in_place: Callable[[], bool] = getattr(self._executor, "enter_in_place", _never_in_place)
+        self._in_place = True
         self._last_arrival_ns = 0
         self._lifespan_ns = int(qos.lifespan * 1e9) if qos.lifespan else None
         self.sample_hooks: list[Callable[[M, MessageInfo], None]] = []
@@ -286,34 +288,56 @@ class Subscription(Generic[M]):
         with self._lock:
             self.counters.received += 1
             queue = self._queue
-            # Bounded by count (depth, or the KEEP_ALL limit) and by bytes: the oldest goes first.
-            if queue and (len(queue) >= self._limit or self._queued_bytes + size > self.max_queued_bytes):
-                self._make_room(size)
-            queue.append((data, now, attachment))
-            self._queued_bytes += size
-            sparse = now - self._last_arrival_ns > IN_PLACE_GAP_NS
+            # A sample that comes alone (the queue empty, none close before it) to an idle executor is
+            # handled right here, on zenoh-python's delivery thread for this subscriber: one thread hop,
+            # as raw zenoh-python's callback, instead of waking the executor (a second hop). Samples close
+            # behind each other go to the executor, which drains them in batches while this thread takes
+            # the next ones from Zenoh (a flood handled here ran slower, docs/benchmarks.md).
+            alone = (now - self._last_arrival_ns > IN_PLACE_GAP_NS and not queue and not self._scheduled
+                     and self._in_place)
             self._last_arrival_ns = now
-            if self._scheduled:
-                return      # the drain already queued picks this one up: one executor wake-up per drain
-            self._scheduled = True
-        # A sample that came alone to an idle executor: handle it here, on zenoh-python's delivery thread
-        # for this subscriber (one thread hop, as raw zenoh-python's callback), instead of waking the
-        # executor (a second hop). Samples close behind each other go to the executor, which drains them
-        # in batches while this thread takes the next ones from Zenoh (measured: a flood handled in place
-        # ran at 0.7x the rate, docs/benchmarks.md).
-        if sparse and self._in_place and self._run_here(self._drain_in_place):
-            return
+            if alone:
+                self._scheduled = True      # the executor's drains keep off while this one is handled here
+            else:
+                # Bounded by count (depth, or the KEEP_ALL limit) and by bytes: the oldest goes first.
+                if queue and (len(queue) >= self._limit or self._queued_bytes + size > self.max_queued_bytes):
+                    self._make_room(size)
+                queue.append((data, now, attachment))
+                self._queued_bytes += size
+                if self._scheduled:
+                    return      # the drain already queued picks this one up: one executor wake-up per drain
+                self._scheduled = True
+        if alone:
+            if self._enter_in_place():
+                self._handle_in_place(data, now, attachment)
+                with self._lock:
+                    if not queue:
+                        self._scheduled = False
+                        return
+            else:   # the executor is busy (or spins for a caller): it takes the sample
+                with self._lock:
+                    if queue and (len(queue) >= self._limit or self._queued_bytes + size > self.max_queued_bytes):
+                        self._make_room(size)
+                    queue.append((data, now, attachment))
+                    self._queued_bytes += size
         self._executor.submit(self._drain_work)
 
-    def _drain_in_place(self) -> None:
-        # Under the executor's run lock (Executor.run_here). The delivery thread's channel is bounded and
-        # holds Zenoh's receive thread for this peer when full (see IN_PLACE_SLOW_NS): a subscription whose
-        # drain once took that long here goes back to the executor for good.
+    def _handle_in_place(self, data: bytes, received_ns: int, attachment: bytes | None) -> None:
+        # Holding the executor's run lock (Executor.enter_in_place). Meanwhile this subscription's samples
+        # wait in the delivery thread's channel, and once it is full Zenoh's receive thread for the peer
+        # waits too (IN_PLACE_SLOW_NS): a subscription whose callback once took that long here is the
+        # executor's from then on.
         start = _perf_ns()
         try:
-            self._drain_work()
+            self._handle(data, received_ns, attachment)
+        except Exception as exc:   # a bug or a hostile sample: count it, keep the others coming
+            self._internal_error("handle", exc)
         finally:
-            if _perf_ns() - start > IN_PLACE_SLOW_NS:
+            self._executor.leave_in_place()
+            took = _perf_ns() - start
+            if self._statistics is not None:
+                self.counters.busy_ns += took
+            if took > IN_PLACE_SLOW_NS:
                 self._in_place = False
                 self.log.info("callbacks of %r run on the executor from now on: one took over %d ms run on "
                               "the delivery thread", self.topic, IN_PLACE_SLOW_NS // 1_000_000)
@@ -744,6 +768,10 @@ class Subscription(Generic[M]):
 
 
 def _never_here(work: Callable[[], None]) -> bool:
+    return False
+
+
+def _never_in_place() -> bool:
     return False
 
 
