@@ -125,9 +125,18 @@ class Executor:
             except Exception:
                 self.errors += 1
                 log.exception("callback raised; the node keeps running")
+            except BaseException as exc:
+                self.raise_in_spin(exc)
             return True
         finally:
             self._run_lock.release()
+
+    def raise_in_spin(self, exc: BaseException) -> None:
+        """A callback run in place raised SystemExit or KeyboardInterrupt: raise it from the spin, where it
+        would have come from had the executor run the callback (the delivery thread must go on)."""
+        def rethrow() -> None:
+            raise exc
+        self._ready.put(rethrow)
 
     def enter_in_place(self) -> bool:
         """``run_here`` for a caller that runs its work inline (no callable made per sample): True means the

@@ -332,6 +332,8 @@ class Subscription(Generic[M]):
             self._handle(data, received_ns, attachment)
         except Exception as exc:   # a bug or a hostile sample: count it, keep the others coming
             self._internal_error("handle", exc)
+        except BaseException as exc:    # SystemExit, KeyboardInterrupt: the spin raises it, as it would have
+            self._executor.raise_in_spin(exc)
         finally:
             self._executor.leave_in_place()
             took = _perf_ns() - start

@@ -126,3 +126,35 @@ def test_a_callback_that_ran_long_in_place_sends_its_subscription_to_the_executo
             assert _wait(lambda: len(where) == 21), sub.counters
         assert first != SPIN          # the first ran in place (the executor was idle)...
         assert set(where[1:]) == {SPIN}, where    # ...and took over 5 ms: the rest are the executor's
+
+
+@pytest.mark.parametrize("receive", ["callback", "channel"])
+def test_a_system_exit_raised_in_place_ends_the_spin_and_the_subscription_goes_on(ns: str, receive: str) -> None:
+    # The channel path's waiter runs drains in place too (Executor.run_here): before, a SystemExit there
+    # ended the waiter thread, and its subscription delivered nothing more.
+    with linked_nodes(ns) as (a, b):
+        where: list[str] = []
+
+        def on_msg(m: Setpoint) -> None:
+            where.append(threading.current_thread().name)
+            if len(where) == 1:
+                raise SystemExit(3)
+        sub = b.create_subscription(Setpoint, "sp", on_msg, QoSProfile(depth=50), receive=receive)
+        pub = a.create_publisher(Setpoint, "sp", QoSProfile(depth=50))
+        outcome: list[Any] = []
+
+        def spin() -> None:
+            try:
+                b.spin()
+            except SystemExit as exc:
+                outcome.append(exc.code)
+        spinner = threading.Thread(target=spin, name=SPIN, daemon=True)
+        spinner.start()
+        time.sleep(0.3)
+        pub.publish(Setpoint())
+        spinner.join(10.0)
+        assert outcome == [3]           # as if the executor had run the callback: the spin ends with it
+        assert where[0] != SPIN         # it ran on the delivery thread
+        pub.publish(Setpoint())
+        assert b.spin_until(lambda: len(where) == 2, 10.0), sub.counters    # not stuck "scheduled"
+        assert sub.counters.delivered == 1 and sub.counters.internal_errors == 0
