@@ -42,7 +42,7 @@ Two receive paths (``Node.create_subscription(..., receive=...)``):
   executor sits idle in a free-running ``spin()`` is handled right there, under the executor's run lock
   (``Executor.enter_in_place``): callbacks stay one at a time, and the sample skips the wake-up of a second
   thread, which was most of this path's cost over raw zenoh-python at 200 Hz-1 kHz (docs/benchmarks.md).
-  The 20 ms is wall time: on a saturated machine a preempted callback can pass it, and that subscription
+  IN_PLACE_SLOW_NS is wall time: on a saturated machine a preempted callback can pass it, and that subscription
   is then handled as before the change, which is the safe side.
   Samples close behind each other go to the executor, which drains them in batches while the delivery
   thread takes the next ones. A subscription whose drain once ran over IN_PLACE_SLOW_NS there is the
