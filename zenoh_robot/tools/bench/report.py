@@ -48,13 +48,30 @@ HEAD = ["payload", "size", "rate", "framework / raw (medians)", "ratio median (s
         "sub CPU us/msg (fw / raw)", "target"]
 
 
-def table(results: list[CellResult]) -> Table:
+# The full table needs ~150 columns; narrower terminals get one line a cell with the ratios (bench.md has all).
+FULL_WIDTH = 150
+COMPACT_HEAD = ["cell", "fw/raw (spread)", "sub CPU", "target"]
+COMPACT_CAPTION = ("fw/raw: p50 age (Hz cells) or msg/s (max), framework / raw zenoh-python, median of the reps; "
+                   "sub CPU: the subscriber's CPU per message, framework / raw; every figure: bench.md")
+
+
+def table(results: list[CellResult], width: int = FULL_WIDTH) -> Table:
+    """The terminal's table: every figure at ``width`` >= FULL_WIDTH, else a compact one that fits 80 columns."""
     express = ", express" if any(r.express for r in results) else ""
     t = Table(title=f"zenoh-robot vs raw zenoh-python (same run, same processes layout, same bytes{express})")
-    for h in HEAD:
-        t.add_column(h)
-    for row in rows(results):
-        t.add_row(*row)
+    if width >= FULL_WIDTH:
+        for h in HEAD:
+            t.add_column(h)
+        for row in rows(results):
+            t.add_row(*row)
+        return t
+    t.caption = COMPACT_CAPTION
+    for h in COMPACT_HEAD:
+        t.add_column(h, no_wrap=True)
+    for r, row in zip(results, rows(results)):
+        payload, size, rate, _fig, ratio_text, _reps, _load, _cpu, verdict = row
+        cpu = r.ratios.get("cpu_sub", math.nan)
+        t.add_row(f"{payload} {size} {rate}", ratio_text, _f(cpu) + ("x" if math.isfinite(cpu) else ""), verdict)
     return t
 
 

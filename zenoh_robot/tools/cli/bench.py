@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
         if args.soak:
             status.update(f"soak: {args.soak_minutes:g} min at 1 kHz")
             soak = run_soak(args.soak_minutes)
-    console.print(table(results))
+    console.print(table(results, console.width))
     md = markdown(results, soak)
     if soak:
         console.print(md.split("\n\n")[-1])
