@@ -18,7 +18,8 @@ def _results() -> list[CellResult]:
                      Figures(3000, 3000, 0.158, 0.25, cpu_us_per_msg_sub=112.0),
                      Figures(3000, 3000, 0.151, 0.25, cpu_us_per_msg_sub=101.0), 45,
                      ratios={"p50": 1.08, "cpu_sub": 1.11},
-                     runs=[{"p50": 0.99, "cpu_sub": 1.0}, {"p50": 1.08, "cpu_sub": 1.11}, {"p50": 1.12, "cpu_sub": 1.2}],
+                     runs=[{"p50": 0.99, "cpu_sub": 1.0}, {"p50": 1.08, "cpu_sub": 1.11},
+                           {"p50": 1.12, "cpu_sub": 1.2}],
                      load=(0.4, 0.5))
     thr = CellResult(Cell("sensor", "throughput", 0, 30000),
                      Figures(30000, 30000, msgs_per_s=104418.0, mb_per_s=13.4, cpu_us_per_msg_sub=10.0),

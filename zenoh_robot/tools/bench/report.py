@@ -68,7 +68,7 @@ def table(results: list[CellResult], width: int = FULL_WIDTH) -> Table:
     t.caption = COMPACT_CAPTION
     for h in COMPACT_HEAD:
         t.add_column(h, no_wrap=True)
-    for r, row in zip(results, rows(results)):
+    for r, row in zip(results, rows(results), strict=True):
         payload, size, rate, _fig, ratio_text, _reps, _load, _cpu, verdict = row
         cpu = r.ratios.get("cpu_sub", math.nan)
         t.add_row(f"{payload} {size} {rate}", ratio_text, _f(cpu) + ("x" if math.isfinite(cpu) else ""), verdict)
