@@ -114,22 +114,18 @@ class Executor:
     def run_here(self, work: Work) -> bool:
         """Run ``work`` on the calling thread if the executor is idle in a free-running spin (see the
         module doc); False: the caller must ``submit`` it instead."""
-        if self._idle_free <= 0 or not self._run_lock.acquire(blocking=False):
+        if not self.enter_in_place():
             return False
         try:
-            if self._idle_free <= 0 or self._shutdown.is_set():
-                return False
-            self.ran_in_place += 1
-            try:
-                work()
-            except Exception:
-                self.errors += 1
-                log.exception("callback raised; the node keeps running")
-            except BaseException as exc:
-                self.raise_in_spin(exc)
-            return True
+            work()
+        except Exception:
+            self.errors += 1
+            log.exception("callback raised; the node keeps running")
+        except BaseException as exc:
+            self.raise_in_spin(exc)
         finally:
             self._run_lock.release()
+        return True
 
     def raise_in_spin(self, exc: BaseException) -> None:
         """A callback run in place raised SystemExit or KeyboardInterrupt: raise it from the spin, where it

@@ -318,8 +318,7 @@ class Subscription(Generic[M]):
                         return
             else:   # the executor is busy (or spins for a caller): it takes the sample
                 with self._lock:
-                    if queue and (len(queue) >= self._limit or self._queued_bytes + size > self.max_queued_bytes):
-                        self._make_room(size)
+                    self._make_room(size)   # (the rare path: no inline test first, as above)
                     queue.append((data, now, attachment))
                     self._queued_bytes += size
         self._executor.submit(self._drain_work)
