@@ -41,24 +41,27 @@ def test_repetitions_alternate_and_report_median_spread_and_load() -> None:
 
 
 def test_ros2_bench_alternates_modes_and_reports_median_spread_and_load(tmp_path) -> None:
-    """The ROS 2 wire beside the envelope and raw zenoh-python (issues #27, #30): every mode in each
-    repetition, ratios to that repetition's raw run, the codec figures with rosbags' beside the fast path."""
+    """The ROS 2 wire beside the envelope, zenoh-ros2-sdk and raw zenoh-python (issues #27, #30, #43): every
+    mode in each repetition, ratios to that repetition's raw run, each side's CPU per message, the codec
+    figures with rosbags' beside the fast path."""
     import json
 
     from zenoh_robot.tools.bench.ros2 import codec_figures, end_to_end, write_json
     from zenoh_robot.tools.bench.ros2 import markdown as ros2_markdown
 
     rows = end_to_end(reps=2, cells=(("geometry_msgs/msg/PoseStamped", "throughput", 0.0, 300),))
-    assert [r["mode"] for r in rows] == ["ros2", "envelope", "raw"]
+    assert [r["mode"] for r in rows] == ["ros2", "envelope", "sdk", "raw"]
     for r in rows:
         assert not r["error"], r["error"]
         assert r["reps"] == 2 and len(r["runs"]) == 2 and r["received"] == r["sent"] == 300
         assert r["ratio_low"] <= r["ratio"] <= r["ratio_high"] and r["load"][0] <= r["load"][1]
-    assert rows[2]["ratio"] == 1.0
+        assert r["cpu_us_sub"] > 0 and r["cpu_us_pub"] > 0 and math.isfinite(r["cpu_sub_ratio"])
+    assert rows[3]["ratio"] == rows[3]["cpu_sub_ratio"] == 1.0
     codec = codec_figures(budget_s=0.01)
     assert {"rosbags_encode_us", "rosbags_decode_us", "cdr_encode_us"} <= set(codec[0])
     md = ros2_markdown(codec, rows)
-    assert "PoseStamped throughput | ros2 | 300/300" in md and "| 2 |" in md
+    assert "PoseStamped throughput | ros2 | 300/300" in md and "PoseStamped throughput | sdk | 300/300" in md
+    assert "| 2 |" in md
     write_json(tmp_path / "ros2.json", codec, rows)
     assert json.loads((tmp_path / "ros2.json").read_text())["end_to_end"][0]["runs"][1]["received"] == 300
 
@@ -72,3 +75,16 @@ def test_express_cells_run_both_sides_express_and_say_so() -> None:
     md = markdown([r], None)
     assert md.splitlines()[-1] == "Both sides published with Zenoh's express (each sample sent at once, no batching)."
     assert "express" not in markdown([run_cell(Cell("setpoint", "latency", 200, 50))], None)
+
+
+def test_ros2_bench_without_zenoh_ros2_sdk_says_so_in_the_sdk_row(monkeypatch) -> None:
+    """Without the peer installed its row says why and how to get it, and the other modes still run."""
+    from zenoh_robot.tools.bench import ros2, ros2_sdk
+
+    monkeypatch.setattr(ros2_sdk, "available", lambda: False)
+    monkeypatch.setattr(ros2, "MODES", ("sdk", "raw"))
+    rows = ros2.end_to_end(reps=1, cells=(("geometry_msgs/msg/PoseStamped", "throughput", 0.0, 100),))
+    sdk, raw = rows
+    assert sdk["error"] == ros2_sdk.MISSING and "pip install 'zenoh-robot[bench]'" in sdk["error"]
+    assert not raw["error"] and raw["received"] == 100
+    assert f"| PoseStamped throughput | sdk | error: {ros2_sdk.MISSING}" in ros2.markdown([], rows)

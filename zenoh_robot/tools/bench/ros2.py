@@ -5,12 +5,13 @@ bytes and back: CDR (the ROS 2 wire: the type's generated codec, ``zenoh_robot/r
 and back with field validation), rosbags alone (the reference, as before the fast path), and the
 envelope's msgpack body of the same class. **End to end**: two processes over TCP loopback, one
 ROS 2 class per cell (PoseStamped at 200 Hz and flat out, a 64 KB CompressedImage at 30 Hz)
-published by a Node on the ROS 2 wire, by a Node on the envelope, and as raw zenoh-python puts of
-its CDR bytes with rmw_zenoh's 33-byte attachment (the stamp in it), whose subscriber decodes as
-the nodes do: the same bytes on the wire as the ROS 2 mode, the physical limit: p50/p99
-age at a fixed rate, messages per second as fast as reliable KEEP_ALL allows. The modes alternate
-within each repetition (ros2, envelope, raw, ros2, ...) so a shared machine's load falls on all
-alike; ratios are each repetition's own, their median and spread reported with the load average.
+published by a Node on the ROS 2 wire, by a Node on the envelope, by zenoh-ros2-sdk (the other Python
+implementation of rmw_zenoh's wire, ``ros2_sdk.py``), and as raw zenoh-python puts of its CDR bytes with
+rmw_zenoh's 33-byte attachment (the stamp in it), whose subscriber decodes as the nodes do: the same
+bytes on the wire as the ROS 2 mode, the physical limit: p50/p99 age at a fixed rate, messages per
+second as fast as reliable KEEP_ALL allows, and each side's CPU per message (all its threads). The modes
+alternate within each repetition (ros2, envelope, sdk, raw, ros2, ...) so a shared machine's load falls
+on all alike; ratios are each repetition's own, their median and spread reported with the load average.
 ``--codec rosbags`` runs every process without the fast path (the "before"). Run alone:
 ``python -m zenoh_robot.tools.bench.ros2 [--quick] [--reps N] [--receive channel] [--json PATH]``.
 """
@@ -19,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import socket
 import struct
 import subprocess
@@ -29,8 +31,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from . import ros2_sdk
+
 KEY = "bench/ros2"
-MODES = ("ros2", "envelope", "raw")
+MODES = ("ros2", "envelope", "sdk", "raw")
 TYPES = ("std_msgs/msg/String", "geometry_msgs/msg/PoseStamped", "sensor_msgs/msg/Imu",
          "sensor_msgs/msg/NavSatFix", "sensor_msgs/msg/CompressedImage")
 # rmw_zenoh's attachment (seq, source stamp, 16, GID): raw zenoh-python sends what the ROS 2 wire sends.
@@ -152,7 +156,14 @@ def run_sub(args: argparse.Namespace) -> dict[str, Any]:
             done.set()
 
     cfg = _config(args.port, "sub")
-    if args.mode == "raw":
+    cpu0 = 0.0
+    if args.mode == "sdk":
+        sub = ros2_sdk.subscribe(args.type, args.port, args.throughput, record)
+        print("READY", flush=True)
+        cpu0 = time.process_time()
+        done.wait(args.timeout)
+        sub.close()
+    elif args.mode == "raw":
         ts, deserialize = type_support(cls), cdr_codec(cls).deserialize
         with zenoh.open(cfg.to_zenoh()) as session:
             def on_sample(s: Any) -> None:
@@ -160,6 +171,7 @@ def run_sub(args: argparse.Namespace) -> dict[str, Any]:
                 record(_ATTACHMENT.unpack_from(s.attachment.to_bytes())[1])
             session.declare_subscriber(KEY, on_sample)
             print("READY", flush=True)
+            cpu0 = time.process_time()
             done.wait(args.timeout)
     else:
         with Node("bench_sub", config=cfg, wire=_wire(args.mode)) as node:
@@ -167,9 +179,12 @@ def run_sub(args: argparse.Namespace) -> dict[str, Any]:
                                      _qos(args.throughput), receive=args.receive)
             threading.Thread(target=node.spin, daemon=True).start()
             print("READY", flush=True)
+            cpu0 = time.process_time()
             done.wait(args.timeout)
             node.shutdown()
-    return {"received": len(ages), "ages_ms": ages, "t_first": first, "t_last": last}
+    # Per-message CPU counts the flow (every thread of the process), not imports and set-up.
+    return {"received": len(ages), "ages_ms": ages, "t_first": first, "t_last": last,
+            "cpu_s": time.process_time() - cpu0}
 
 
 def run_pub(args: argparse.Namespace) -> dict[str, Any]:
@@ -182,7 +197,13 @@ def run_pub(args: argparse.Namespace) -> dict[str, Any]:
     msg = sample(args.type)
     period = 1.0 / args.rate if args.rate > 0 else 0.0
     cfg = _config(args.port, "pub")
-    if args.mode == "raw":
+    cpu = 0.0
+    if args.mode == "sdk":
+        send = ros2_sdk.publisher(args.type, args.port, args.throughput)
+        time.sleep(1.0)
+        cpu = _timed_loop(send, args.count, period)
+        time.sleep(0.5)
+    elif args.mode == "raw":
         # Serialised per publish, as a node does (and as the raw subscriber decodes per sample).
         serialize, encode = cdr_codec(type(msg)).serialize, type_support(type(msg)).encode
         with zenoh.open(cfg.to_zenoh()) as session:
@@ -198,15 +219,22 @@ def run_pub(args: argparse.Namespace) -> dict[str, Any]:
                 body = encode(msg)
                 stamp = time.time_ns()
                 zpub.put(serialize(body), attachment=_ATTACHMENT.pack(next(seq), stamp, 16, gid))
-            _loop(send, args.count, period)
+            cpu = _timed_loop(send, args.count, period)
             time.sleep(0.5)
     else:
         with Node("bench_pub", config=cfg, wire=_wire(args.mode)) as node:
             pub = node.create_publisher(type(msg), "/" + KEY, _qos(args.throughput))
             time.sleep(1.0)
-            _loop(lambda: pub.publish(msg), args.count, period)
+            cpu = _timed_loop(lambda: pub.publish(msg), args.count, period)
             time.sleep(0.5)   # let the tail leave before the session closes
-    return {"sent": args.count}
+    return {"sent": args.count, "cpu_s": cpu}
+
+
+def _timed_loop(send: Callable[[], Any], count: int, period: float) -> float:
+    """The publish loop; returns the process's CPU seconds over it (every thread)."""
+    cpu0 = time.process_time()
+    _loop(send, count, period)
+    return time.process_time() - cpu0
 
 
 def _loop(send: Callable[[], Any], count: int, period: float) -> None:
@@ -231,6 +259,8 @@ def run_pair(mode: str, type_name: str, count: int, rate: float, receive: str | 
     """One end-to-end run: figures (received, p50_ms, p99_ms, msgs_per_s) or an error."""
     import numpy as np
 
+    if mode == "sdk" and not ros2_sdk.available():
+        return {"error": ros2_sdk.MISSING}
     port = _free_port()
     common = [mode, type_name, "--count", str(count), "--port", str(port), "--codec", codec]
     common += (["--throughput"] if not rate else []) + (["--receive", receive] if receive else [])
@@ -250,10 +280,11 @@ def run_pair(mode: str, type_name: str, count: int, rate: float, receive: str | 
             sub.kill()
     if pub.returncode or sub.returncode:
         return {"error": f"worker failed: {(pub.stderr or err)[-300:]}"}
-    s = json.loads(out.strip().splitlines()[-1])
+    s, p = json.loads(out.strip().splitlines()[-1]), json.loads(pub.stdout.strip().splitlines()[-1])
     ages = np.array(s["ages_ms"])
     fig: dict[str, Any] = {"received": s["received"], "sent": count, "p50_ms": math.nan, "p99_ms": math.nan,
-                           "msgs_per_s": math.nan}
+                           "msgs_per_s": math.nan, "cpu_us_sub": s["cpu_s"] / max(s["received"], 1) * 1e6,
+                           "cpu_us_pub": p["cpu_s"] / count * 1e6}
     if ages.size:
         fig["p50_ms"], fig["p99_ms"] = float(np.percentile(ages, 50)), float(np.percentile(ages, 99))
     if s["received"] > 1 and s["t_last"] > s["t_first"]:
@@ -267,12 +298,17 @@ CELLS = (("geometry_msgs/msg/PoseStamped", "latency", 200.0, 1000), ("geometry_m
          ("sensor_msgs/msg/CompressedImage", "latency", 30.0, 150))
 
 
+def _per_rep(figs: list[dict[str, Any]], runs: list[dict[str, dict[str, Any]]], name: str) -> list[float]:
+    """Each repetition's figure ``name`` over its own raw run's (repetitions with an error left out)."""
+    out = [f.get(name, math.nan) / r["raw"].get(name, math.nan) for f, r in zip(figs, runs, strict=True)
+           if not f.get("error") and not r["raw"].get("error")]
+    return [x for x in out if math.isfinite(x)]
+
+
 def end_to_end(quick: bool = False, reps: int = 5, receive: str | None = None, codec: str = "fast",
                cells: tuple[tuple[str, str, float, int], ...] = CELLS) -> list[dict[str, Any]]:
     """Per cell and mode: median figures of ``reps`` repetitions that alternate the modes (ros2, envelope,
-    raw, ros2, ...), each repetition's ratio to its own raw run (median and spread), the load average."""
-    import os
-
+    sdk, raw, ros2, ...), each repetition's ratio to its own raw run (median and spread), the load average."""
     import numpy as np
 
     rows = []
@@ -286,9 +322,7 @@ def end_to_end(quick: bool = False, reps: int = 5, receive: str | None = None, c
         key = "p50_ms" if kind == "latency" else "msgs_per_s"
         for mode in MODES:
             figs = [r[mode] for r in runs]
-            ratios = [f.get(key, math.nan) / r["raw"].get(key, math.nan) for f, r in zip(figs, runs, strict=True)
-                      if not f.get("error") and not r["raw"].get("error")]
-            ratios = [x for x in ratios if math.isfinite(x)]
+            ratios, cpu_ratios = _per_rep(figs, runs, key), _per_rep(figs, runs, "cpu_us_sub")
 
             def med(name: str, figs: list[dict[str, Any]] = figs) -> float:
                 vals = [f[name] for f in figs if not f.get("error") and math.isfinite(f.get(name, math.nan))]
@@ -296,6 +330,8 @@ def end_to_end(quick: bool = False, reps: int = 5, receive: str | None = None, c
             rows.append({"kind": kind, "rate_hz": rate, "type": type_name, "mode": mode, "reps": len(figs),
                          "received": min(f.get("received", 0) for f in figs), "sent": count,
                          "p50_ms": med("p50_ms"), "p99_ms": med("p99_ms"), "msgs_per_s": med("msgs_per_s"),
+                         "cpu_us_sub": med("cpu_us_sub"), "cpu_us_pub": med("cpu_us_pub"),
+                         "cpu_sub_ratio": float(np.median(cpu_ratios)) if cpu_ratios else math.nan,
                          "ratio": float(np.median(ratios)) if ratios else math.nan,
                          "ratio_low": min(ratios, default=math.nan), "ratio_high": max(ratios, default=math.nan),
                          "load": [min(loads), max(loads)], "receive": receive or "default", "codec": codec,
@@ -311,24 +347,24 @@ def markdown(codec: list[dict[str, Any]], e2e: list[dict[str, Any]]) -> str:
               f"{r['rosbags_encode_us']:.1f} | {r['rosbags_decode_us']:.1f} | "
               f"{r['msgpack_bytes']} | {r['msgpack_encode_us']:.1f} | {r['msgpack_decode_us']:.1f} |" for r in codec]
     lines += ["", "## ROS 2 wire: end to end (two processes, TCP loopback, modes alternating)", "",
-              "| cell | mode | received | p50 ms | p99 ms | msg/s | vs raw: median (spread) | reps | load |",
-              "|---|---|---|---|---|---|---|---|---|"]
+              "| cell | mode | received | p50 ms | p99 ms | msg/s | vs raw: median (spread) | "
+              "sub CPU µs/msg (vs raw) | pub CPU µs/msg | reps | load |", "|---" * 11 + "|"]
     for r in e2e:
         short = r["type"].rsplit("/", 1)[-1]
         cell = f"{short} {r['kind']} {r['rate_hz']:g} Hz" if r["rate_hz"] else f"{short} {r['kind']}"
         if r.get("error"):
-            lines.append(f"| {cell} | {r['mode']} | error: {r['error'][:80]} | | | | | | |")
+            lines.append(f"| {cell} | {r['mode']} | error: {r['error'][:80]} | | | | | | | | |")
             continue
         lines.append(f"| {cell} | {r['mode']} | {r['received']}/{r['sent']} | {r['p50_ms']:.3f} | "
                      f"{r['p99_ms']:.2f} | {r['msgs_per_s']:.0f} | {r['ratio']:.2f} ({r['ratio_low']:.2f}-"
-                     f"{r['ratio_high']:.2f}) | {r['reps']} | {r['load'][0]:.1f}-{r['load'][1]:.1f} |")
+                     f"{r['ratio_high']:.2f}) | {r['cpu_us_sub']:.1f} ({r['cpu_sub_ratio']:.2f}) | "
+                     f"{r['cpu_us_pub']:.1f} | {r['reps']} | {r['load'][0]:.1f}-{r['load'][1]:.1f} |")
     return "\n".join(lines)
 
 
 def write_json(path: Path, codec: list[dict[str, Any]], e2e: list[dict[str, Any]]) -> None:
     """The raw figures of one run (every repetition's, ages aside), with the machine's load and time."""
     import datetime
-    import os
     import platform
 
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -365,6 +401,8 @@ def main(argv: list[str] | None = None) -> int:
             _rosbags_only(wargs.type)
         out = run_sub(wargs) if wargs.role == "sub" else run_pub(wargs)
         print(json.dumps(out), flush=True)
+        if wargs.mode == "sdk":
+            os._exit(0)     # zenoh-ros2-sdk's session threads keep the process alive past its figures
         return 0
     codec, e2e = codec_figures(), end_to_end(args.quick, args.reps, args.receive, args.codec)
     print(markdown(codec, e2e))

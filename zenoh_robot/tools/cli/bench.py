@@ -13,7 +13,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--soak-minutes", type=float, default=10.0)
     p.add_argument("--out", type=Path, default=Path("results/bench"))
     p.add_argument("--ros2", action="store_true",
-                   help="the ROS 2 wire: CDR codec per type, and end to end beside the envelope and raw zenoh")
+                   help="the ROS 2 wire: CDR codec per type, and end to end beside the envelope, zenoh-ros2-sdk "
+                        "and raw zenoh")
     p.add_argument("--reps", type=int, default=5, help="alternating framework/raw repetitions per cell (medians)")
     p.add_argument("--receive", choices=("callback", "channel"), help="the framework's receive path")
     p.add_argument("--express", action="store_true",
@@ -58,7 +59,8 @@ def run(args: argparse.Namespace) -> int:
 def _ros2(args: argparse.Namespace) -> int:
     from ..bench.ros2 import codec_figures, end_to_end, markdown, write_json
 
-    print("bench --ros2: codec per type, then latency and throughput: ros2, envelope, raw zenoh-python", flush=True)
+    print("bench --ros2: codec per type, then latency, throughput and CPU: ros2, envelope, zenoh-ros2-sdk, raw "
+          "zenoh-python", flush=True)
     codec, e2e = codec_figures(), end_to_end(args.quick, args.reps, args.receive)
     md = markdown(codec, e2e)
     print(md)
