@@ -48,3 +48,33 @@ def test_a_narrow_terminal_gets_one_line_a_cell_that_fits(width: int) -> None:
 def test_a_wide_terminal_gets_every_figure() -> None:
     text = "\n".join(_render(FULL_WIDTH + 20))
     assert "p50 0.158 / 0.151 ms" in text and "104418 / 157688 msg/s" in text and "112 / 101" in text
+
+
+def _ros2_rows() -> tuple[list[dict[str, object]], list[dict[str, object]]]:
+    codec = [{"type": "geometry_msgs/msg/PoseStamped", "cdr_bytes": 84, "cdr_encode_us": 2.5, "cdr_decode_us": 2.6,
+              "rosbags_encode_us": 8.1, "rosbags_decode_us": 10.2, "msgpack_encode_us": 2.7, "msgpack_decode_us": 2.0}]
+    e2e = [{"type": "sensor_msgs/msg/CompressedImage", "kind": "latency", "rate_hz": 30.0, "mode": mode, "reps": 5,
+            "received": 150, "sent": 150, "ratio": ratio, "ratio_low": ratio - 0.1, "ratio_high": ratio + 0.1,
+            "cpu_sub_ratio": cpu, "error": ""}
+           for mode, ratio, cpu in (("ros2", 1.07, 1.19), ("sdk", 1.25, 1.05), ("raw", 1.0, 1.0))]
+    e2e.append({"type": "geometry_msgs/msg/PoseStamped", "kind": "throughput", "rate_hz": 0.0, "mode": "sdk",
+                "reps": 5, "error": "zenoh-ros2-sdk is not installed: pip install 'zenoh-robot[bench]'"})
+    return codec, e2e
+
+
+@pytest.mark.parametrize("width", [80, 120])
+def test_bench_ros2_in_a_narrow_terminal_gets_one_line_a_cell_and_mode(width: int) -> None:
+    from zenoh_robot.tools.bench.report import ros2_tables
+
+    out = io.StringIO()
+    console = Console(file=out, width=width, force_terminal=False)
+    for t in ros2_tables(*_ros2_rows()):
+        console.print(t)
+    lines = out.getvalue().splitlines()
+    assert max(len(line) for line in lines) <= width
+    sdk = [line for line in lines if "CompressedImage 30 Hz" in line and " sdk " in line]
+    assert len(sdk) == 1 and "1.25 (1.15-1.35)" in sdk[0] and "1.05x" in sdk[0] and "150/150" in sdk[0]
+    assert any("PoseStamped max" in line and "error (below)" in line for line in lines)
+    assert "sdk: zenoh-ros2-sdk is not installed: pip install 'zenoh-robot[bench]'" in " ".join(
+        line.strip() for line in lines)
+    assert any("PoseStamped" in line and "2.5 / 2.6" in line and "8.1 / 10.2" in line for line in lines)

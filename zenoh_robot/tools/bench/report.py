@@ -5,6 +5,7 @@ import math
 from typing import Any
 
 from rich.table import Table
+from rich.text import Text
 
 from .runner import CellResult, spread
 
@@ -85,3 +86,36 @@ def markdown(results: list[CellResult], soak: dict[str, Any] | None) -> str:
                       f"{_f(soak['rss_growth_mb'])} MB (target < {TARGETS['soak_mb']} MB), "
                       f"{soak['received']}/{soak['sent']} received."]
     return "\n".join(lines)
+
+
+# -- zenoh-robot bench --ros2 in a terminal under FULL_WIDTH (its markdown, ros2.md, has every figure) ------------
+ROS2_CAPTION = ("sdk: zenoh-ros2-sdk, the other Python rmw_zenoh; vs raw: p50 age (Hz cells) or msg/s (max), "
+                "mode / raw zenoh-python, median (spread) of the reps; sub CPU: the subscriber's CPU per message, "
+                "mode / raw; every figure: ros2.md")
+
+
+def ros2_tables(codec: list[dict[str, Any]], e2e: list[dict[str, Any]]) -> list[Table]:
+    """``bench --ros2``'s two tables, one line a type and a cell x mode, that fit 80 columns."""
+    c = Table(title="codec, µs a message (encode / decode)", caption="rosbags: its codec alone, as before ours")
+    for h in ("type", "CDR B", "ours", "rosbags", "msgpack"):
+        c.add_column(h, no_wrap=True)
+    for r in codec:
+        c.add_row(r["type"].rsplit("/", 1)[-1], str(r["cdr_bytes"]),
+                  f"{r['cdr_encode_us']:.1f} / {r['cdr_decode_us']:.1f}",
+                  f"{r['rosbags_encode_us']:.1f} / {r['rosbags_decode_us']:.1f}",
+                  f"{r['msgpack_encode_us']:.1f} / {r['msgpack_decode_us']:.1f}")
+    # An error's text goes under the table (a wide cell would squeeze the others out of 80 columns).
+    errors = list(dict.fromkeys(f"{r['mode']}: {r['error']}" for r in e2e if r.get("error")))
+    t = Table(title="end to end, modes alternating", caption=Text("; ".join([ROS2_CAPTION, *errors])))
+    for h in ("cell", "mode", "vs raw", "sub CPU", "received"):
+        t.add_column(h, no_wrap=True)
+    for r in e2e:
+        short = r["type"].rsplit("/", 1)[-1]
+        cell = f"{short} {r['rate_hz']:g} Hz" if r["rate_hz"] else f"{short} max"
+        if r.get("error"):
+            t.add_row(cell, r["mode"], "error (below)", "", "")
+            continue
+        ratio = _f(r["ratio"]) if r["reps"] < 2 else f"{_f(r['ratio'])} ({_f(r['ratio_low'])}-{_f(r['ratio_high'])})"
+        cpu = r.get("cpu_sub_ratio", math.nan)
+        t.add_row(cell, r["mode"], ratio, _f(cpu) + ("x" if math.isfinite(cpu) else ""), f"{r['received']}/{r['sent']}")
+    return [c, t]

@@ -57,14 +57,25 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _ros2(args: argparse.Namespace) -> int:
+    from rich.console import Console
+
+    from ..bench.report import FULL_WIDTH, ros2_tables
     from ..bench.ros2 import codec_figures, end_to_end, markdown, write_json
 
-    print("bench --ros2: codec per type, then latency, throughput and CPU: ros2, envelope, zenoh-ros2-sdk, raw "
-          "zenoh-python", flush=True)
-    codec, e2e = codec_figures(), end_to_end(args.quick, args.reps, args.receive)
+    console = Console()
+    with console.status("bench --ros2: codec per type") as status:
+        codec = codec_figures()
+        status.update(f"bench --ros2: latency, throughput and CPU; ros2, envelope, zenoh-ros2-sdk and raw "
+                      f"zenoh-python alternating, {args.reps} times")
+        e2e = end_to_end(args.quick, args.reps, args.receive)
     md = markdown(codec, e2e)
-    print(md)
+    if console.width >= FULL_WIDTH:
+        console.print(md, markup=False, highlight=False)
+    else:
+        for t in ros2_tables(codec, e2e):
+            console.print(t)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "ros2.md").write_text(md + "\n")
     write_json(args.out / "ros2.json", codec, e2e)
+    console.print(f"bench: {args.out / 'ros2.json'}, {args.out / 'ros2.md'}")
     return 0
