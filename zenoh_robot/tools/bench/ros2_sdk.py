@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import shutil
 import tempfile
 import time
 from collections.abc import Callable
@@ -32,8 +33,9 @@ def available() -> bool:
     return importlib.util.find_spec(PACKAGE) is not None
 
 
-def _prepare(type_name: str, port: int, role: str) -> dict[str, Any]:
-    """The SDK's registry on a directory of our .msg files; its session's endpoints (read when it opens)."""
+def _prepare(type_name: str, port: int, role: str) -> tuple[dict[str, Any], Path]:
+    """The SDK's registry on a directory of our .msg files (removed by the caller once the SDK has read them);
+    its session's endpoints (read when it opens)."""
     from zenoh_ros2_sdk import message_registry
 
     from zenoh_robot.ros2 import dependencies, msg_definition
@@ -49,7 +51,7 @@ def _prepare(type_name: str, port: int, role: str) -> dict[str, Any]:
     if role == "sub":
         override += f';listen/endpoints=["tcp/127.0.0.1:{port}"];connect/endpoints=[]'
     os.environ["ZENOH_CONFIG_OVERRIDE"] = override
-    return {"domain_id": 0, "router_ip": "127.0.0.1", "router_port": port}
+    return {"domain_id": 0, "router_ip": "127.0.0.1", "router_port": port}, root
 
 
 def _qos(throughput: bool) -> Any:
@@ -89,13 +91,16 @@ def subscribe(type_name: str, port: int, throughput: bool, record: Callable[[int
     """A ROS2Subscriber whose callback records each message's ``header.stamp`` (ns)."""
     from zenoh_ros2_sdk import ROS2Subscriber
 
-    common = _prepare(type_name, port, "sub")
+    common, root = _prepare(type_name, port, "sub")
 
     def on_message(msg: Any) -> None:
         stamp = msg.header.stamp
         record(stamp.sec * 1_000_000_000 + stamp.nanosec)
-    sub = ROS2Subscriber(TOPIC, type_name, on_message, node_name="bench_sub", qos=_qos(throughput), **common)
-    _warm(sub.session_mgr.store, type_name)
+    try:
+        sub = ROS2Subscriber(TOPIC, type_name, on_message, node_name="bench_sub", qos=_qos(throughput), **common)
+        _warm(sub.session_mgr.store, type_name)
+    finally:
+        shutil.rmtree(root, ignore_errors=True)     # every type it needs is in its store by now
     return sub
 
 
@@ -103,9 +108,12 @@ def publisher(type_name: str, port: int, throughput: bool) -> Callable[[], None]
     """``send()``: one publish of the bench's sample of ``type_name``, stamped now."""
     from zenoh_ros2_sdk import ROS2Publisher
 
-    common = _prepare(type_name, port, "pub")
-    pub = ROS2Publisher(TOPIC, type_name, node_name="bench_pub", qos=_qos(throughput), **common)
-    _warm(pub.session_mgr.store, type_name)
+    common, root = _prepare(type_name, port, "pub")
+    try:
+        pub = ROS2Publisher(TOPIC, type_name, node_name="bench_pub", qos=_qos(throughput), **common)
+        _warm(pub.session_mgr.store, type_name)
+    finally:
+        shutil.rmtree(root, ignore_errors=True)
     types = pub.session_mgr.store.types
     fields = _fields(types, type_name)
     publish, now = pub.publish, time.time_ns
