@@ -15,6 +15,9 @@ def test_small_and_image_cells_produce_complete_figures() -> None:
             assert not f.error, f.error
             assert f.sent == r.cell.count and f.received == r.cell.count   # reliable: nothing lost
             assert f.cpu_us_per_msg_sub > 0 and f.cpu_us_per_msg_pub > 0
+            # The subscriber's CPU before its first sample (the publisher's discovery) is reported apart.
+            assert 0 < f.cpu_ms_setup_sub < 60_000
+    assert "(set-up " in markdown([lat], None)
     assert 0 < lat.framework.p50_ms <= lat.framework.p99_ms < 1000
     assert 0 < lat.raw.p50_ms <= lat.raw.p99_ms < 1000
     assert math.isfinite(lat.ratios["p50"]) and math.isfinite(thr.ratios["throughput"])

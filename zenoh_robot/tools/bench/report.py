@@ -36,7 +36,8 @@ def rows(results: list[CellResult]) -> list[list[str]]:
             ratio = r.ratios.get("throughput", math.nan)
             low, high = spread(r, "throughput")
             verdict = "ok" if ratio >= TARGETS["throughput"] else f"under {TARGETS['throughput']}x"
-        cpu = f"{_f(fw.cpu_us_per_msg_sub, '{:.0f}')} / {_f(raw.cpu_us_per_msg_sub, '{:.0f}')}"
+        cpu = (f"{_f(fw.cpu_us_per_msg_sub, '{:.0f}')} / {_f(raw.cpu_us_per_msg_sub, '{:.0f}')} "
+               f"(set-up {_f(fw.cpu_ms_setup_sub, '{:.1f}')} / {_f(raw.cpu_ms_setup_sub, '{:.1f}')} ms)")
         err = fw.error or raw.error
         ratio_text = _f(ratio) if len(r.runs) < 2 else f"{_f(ratio)} ({_f(low)}-{_f(high)})"
         load = f"{r.load[0]:.1f}-{r.load[1]:.1f}" if math.isfinite(r.load[0]) else "-"
@@ -46,14 +47,15 @@ def rows(results: list[CellResult]) -> list[list[str]]:
 
 
 HEAD = ["payload", "size", "rate", "framework / raw (medians)", "ratio median (spread)", "reps", "load",
-        "sub CPU us/msg (fw / raw)", "target"]
+        "sub CPU us/msg after the 1st sample, fw / raw (before it)", "target"]
 
 
 # The full table needs ~150 columns; narrower terminals get one line a cell with the ratios (bench.md has all).
 FULL_WIDTH = 150
 COMPACT_HEAD = ["cell", "fw/raw (spread)", "sub CPU", "target"]
 COMPACT_CAPTION = ("fw/raw: p50 age (Hz cells) or msg/s (max), framework / raw zenoh-python, median of the reps; "
-                   "sub CPU: the subscriber's CPU per message, framework / raw; every figure: bench.md")
+                   "sub CPU: the subscriber's CPU per message after its first sample, framework / raw; "
+                   "every figure: bench.md")
 
 
 def table(results: list[CellResult], width: int = FULL_WIDTH) -> Table:

@@ -143,15 +143,17 @@ def run_sub(args: argparse.Namespace) -> dict[str, Any]:
     cls = type(sample(args.type))
     ages: list[float] = []
     first = last = 0.0
+    cpu_first = math.nan
     done = threading.Event()
 
     def record(stamp_ns: int) -> None:
-        nonlocal first, last
+        nonlocal first, last, cpu_first
         now = time.time_ns()
         ages.append((now - stamp_ns) / 1e6)
         last = now / 1e9
         if len(ages) == 1:
             first = last
+            cpu_first = time.process_time()
         if len(ages) >= args.count:
             done.set()
 
@@ -182,9 +184,11 @@ def run_sub(args: argparse.Namespace) -> dict[str, Any]:
             cpu0 = time.process_time()
             done.wait(args.timeout)
             node.shutdown()
-    # Per-message CPU counts the flow (every thread of the process), not imports and set-up.
+    # Per-message CPU counts the flow after the first sample (every thread of the process), as the main bench's
+    # worker does: not imports, set-up or the publisher's discovery.
+    end = time.process_time()
     return {"received": len(ages), "ages_ms": ages, "t_first": first, "t_last": last,
-            "cpu_s": time.process_time() - cpu0}
+            "cpu_s": end - cpu_first if ages else end - cpu0}
 
 
 def run_pub(args: argparse.Namespace) -> dict[str, Any]:
@@ -283,7 +287,7 @@ def run_pair(mode: str, type_name: str, count: int, rate: float, receive: str | 
     s, p = json.loads(out.strip().splitlines()[-1]), json.loads(pub.stdout.strip().splitlines()[-1])
     ages = np.array(s["ages_ms"])
     fig: dict[str, Any] = {"received": s["received"], "sent": count, "p50_ms": math.nan, "p99_ms": math.nan,
-                           "msgs_per_s": math.nan, "cpu_us_sub": s["cpu_s"] / max(s["received"], 1) * 1e6,
+                           "msgs_per_s": math.nan, "cpu_us_sub": s["cpu_s"] / max(s["received"] - 1, 1) * 1e6,
                            "cpu_us_pub": p["cpu_s"] / count * 1e6}
     if ages.size:
         fig["p50_ms"], fig["p99_ms"] = float(np.percentile(ages, 50)), float(np.percentile(ages, 99))

@@ -34,7 +34,8 @@ class Figures:
     msgs_per_s: float = math.nan
     mb_per_s: float = math.nan
     cpu_us_per_msg_pub: float = math.nan
-    cpu_us_per_msg_sub: float = math.nan
+    cpu_us_per_msg_sub: float = math.nan     # after the first sample, over samples 2..n
+    cpu_ms_setup_sub: float = math.nan       # from ready to the first sample (the publisher's discovery)
     rss_growth_mb: float = math.nan
     error: str = ""
 
@@ -107,7 +108,8 @@ def run_pair(mode: str, cell: Cell, timeout: float, rss_every: float = 0.0, rece
     if s["received"] > 1 and s["t_last"] > s["t_first"]:
         f.msgs_per_s = (s["received"] - 1) / (s["t_last"] - s["t_first"])
     f.cpu_us_per_msg_pub = p["cpu_s"] / max(p["sent"], 1) * 1e6
-    f.cpu_us_per_msg_sub = s["cpu_s"] / max(s["received"], 1) * 1e6
+    f.cpu_us_per_msg_sub = s["cpu_s"] / max(s["received"] - 1, 1) * 1e6
+    f.cpu_ms_setup_sub = s["cpu_setup_s"] * 1e3
     if len(s["rss_mb"]) >= 2:
         f.rss_growth_mb = s["rss_mb"][-1] - s["rss_mb"][0]
     return f
@@ -130,7 +132,7 @@ def _median_figures(runs: list[Figures]) -> Figures:
     out = Figures(received=min(f.received for f in ok), sent=max(f.sent for f in ok),
                   error=next((f.error for f in runs if f.error), ""))
     for name in ("p50_ms", "p99_ms", "msgs_per_s", "mb_per_s", "cpu_us_per_msg_pub", "cpu_us_per_msg_sub",
-                 "rss_growth_mb"):
+                 "cpu_ms_setup_sub", "rss_growth_mb"):
         values = [getattr(f, name) for f in ok if math.isfinite(getattr(f, name))]
         setattr(out, name, float(np.median(values)) if values else math.nan)
     return out

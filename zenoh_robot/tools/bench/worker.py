@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import resource
 import sys
 import threading
@@ -60,11 +61,12 @@ def run_sub(args: argparse.Namespace) -> dict[str, Any]:
     ages: list[float] = []
     received = 0
     first = last = 0.0
+    cpu_first = math.nan
     done = threading.Event()
     rss: list[float] = []
 
     def record(stamp_ns: int) -> None:
-        nonlocal received, first, last
+        nonlocal received, first, last, cpu_first
         now = time.time_ns()
         if len(ages) < MAX_AGES:
             ages.append((now - stamp_ns) / 1e6)
@@ -72,6 +74,7 @@ def run_sub(args: argparse.Namespace) -> dict[str, Any]:
         last = now / 1e9
         if received == 1:
             first = last
+            cpu_first = _cpu()
         if received >= args.count:
             done.set()
 
@@ -101,9 +104,13 @@ def run_sub(args: argparse.Namespace) -> dict[str, Any]:
             cpu0 = _cpu()
             _wait(done, args, rss)
             node.shutdown()
-    cpu = _cpu() - cpu0
+    # Per message: the flow after the first sample (samples 2..n). Before it, the publisher's discovery
+    # (a framework node matches it on the graph once): reported apart, so that a 50-message cell does not
+    # spread a one-off over its messages.
+    end = _cpu()
+    flow, setup = (end - cpu_first, cpu_first - cpu0) if received else (end - cpu0, math.nan)
     return {"received": received, "ages_ms": ages, "t_first": first or None, "t_last": last or None,
-            "cpu_s": cpu, "rss_mb": rss,
+            "cpu_s": flow, "cpu_setup_s": setup, "rss_mb": rss,
             "maxrss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
 
 
