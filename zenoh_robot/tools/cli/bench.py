@@ -70,7 +70,7 @@ def _ros2(args: argparse.Namespace) -> int:
         e2e = end_to_end(args.quick, args.reps, args.receive)
     md = markdown(codec, e2e)
     if console.width >= FULL_WIDTH:
-        console.print(md, markup=False, highlight=False)
+        console.print(md, markup=False, highlight=False, soft_wrap=True)   # the terminal wraps, rich adds no breaks
     else:
         for t in ros2_tables(codec, e2e):
             console.print(t)
