@@ -110,6 +110,16 @@ def _timings(msg: Any, ts: Any, codec: Any, cdr: bytes, packed: bytes, budget_s:
 
 
 # -- end to end: one side per process -------------------------------------------------------------
+def _sample_cdr(name: str) -> bytes:
+    """The CDR bytes of :func:`sample` of ``name`` (what zenoh-ros2-sdk's side builds its messages from)."""
+    from zenoh_robot.message import type_support
+    from zenoh_robot.ros2 import cdr_codec
+
+    msg = sample(name)
+    data: bytes = cdr_codec(type(msg)).serialize(type_support(type(msg)).encode(msg))
+    return data
+
+
 def _config(port: int, role: str) -> Any:
     from zenoh_robot import SessionConfig
 
@@ -160,7 +170,7 @@ def run_sub(args: argparse.Namespace) -> dict[str, Any]:
     cfg = _config(args.port, "sub")
     cpu0 = 0.0
     if args.mode == "sdk":
-        sub = ros2_sdk.subscribe(args.type, args.port, args.throughput, record)
+        sub = ros2_sdk.subscribe(args.type, args.port, args.throughput, _sample_cdr(args.type), record)
         print("READY", flush=True)
         cpu0 = time.process_time()
         done.wait(args.timeout)
@@ -203,7 +213,7 @@ def run_pub(args: argparse.Namespace) -> dict[str, Any]:
     cfg = _config(args.port, "pub")
     cpu = 0.0
     if args.mode == "sdk":
-        send = ros2_sdk.publisher(args.type, args.port, args.throughput)
+        send = ros2_sdk.publisher(args.type, args.port, args.throughput, _sample_cdr(args.type))
         time.sleep(1.0)
         cpu = _timed_loop(send, args.count, period)
         time.sleep(0.5)

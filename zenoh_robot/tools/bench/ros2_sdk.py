@@ -15,6 +15,7 @@ definitions (``zenoh_robot.ros2.msg_definition``), so it runs offline and comput
 """
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import os
 import shutil
@@ -63,31 +64,22 @@ def _qos(throughput: bool) -> Any:
     return QosProfile(history_depth=100)
 
 
-def _fields(types: dict[str, Any], type_name: str) -> dict[str, Any]:
-    """The bench's sample of ``type_name`` (as ``ros2.sample``), header aside, as the SDK's classes."""
-    if type_name.endswith("PoseStamped"):
-        return {"pose": types["geometry_msgs/msg/Pose"](
-            position=types["geometry_msgs/msg/Point"](x=1.5, y=0.0, z=0.0),
-            orientation=types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))}
-    if type_name.endswith("CompressedImage"):
-        import numpy as np
-        return {"format": "jpeg", "data": np.frombuffer(bytes(range(256)) * 256, dtype=np.uint8)}
-    raise ValueError(f"bench: no zenoh-ros2-sdk sample of {type_name} (PoseStamped, CompressedImage)")
-
-
-def _header(types: dict[str, Any], ns: int) -> Any:
+def _header(types: dict[str, Any], ns: int, frame_id: str) -> Any:
     stamp = types["builtin_interfaces/msg/Time"](sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
-    return types["std_msgs/msg/Header"](stamp=stamp, frame_id="base_link")
+    return types["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id)
 
 
-def _warm(store: Any, type_name: str) -> None:
-    # rosbags generates a type's CDR code on its first use (~10 ms): done before the flow, as the
-    # other modes' codecs are built when their publisher or subscription is made.
-    msg = store.types[type_name](header=_header(store.types, 0), **_fields(store.types, type_name))
-    store.deserialize_cdr(bytes(store.serialize_cdr(msg, type_name)), type_name)
+def _message(store: Any, type_name: str, sample_cdr: bytes) -> Any:
+    """The bench's sample (``ros2.sample``, as its CDR bytes) as the SDK's own message object. Going through
+    the SDK's codec both ways also builds the CDR code rosbags generates on first use (~10 ms) before the
+    flow, as the other modes' codecs are built when their publisher or subscription is made."""
+    msg = store.deserialize_cdr(sample_cdr, type_name)
+    store.serialize_cdr(msg, type_name)
+    return msg
 
 
-def subscribe(type_name: str, port: int, throughput: bool, record: Callable[[int], None]) -> Any:
+def subscribe(type_name: str, port: int, throughput: bool, sample_cdr: bytes,
+              record: Callable[[int], None]) -> Any:
     """A ROS2Subscriber whose callback records each message's ``header.stamp`` (ns)."""
     from zenoh_ros2_sdk import ROS2Subscriber
 
@@ -98,26 +90,30 @@ def subscribe(type_name: str, port: int, throughput: bool, record: Callable[[int
         record(stamp.sec * 1_000_000_000 + stamp.nanosec)
     try:
         sub = ROS2Subscriber(TOPIC, type_name, on_message, node_name="bench_sub", qos=_qos(throughput), **common)
-        _warm(sub.session_mgr.store, type_name)
+        _message(sub.session_mgr.store, type_name, sample_cdr)
     finally:
         shutil.rmtree(root, ignore_errors=True)     # every type it needs is in its store by now
     return sub
 
 
-def publisher(type_name: str, port: int, throughput: bool) -> Callable[[], None]:
-    """``send()``: one publish of the bench's sample of ``type_name``, stamped now."""
+def publisher(type_name: str, port: int, throughput: bool, sample_cdr: bytes) -> Callable[[], None]:
+    """``send()``: one publish of the bench's sample of ``type_name`` (its CDR bytes), stamped now."""
     from zenoh_ros2_sdk import ROS2Publisher
 
     common, root = _prepare(type_name, port, "pub")
     try:
         pub = ROS2Publisher(TOPIC, type_name, node_name="bench_pub", qos=_qos(throughput), **common)
-        _warm(pub.session_mgr.store, type_name)
+        msg = _message(pub.session_mgr.store, type_name, sample_cdr)
     finally:
         shutil.rmtree(root, ignore_errors=True)
     types = pub.session_mgr.store.types
-    fields = _fields(types, type_name)
+    # publish(**fields) builds the message each time, as its users call it; the header is new each time.
+    # (rosbags' own __msgtype__ field left to its default)
+    fields = {f.name: getattr(msg, f.name) for f in dataclasses.fields(msg)
+              if f.name != "header" and not f.name.startswith("__")}
+    frame_id = msg.header.frame_id
     publish, now = pub.publish, time.time_ns
 
     def send() -> None:
-        publish(header=_header(types, now()), **fields)
+        publish(header=_header(types, now(), frame_id), **fields)
     return send
