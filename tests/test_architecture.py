@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import ast
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -386,3 +387,19 @@ def test_tests_mirror_the_layers_and_share_helpers_not_modules() -> None:
                 [node.module or ""] if isinstance(node, ast.ImportFrom) else []
             crossing += [f"{path.name} imports {n}" for n in names if n.split(".")[-1] in modules]
     assert crossing == []
+
+
+# A drawn domain (ZR_DOMAIN, --domain, a ROS domain id) outside conftest.fresh_domain ignores the
+# pytest-xdist workers' partition: two workers' tests then share a domain now and then, and a `gcs` or
+# `companion` finding another of its name there refuses to start (CI, 2026-11-29: a GCS that never
+# streamed while a test waited 20 s for its setpoints).
+_DOMAIN_DRAW = re.compile(r"(?i)domain.*\b(randint|randbelow|randrange|choice)\(")
+
+
+def test_every_domain_a_test_draws_is_its_workers_own() -> None:
+    assert _DOMAIN_DRAW.search('env = {"ZR_DOMAIN": str(1 + secrets.randbelow(232))}')
+    assert not _DOMAIN_DRAW.search('monkeypatch.setenv("ZR_DOMAIN", str(fresh_domain()))')
+    own = [f"{path.relative_to(ROOT)}:{n}: {line.strip()}" for path in (ROOT / "tests").rglob("*.py")
+           if path.name not in ("conftest.py", "test_architecture.py")
+           for n, line in enumerate(path.read_text().splitlines(), 1) if _DOMAIN_DRAW.search(line)]
+    assert own == [], "draw domains with conftest.fresh_domain():\n" + "\n".join(own)

@@ -15,7 +15,6 @@ them from rcl's.
 from __future__ import annotations
 
 import json
-import random
 import struct
 import subprocess
 import threading
@@ -25,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import kill_process, python_proc, wait_for
+from conftest import fresh_domain, kill_process, python_proc, wait_for
 from ros2_peer import PEER_PRELUDE, RmwZenohGraph, rmw_zenoh_service_available, write_msgs
 from ros2_peer import router as ros2_router
 
@@ -166,7 +165,7 @@ def rotate(handle: ServerGoalHandle) -> Any:
 
 
 def test_a_goal_between_our_nodes_and_the_graph_rmw_zenoh_reads(router: int) -> None:
-    domain = random.randint(1, 200)
+    domain = fresh_domain()
     with _node("turtlesim", router, domain) as server_node, _node("teleop", router, domain) as client_node:
         threads = _spin(server_node, client_node)
         server_node.create_action_server(Rotate, "/turtle1/rotate_absolute", rotate,
@@ -249,7 +248,7 @@ sys.stdin.readline()
 
 
 def test_an_sdk_client_sends_a_goal_to_our_server(router: int, tmp_path: Path) -> None:
-    domain = random.randint(1, 200)
+    domain = fresh_domain()
     msgs = write_msgs(tmp_path / "msgs", ["action_msgs/msg/GoalStatusArray", "unique_identifier_msgs/msg/UUID",
                                           "builtin_interfaces/msg/Time"])
     started = threading.Event()
@@ -302,7 +301,7 @@ def test_a_malformed_goal_is_refused_with_a_reason(router: int) -> None:
     error naming the type, and nothing runs."""
     from zenoh_robot.wire.ros2 import pack_attachment
 
-    domain = random.randint(1, 200)
+    domain = fresh_domain()
     with _node("turtlesim", router, domain) as node:
         threads = _spin(node)
         server = node.create_action_server(Rotate, "/turtle1/rotate_absolute", rotate)
@@ -382,7 +381,7 @@ sys.stdin.readline()
 
 
 def test_our_client_sends_a_goal_to_an_sdk_server(router: int, tmp_path: Path) -> None:
-    domain = random.randint(1, 200)
+    domain = fresh_domain()
     msgs = write_msgs(tmp_path / "msgs", ["action_msgs/msg/GoalStatusArray", "unique_identifier_msgs/msg/UUID",
                                           "builtin_interfaces/msg/Time"])
     peer = python_proc("-c", SDK_ACTION_SERVER, str(msgs), str(router), str(domain), ROS2_HASHES["send_goal"],
@@ -430,7 +429,7 @@ def test_a_result_whose_server_is_gone_fails_with_a_reason(router: int) -> None:
     while a server is there, and otherwise says the server is gone (no busy loop, no hang)."""
     from zenoh_robot.services import ServiceUnavailable
 
-    domain = random.randint(1, 200)
+    domain = fresh_domain()
     release = threading.Event()
 
     def held(handle: ServerGoalHandle) -> Any:
@@ -463,7 +462,7 @@ def test_a_ros2_call_that_runs_out_of_time_is_a_timeout(router: int) -> None:
     from zenoh_robot.ros2 import ros2_service_type
     from zenoh_robot.services import ServiceTimeout
 
-    domain = random.randint(1, 200)
+    domain = fresh_domain()
     srv = ros2_service_type("std_srvs/srv/Trigger")
     never: Future[Any] = Future()
     with _node("slow", router, domain) as node:

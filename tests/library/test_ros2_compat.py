@@ -7,13 +7,12 @@ real sessions to a zenoh-robot node on the ROS 2 wire: counted, warned about onc
 from __future__ import annotations
 
 import logging
-import secrets
 import struct
 import subprocess
 
 import pytest
 import zenoh
-from conftest import CLI, ROOT, free_port, wait_for
+from conftest import CLI, ROOT, free_port, fresh_domain, wait_for
 
 from zenoh_robot import Node, QoSProfile, SessionConfig
 from zenoh_robot.message import type_support
@@ -32,7 +31,7 @@ def _raw_session(port: int) -> zenoh.Session:
 
 @pytest.fixture
 def ros2_node():
-    domain = 100 + secrets.randbelow(100)
+    domain = fresh_domain()
     port = free_port()
     config = SessionConfig(listen=[f"tcp/127.0.0.1:{port}"], multicast_scouting=False, shared_memory=False)
     with Node("zr_listener", config=config, wire=ros2_wire(domain)) as node:

@@ -10,11 +10,10 @@ from __future__ import annotations
 
 import contextlib
 import io
-import secrets
 from collections.abc import Iterator
 
 import pytest
-from conftest import kill_process, wait_for
+from conftest import fresh_domain, kill_process, wait_for
 from ros2_peer import PEER_PRELUDE, Peer, router, start_peer, write_msgs
 
 from zenoh_robot.tools.cli.main import main
@@ -39,7 +38,7 @@ sys.stdin.readline()
 def peer(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[int, int]]:
     root = write_msgs(tmp_path_factory.mktemp("msgs"), ["std_msgs/msg/String"])
     with router() as port:
-        domain = 1 + secrets.randbelow(200)
+        domain = fresh_domain()
         p: Peer = start_peer(PEER, str(root), str(port), str(domain))
         try:
             assert wait_for(lambda: p.find("ready"), 30.0), "".join(p.raw)[-3000:]

@@ -9,13 +9,12 @@ the data keys only meet if its hashes equal ours.
 """
 from __future__ import annotations
 
-import secrets
 import time
 from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import free_port, kill_process, wait_for
+from conftest import free_port, fresh_domain, kill_process, wait_for
 from ros2_peer import PEER_PRELUDE, start_peer, write_msgs
 
 from zenoh_robot import Node, QoSProfile, SessionConfig
@@ -83,7 +82,7 @@ def pair(tmp_path: Path):
     """(our node on the ROS 2 wire, the zenoh-ros2-sdk peer) on a domain of their own."""
     msgs = write_msgs(tmp_path / "msgs", TYPES)
     port = free_port()
-    domain = 100 + secrets.randbelow(100)
+    domain = fresh_domain()
     config = SessionConfig(listen=[f"tcp/127.0.0.1:{port}"], multicast_scouting=False, shared_memory=False)
     with Node("zr_node", namespace="zr", config=config, wire=ros2_wire(domain)) as node:
         peer = start_peer(PEER, str(msgs), str(port), str(domain))

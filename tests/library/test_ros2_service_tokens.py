@@ -12,9 +12,7 @@ The live check reads the tokens with ``ros2_peer.rmw_zenoh_entity`` (rmw_zenoh's
 """
 from __future__ import annotations
 
-import random
-
-from conftest import wait_for
+from conftest import fresh_domain, wait_for
 from ros2_peer import RmwZenohGraph, rmw_zenoh_entity, rmw_zenoh_service_available
 from ros2_peer import router as ros2_router
 
@@ -68,7 +66,7 @@ def test_our_reader_reads_the_spec_example_and_not_the_old_form() -> None:
 def test_an_rmw_zenoh_graph_finds_our_namespaced_server_and_client() -> None:
     """Over real sessions through a router: the tokens our server and client declare, read the way
     rmw_zenoh's graph cache reads them, answer rcl's ``/zr/set_flag`` (what wait_for_service asks)."""
-    domain = random.randint(1, 200)
+    domain = fresh_domain()
     srv = ros2_service_type("std_srvs/srv/SetBool")
     with ros2_router() as port:
         config = SessionConfig(mode="peer", connect=[f"tcp/127.0.0.1:{port}"], listen=["tcp/127.0.0.1:0"],

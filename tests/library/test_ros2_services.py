@@ -10,13 +10,12 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import random
 import struct
 import threading
 import time
 
 import pytest
-from conftest import kill_process, python_proc, wait_for
+from conftest import fresh_domain, kill_process, python_proc, wait_for
 from ros2_peer import router as ros2_router
 
 from zenoh_robot import Node
@@ -77,7 +76,7 @@ def ros2_node(name: str, port: int, domain: int) -> Node:
 
 
 def domain_id() -> int:
-    return random.randint(1, 200)     # parallel or repeated runs never meet
+    return fresh_domain()     # parallel or repeated runs never meet
 
 
 def read_line(proc, prefix: str, timeout: float = 30.0) -> str:

@@ -17,10 +17,10 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import pytest
-from conftest import CLI, ROOT, free_port, python_proc, stop_process
+from conftest import CLI, ROOT, free_port, fresh_domain, python_proc, stop_process
 from mcap.reader import make_reader  # noqa: E402
 
-DOMAIN = str(100 + secrets.randbelow(120))
+DOMAIN = str(fresh_domain())
 ENV = {"ZR_DOMAIN": DOMAIN}
 
 

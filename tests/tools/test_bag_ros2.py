@@ -5,16 +5,15 @@ rosbags from the schema in the file alone (a fresh, empty typestore), as Foxglov
 """
 from __future__ import annotations
 
-import secrets
 from pathlib import Path
 
-from conftest import record_ros2_talker
+from conftest import fresh_domain, record_ros2_talker
 from mcap.reader import make_reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 
 def test_bag_record_writes_ros2_cdr_channels_that_rosbags_decodes(tmp_path: Path) -> None:
-    domain = 100 + secrets.randbelow(100)
+    domain = fresh_domain()
     out = tmp_path / "ros2.mcap"
     r = record_ros2_talker(out, domain, 4)
     assert r.returncode == 0, r.stderr

@@ -9,14 +9,13 @@ from its schema text alone; channels that cannot be played get one line each.
 """
 from __future__ import annotations
 
-import secrets
 import subprocess
 import threading
 import time
 from pathlib import Path
 from typing import Any
 
-from conftest import CLI, ROOT, free_port, record_ros2_talker
+from conftest import CLI, ROOT, free_port, fresh_domain, record_ros2_talker
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
@@ -75,7 +74,7 @@ def _recorded(path: Path) -> tuple[dict[str, list[Any]], dict[str, int]]:
 
 
 def test_bag_play_puts_a_ros2_recording_back_on_the_ros2_wire(tmp_path: Path) -> None:
-    domain = 100 + secrets.randbelow(100)
+    domain = fresh_domain()
     T = {n: ros2_type(n) for n in (POSE, IMU)}
     out = tmp_path / "ros2.mcap"
     r = record_ros2_talker(out, domain, 3)
@@ -166,7 +165,7 @@ def _write_rosbag2_file(path: Path, probes: list[Any], *, bad_channels: bool) ->
 
 
 def test_bag_play_learns_an_unknown_type_from_a_rosbag2_schema(tmp_path: Path) -> None:
-    domain = 100 + secrets.randbelow(100)
+    domain = fresh_domain()
     load_ros2_msg(INNER_TEXT, "zr_bagplay/msg/Inner")
     Probe = load_ros2_msg(PROBE_TEXT.replace("zr_bagplay/Inner", "zr_bagplay/msg/Inner"), "zr_bagplay/msg/Probe")
     Inner, Header, Time = (ros2_type(n) for n in ("zr_bagplay/msg/Inner", "std_msgs/msg/Header",
@@ -221,7 +220,7 @@ def test_bag_play_of_nothing_playable_is_an_error(tmp_path: Path) -> None:
 def test_bag_player_loops_a_ros2_channel_as_new_samples_and_names_each_bad_channel_once(tmp_path: Path) -> None:
     from zenoh_robot.tools.bag.play import BagPlayer
 
-    domain = 100 + secrets.randbelow(100)
+    domain = fresh_domain()
     load_ros2_msg(INNER_TEXT, "zr_bagplay/msg/Inner")
     Probe = load_ros2_msg(PROBE_TEXT.replace("zr_bagplay/Inner", "zr_bagplay/msg/Inner"), "zr_bagplay/msg/Probe")
     Header = ros2_type("std_msgs/msg/Header")

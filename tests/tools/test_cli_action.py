@@ -3,12 +3,11 @@ process: on the envelope wire (the module's talker), and on the ROS 2 wire throu
 """
 from __future__ import annotations
 
-import random
 import re
 import subprocess
 
 from cli_helpers import cli
-from conftest import Lines, kill_process, python_proc
+from conftest import Lines, fresh_domain, kill_process, python_proc
 from ros2_peer import router as ros2_router
 
 SERVER = r"""
@@ -101,7 +100,7 @@ def test_node_info_shows_actions_not_their_parts(talker: str) -> None:
 
 
 def test_action_commands_on_the_ros2_wire() -> None:
-    domain = random.randint(1, 200)
+    domain = fresh_domain()
     with ros2_router() as port:
         proc = python_proc("-c", SERVER, "ros", str(port), str(domain))
         try:

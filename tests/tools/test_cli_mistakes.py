@@ -8,11 +8,13 @@ import subprocess
 import sys
 import time
 
+from conftest import fresh_domain
+
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 
 def test_a_second_companion_with_the_same_id_is_one_line_and_exit_1() -> None:
-    env = dict(os.environ, ZR_DOMAIN=str(100 + secrets.randbelow(100)), PYTHONUNBUFFERED="1")
+    env = dict(os.environ, ZR_DOMAIN=str(fresh_domain()), PYTHONUNBUFFERED="1")
     drone = f"d{secrets.token_hex(3)}"
     cmd = [sys.executable, "-m", "companion", "--id", drone, "--px4", "sim", "--camera", "none"]
     first = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)

@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from conftest import kill_process, wait_for
+from conftest import fresh_domain, kill_process, wait_for
 from ros2_peer import router
 
 from zenoh_robot import Node
@@ -39,7 +39,7 @@ def _cli(*args: str) -> subprocess.CompletedProcess[str]:
 @pytest.mark.parametrize("ros2", [False, True], ids=["envelope", "ros2"])
 def test_topic_pub_is_listed_and_found_by_info(ros2: bool) -> None:
     topic = f"/pub_{secrets.token_hex(3)}/chatter"
-    domain = 1 + secrets.randbelow(200) if ros2 else None
+    domain = fresh_domain() if ros2 else None
     type_name = "std_msgs/msg/String" if ros2 else "std_msgs/String"
     with router() as port:
         flags = _flags(port, domain)

@@ -8,11 +8,10 @@ alone (an empty typestore), as Foxglove does.
 from __future__ import annotations
 
 import asyncio
-import secrets
 import threading
 from typing import Any
 
-from conftest import free_port, python_proc, stop_process
+from conftest import free_port, fresh_domain, python_proc, stop_process
 from foxglove_client import watch
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
@@ -45,7 +44,7 @@ def _decode(channel: dict[str, Any], payload: bytes) -> Any:
 
 
 def test_bridge_shows_ros2_topics_as_cdr_channels_with_ros2msg_schemas() -> None:
-    domain = 100 + secrets.randbelow(100)
+    domain = fresh_domain()
     port, ws_port = free_port(), free_port()
     config = SessionConfig(listen=[f"tcp/127.0.0.1:{port}"], multicast_scouting=False, shared_memory=False)
     stop = threading.Event()

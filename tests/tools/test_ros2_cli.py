@@ -8,13 +8,12 @@ zenoh-ros2-sdk would fetch .msg files from GitHub; the peer is handed the defini
 """
 from __future__ import annotations
 
-import secrets
 import subprocess
 from collections.abc import Iterator
 
 import pytest
 from cli_helpers import cli
-from conftest import kill_process, wait_for
+from conftest import fresh_domain, kill_process, wait_for
 from ros2_peer import PEER_PRELUDE, Peer, router, start_peer, write_msgs
 
 STRING = "std_msgs/msg/String"
@@ -43,7 +42,7 @@ def peer(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[int, int, P
     """(router port, ROS domain, the zenoh-ros2-sdk peer)."""
     root = write_msgs(tmp_path_factory.mktemp("msgs"), [STRING])
     with router() as port:
-        domain = 1 + secrets.randbelow(200)
+        domain = fresh_domain()
         p = start_peer(PEER, str(root), str(port), str(domain))
         try:
             assert wait_for(lambda: p.find("ready"), 30.0), "".join(p.raw)[-3000:]

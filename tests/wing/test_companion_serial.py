@@ -5,14 +5,13 @@ from __future__ import annotations
 
 import json
 import os
-import secrets
 import subprocess
 import sys
 import threading
 from pathlib import Path
 
 import pytest
-from conftest import python_proc, stop_process, wait_for
+from conftest import fresh_domain, python_proc, stop_process, wait_for
 from pty_px4 import PtyWire
 
 from drone_contract.messages import Command, CommandResult, FailsafeEvent, VehicleState
@@ -30,7 +29,7 @@ QOS = stream_profile("resilient").qos
 def own_domain(monkeypatch: pytest.MonkeyPatch) -> None:
     """This module's processes (nodes ``companion``, ``gcs``) in a Zenoh domain of their own: a
     companion or GCS of a test running beside them would make one refuse to start."""
-    monkeypatch.setenv("ZR_DOMAIN", str(1 + secrets.randbelow(232)))
+    monkeypatch.setenv("ZR_DOMAIN", str(fresh_domain()))
 
 
 class Observer:

@@ -8,12 +8,11 @@ from __future__ import annotations
 
 import math
 import os
-import secrets
 import subprocess
 import sys
 from pathlib import Path
 
-from conftest import ROOT, kill_process, stop_process, wait_for
+from conftest import ROOT, fresh_domain, kill_process, stop_process, wait_for
 from ros2_peer import router, start_peer, write_msgs
 
 from zenoh_robot.frames import enu_quaternion, frd_to_flu, ned_to_enu
@@ -67,14 +66,14 @@ def test_frames_follow_rep_103() -> None:
 
 def test_a_ros2_peer_receives_the_companions_pose_and_imu(tmp_path: Path) -> None:
     msgs = write_msgs(tmp_path / "msgs", ["geometry_msgs/msg/PoseStamped", "sensor_msgs/msg/Imu"])
-    domain = 100 + secrets.randbelow(100)
+    domain = fresh_domain()
     with router() as port:
         companion = subprocess.Popen(
             [sys.executable, "-m", "companion", "--id", DRONE, "--px4", "sim", "--profile", "reliable",
              "--ros2-topics", "--ros-domain-id", str(domain), "--camera", "none", "--no-topic-statistics",
              "-e", f"tcp/127.0.0.1:{port}", "-l", "tcp/127.0.0.1:0"],
             cwd=ROOT, text=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-            env={**os.environ, "PYTHONUNBUFFERED": "1", "ZR_DOMAIN": str(1 + secrets.randbelow(99)),
+            env={**os.environ, "PYTHONUNBUFFERED": "1", "ZR_DOMAIN": str(fresh_domain()),
                  "ZENOH_CONFIG_OVERRIDE": "scouting/multicast/enabled=false"})
         peer = start_peer(PEER, str(msgs), str(port), str(domain), DRONE)
         try:

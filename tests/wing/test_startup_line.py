@@ -6,11 +6,10 @@ Real processes: the companion (built-in simulator), the GCS and `gcs cmd`, each 
 """
 from __future__ import annotations
 
-import random
 import subprocess
 from pathlib import Path
 
-from conftest import python_proc
+from conftest import fresh_domain, python_proc
 
 from drone_contract.link_protection import UNAUTHENTICATED, reaches_network, startup_line
 from zenoh_robot import SessionConfig
@@ -37,7 +36,7 @@ def _protection_lines(out: str) -> list[str]:
 
 
 def test_default_profile_says_once_that_commands_are_unauthenticated():
-    domain = str(random.randint(100, 232))
+    domain = str(fresh_domain())
     for name, out in _outputs(_programs("uav1", "--domain", domain)).items():
         lines = _protection_lines(out)
         assert len(lines) == 1, f"{name}: {out}"
@@ -51,7 +50,7 @@ def test_secure_says_which_protection_is_on(tmp_path: Path):
     keys.init_ca(tmp_path)
     keys.issue(tmp_path, "uav1", "drone")
     keys.issue(tmp_path, "gcs", "gcs", drones=["uav1"])
-    domain = str(random.randint(100, 232))
+    domain = str(fresh_domain())
     procs = _programs("uav1", "--domain", domain, "--secure", str(tmp_path))
     # The certificate defaults to the node's id: the companion's is its drone id, the GCS's "gcs".
     for name, out in _outputs(procs).items():
@@ -66,7 +65,7 @@ def test_secure_says_which_protection_is_on(tmp_path: Path):
 def test_a_mission_over_a_network_needs_secure_or_insecure_ok():
     # --connect to another host without --secure: refused before any session opens.
     p = python_proc(*CLI, "gcs", "--drones", "uav1", "--mission", "--no-dashboard", "--duration", "1",
-                    "--connect", "tcp/192.0.2.1:7447", "--domain", str(random.randint(100, 232)))
+                    "--connect", "tcp/192.0.2.1:7447", "--domain", str(fresh_domain()))
     out = p.communicate(timeout=60)[0]
     assert p.returncode == 2, out
     assert "--insecure-ok" in out and "--secure" in out, out
