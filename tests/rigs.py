@@ -182,6 +182,21 @@ def gcs_proc(*args: str) -> subprocess.Popen:
     return python_proc("-m", "gcs", "--no-dashboard", "--gcs-id", OP, *args)
 
 
+def offboard_started(obs: "Observer", gcs: subprocess.Popen, timeout: float = 20.0) -> None:
+    """``obs`` asks ``offboard_start`` until the GCS process's setpoints have reached the drone. If they
+    never do, the failure carries what the GCS printed: why it did not stream (it found another /gcs in
+    the domain, it never heard the drone, ...), which the drone's refusal alone cannot say."""
+    said: list[str] = []
+
+    def start() -> bool:
+        res = obs.command("offboard_start")
+        said.append(res.message)
+        return bool(res.success)
+    if not wait_for(start, timeout, interval=0.5):
+        raise AssertionError(f"offboard_start refused for {timeout:g} s ({said[-2:]}); the GCS printed:\n"
+                             f"{stop_process(gcs)[-3000:]}")
+
+
 class Observer:
     """A test-side node: the drone's state and events, and its command service."""
 

@@ -12,7 +12,7 @@ import threading
 import pytest
 from conftest import python_proc, stop_process, wait_for
 from px4_helpers import wait_state_armable
-from rigs import OP, Observer, drone
+from rigs import OP, Observer, drone, offboard_started
 
 from zenoh_robot import Node
 
@@ -32,7 +32,7 @@ def test_px4s_topics_stay_on_the_px4_side_and_parameters_are_refused_by_name(ns:
                           "--altitude", "2.5")
         try:
             assert wait_for(lambda: obs.state is not None and obs.state.connected, 20), "no state from the drone"
-            assert wait_for(lambda: obs.command("offboard_start").success, 15, interval=0.5)
+            offboard_started(obs, gcs)
             wait_state_armable(obs)
             assert obs.command("arm").success
             assert wait_for(lambda: sim.mode == "OFFBOARD" and sim.altitude > 1.0, 20), (sim.mode, sim.altitude)

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 from conftest import python_proc, stop_process, wait_for
 from px4_helpers import wait_state_armable
-from rigs import OP, Observer, drone, gcs_proc
+from rigs import OP, Observer, drone, gcs_proc, offboard_started
 
 from zenoh_robot import Node
 
@@ -36,13 +36,7 @@ def test_companion_flies_as_a_px4_external_mode(ns: str) -> None:
         gcs = python_proc("-m", "gcs", "--no-dashboard", "--gcs-id", OP, "--drones", ns, "--pattern", "hover",
                           "--altitude", "2.5")
         try:
-            results: list[str] = []
-
-            def start() -> bool:
-                r = obs.command("offboard_start")
-                results.append(r.message)
-                return bool(r.success)
-            assert wait_for(start, 20, interval=0.5), results[-3:]
+            offboard_started(obs, gcs)
             assert wait_for(lambda: sim.mode == "EXTERNAL1", 5), sim.mode      # the mode, not OFFBOARD
             assert wait_for(lambda: EXT1 not in sim.mode_management.report.cannot_arm, 5), \
                 sim.mode_management.report.cannot_arm
@@ -76,7 +70,7 @@ def test_gcs_loss_holds_first_and_the_check_says_why(ns: str) -> None:
         gcs = python_proc("-m", "gcs", "--no-dashboard", "--gcs-id", OP, "--drones", ns, "--pattern", "hover",
                           "--altitude", "2.5")
         try:
-            assert wait_for(lambda: obs.command("offboard_start").success, 20, interval=0.5)
+            offboard_started(obs, gcs)
             wait_state_armable(obs)
             assert obs.command("arm").success
             assert wait_for(lambda: sim.altitude > 1.0 and sim.mode == "EXTERNAL1", 20), (sim.mode, sim.altitude)

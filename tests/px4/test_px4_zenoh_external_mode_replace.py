@@ -21,7 +21,7 @@ import pytest
 from conftest import python_proc, stop_process, wait_for
 from px4_helpers import QUICK_WARMUP_S, wait_state_armable
 from px4_zenoh_probe import Hover, client_session, probed_sim
-from rigs import OP, QUICK_FLIGHT, Observer
+from rigs import OP, QUICK_FLIGHT, Observer, offboard_started
 
 from px4_link.targets import PositionTarget
 from px4_zenoh import Px4ZenohLink
@@ -140,7 +140,7 @@ def test_companion_replaces_rtl_and_px4_takes_it_back_when_the_companion_dies(ns
         assert not can_set >> RTL & 1 and can_set >> rtl_nav & 1
         g = gcs(ns)
         try:
-            assert wait_for(lambda: obs.command("offboard_start").success, 20, interval=0.5)
+            offboard_started(obs, g)
             wait_state_armable(obs)
             assert obs.command("arm").success
             assert wait_for(lambda: sim.altitude > 2.0, 20), (sim.mode, sim.altitude)
@@ -320,14 +320,7 @@ def test_companion_executor_flies_the_sequence_on_a_fixed_bridge(ns: str, monkey
         try:
             wait_state_armable(obs)
             t0 = time.monotonic()
-            results: list[str] = []
-
-            def start() -> bool:
-                r = obs.command("offboard_start")
-                results.append(r.message)
-                return bool(r.success)
-            # (the GCS's own words say why its setpoints did not come: e.g. it found another /gcs in the domain)
-            assert wait_for(start, 20, interval=0.5), (results[-3:], stop_process(g)[-3000:])
+            offboard_started(obs, g)
             # the executor arms, takes off, and hands the flight to its mode (the GCS's setpoints)
             assert wait_for(lambda: sim.armed and sim.mode == "EXTERNAL1" and "AUTO.TAKEOFF" in mode_changes(sim, t0),
                             40), (sim.mode, mode_changes(sim, t0))

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 from conftest import stop_process, wait_for
 from px4_helpers import assert_no_px4_failsafe, switched_at, wait_state_armable
-from rigs import BACKENDS, OP, SETPOINT_QOS, Observer, drone, gcs_proc, spin
+from rigs import BACKENDS, OP, SETPOINT_QOS, Observer, drone, gcs_proc, offboard_started, spin
 
 from drone_contract.messages import DroneSetpoint
 from zenoh_robot import Node
@@ -62,7 +62,7 @@ def test_gcs_killed_companion_holds_then_resumes(ns: str, backend: str) -> None:
         gcs = gcs_proc("--drones", ns, "--pattern", "hover", "--altitude", "2.5")
         try:
             assert wait_for(lambda: obs.state is not None and obs.state.connected, 20), "no state from the drone"
-            assert wait_for(lambda: obs.command("offboard_start").success, 15, interval=0.5)
+            offboard_started(obs, gcs)
             wait_state_armable(obs)
             assert obs.command("arm").success
             assert wait_for(lambda: sim.mode == "OFFBOARD" and sim.altitude > 1.0, 20)
@@ -80,7 +80,7 @@ def test_gcs_killed_companion_holds_then_resumes(ns: str, backend: str) -> None:
             gcs = gcs_proc("--drones", ns, "--pattern", "hover", "--altitude", "2.5")
             time.sleep(1.0)
             assert sim.mode == "AUTO.LOITER", "resumed without being asked"
-            assert wait_for(lambda: obs.command("offboard_start").success, 15, interval=0.5)
+            offboard_started(obs, gcs)
             assert wait_for(lambda: sim.mode == "OFFBOARD", 5)
         finally:
             stop_process(gcs, 10.0)
