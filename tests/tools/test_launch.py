@@ -75,10 +75,12 @@ def test_sigint_stops_everything_cleanly_including_grandchildren(tmp_path):
         line = proc.stdout.readline()
         seen.append(line)
         text = "".join(seen)
-        if "grandchild pid" in text and re.search(r"^\[b\] +tick", text, re.M):
-            break
+        if not line or "grandchild pid" in text and re.search(r"^\[b\] +tick", text, re.M):
+            break   # (no line: the launch ended)
     text = "".join(seen)
-    grandchild = int(re.search(r"grandchild pid (\d+)", text).group(1))
+    found = re.search(r"grandchild pid (\d+)", text)
+    assert found, f"no grandchild in {time.monotonic() - deadline + 30:.0f} s: {text}"
+    grandchild = int(found.group(1))
     pids = [int(p) for p in re.findall(r"^\[[ab]\] +pid (\d+)", text, re.M)]
     assert len(pids) == 2 and alive(grandchild)
     proc.send_signal(signal.SIGINT)
