@@ -12,7 +12,9 @@ long a drain may hold one). The executor's run lock keeps callbacks one at a tim
 the executor had run it, and the sample skips the wake-up of a second thread (CPU per message and
 p50 latency, docs/benchmarks.md). Never while the executor is busy, never while a caller spins
 with ``until``/``timeout`` or ``spin_once`` (they must see the work they wait for run in their own
-loop), never on a multi-threaded executor.
+loop), never on a multi-threaded executor. A callback run in place that spins the executor itself (a
+nested spin, waiting for another callback) lets go of the run lock while it spins: the executor's own
+thread may hold the work it waits for (``_pause_in_place``).
 """
 from __future__ import annotations
 
@@ -25,6 +27,7 @@ import time
 from collections.abc import Callable
 
 log = logging.getLogger("zenoh_robot.executor")
+_get_ident = threading.get_ident
 
 Work = Callable[[], None]
 # How long a free-running spin with nothing to do sleeps before it looks again; nothing needs the look
@@ -81,6 +84,9 @@ class Executor:
         self._run_lock = threading.RLock()
         # Free-running spins blocked waiting for work: a hint read without a lock; the run lock decides.
         self._idle_free = 0
+        # The thread running work in place now (its ident), 0 when none: a spin on that thread is a nested
+        # spin of a paused callback (see _pause_in_place).
+        self._in_place_thread = 0
         self.dropped_calls = 0
         self.errors = 0
         self.ran_in_place = 0
@@ -124,7 +130,7 @@ class Executor:
         except BaseException as exc:
             self.raise_in_spin(exc)
         finally:
-            self._run_lock.release()
+            self.leave_in_place()
         return True
 
     def raise_in_spin(self, exc: BaseException) -> None:
@@ -142,11 +148,29 @@ class Executor:
         if self._idle_free <= 0 or self._shutdown.is_set():
             self._run_lock.release()
             return False
+        self._in_place_thread = _get_ident()
         self.ran_in_place += 1
         return True
 
     def leave_in_place(self) -> None:
+        self._in_place_thread = 0
         self._run_lock.release()
+
+    def _pause_in_place(self) -> bool:
+        """A callback run in place spins the executor (a nested spin, to wait for another callback's work):
+        let go of the run lock while it spins, so that the executor's own thread, which may already have
+        taken that work, can run it. Otherwise that thread would wait for the lock the paused callback holds
+        and the nested spin for that work, until its timeout. Callbacks stay one at a time: every one
+        runs under the lock, and the paused callback takes it back before its spin returns."""
+        if self._in_place_thread != _get_ident():
+            return False
+        self._in_place_thread = 0
+        self._run_lock.release()
+        return True
+
+    def _resume_in_place(self) -> None:
+        self._run_lock.acquire()
+        self._in_place_thread = _get_ident()
 
     def shutdown(self) -> None:
         self._shutdown.set()
@@ -189,7 +213,12 @@ class Executor:
 
     def spin_once(self, timeout: float | None = None) -> bool:
         """Run one piece of ready work (a timer or an entity's queue); False if none came."""
-        return self._spin_once(timeout, False)
+        paused = self._pause_in_place()
+        try:
+            return self._spin_once(timeout, False)
+        finally:
+            if paused:
+                self._resume_in_place()
 
     def _spin_once(self, timeout: float | None, free: bool) -> bool:
         wait = self._next_due - time.monotonic()
@@ -230,6 +259,7 @@ class Executor:
         # thread costs ~0.15 ms of CPU here (measured: an idle node's 10 wake-ups a second were 1.4 ms/s,
         # raw zenoh-python's idle session 0.01 ms/s, docs/benchmarks.md).
         poll = FREE_SPIN_WAIT_S if free else 0.1
+        paused = self._pause_in_place()
         try:
             while not self._shutdown.is_set():
                 if until is not None and until():
@@ -243,6 +273,8 @@ class Executor:
         finally:
             if self._shutdown.is_set():
                 self._ready.put(None)   # shutdown's one wake-up, handed on to the next spinning thread
+            if paused:
+                self._resume_in_place()
 
     # A multi-threaded executor's callbacks run concurrently: there the run lock would serialise them.
     _in_place_allowed = True

@@ -158,3 +158,41 @@ def test_a_system_exit_raised_in_place_ends_the_spin_and_the_subscription_goes_o
         pub.publish(Setpoint())
         assert b.spin_until(lambda: len(where) == 2, 10.0), sub.counters    # not stuck "scheduled"
         assert sub.counters.delivered == 1 and sub.counters.internal_errors == 0
+
+
+def test_a_callback_run_in_place_that_spins_sees_the_callbacks_it_waits_for(ns: str) -> None:
+    # A callback that spins the node until another topic's callback has run (rclpy users do this with a
+    # nested spin): run in place, its spin must let that callback run, as the executor's own thread would
+    # (there the nested spin runs it). Before, the node's spinning thread took the other callback's work
+    # and then waited for the run lock the paused callback held: the nested spin ran out its timeout.
+    with linked_nodes(ns) as (a, b):
+        answers: list[int] = []
+        waited: list[tuple[str, bool, float]] = []
+        overlaps: list[int] = []
+        inside: list[int] = []
+
+        def on_answer(m: Setpoint) -> None:
+            if inside:
+                overlaps.append(len(inside))
+            answers.append(1)
+
+        def on_ask(m: Setpoint) -> None:
+            t0 = time.monotonic()
+            heard = len(answers)
+            got = b.spin_until(lambda: len(answers) > heard, 3.0)
+            waited.append((threading.current_thread().name, got, time.monotonic() - t0))
+        b.create_subscription(Setpoint, "ask", on_ask, QoSProfile(depth=10))
+        b.create_subscription(Setpoint, "answer", on_answer, QoSProfile(depth=10))
+        ask = a.create_publisher(Setpoint, "ask", QoSProfile(depth=10))
+        answer = a.create_publisher(Setpoint, "answer", QoSProfile(depth=10))
+        with _spinning(b):
+            time.sleep(0.3)
+            for i in range(5):
+                ask.publish(Setpoint())
+                time.sleep(0.05)
+                answer.publish(Setpoint())
+                assert _wait(lambda n=i + 1: len(waited) == n, 5.0), (waited, answers)
+                time.sleep(0.05)
+        assert len(waited) == 5 and all(got for _, got, _ in waited), waited
+        assert b.executor.ran_in_place > 0 and any(name != SPIN for name, _, _ in waited), waited
+        assert not overlaps
