@@ -168,19 +168,29 @@ def test_a_callback_run_in_place_that_spins_sees_the_callbacks_it_waits_for(ns: 
     with linked_nodes(ns) as (a, b):
         answers: list[int] = []
         waited: list[tuple[str, bool, float]] = []
-        overlaps: list[int] = []
-        inside: list[int] = []
+        running: list[str] = []      # the callback running now, outside a nested spin
+        overlaps: list[str] = []
+
+        def enter(name: str) -> None:
+            if running:
+                overlaps.append(f"{name} while {running[-1]}")
+            running.append(name)
 
         def on_answer(m: Setpoint) -> None:
-            if inside:
-                overlaps.append(len(inside))
+            enter("answer")
             answers.append(1)
+            time.sleep(0.005)     # the paused callback must not take the lock back meanwhile
+            running.pop()
 
         def on_ask(m: Setpoint) -> None:
+            enter("ask")
             t0 = time.monotonic()
             heard = len(answers)
+            running.pop()         # paused: other callbacks may run in its nested spin
             got = b.spin_until(lambda: len(answers) > heard, 3.0)
+            enter("ask, back from its spin")
             waited.append((threading.current_thread().name, got, time.monotonic() - t0))
+            running.pop()
         b.create_subscription(Setpoint, "ask", on_ask, QoSProfile(depth=10))
         b.create_subscription(Setpoint, "answer", on_answer, QoSProfile(depth=10))
         ask = a.create_publisher(Setpoint, "ask", QoSProfile(depth=10))
@@ -195,4 +205,4 @@ def test_a_callback_run_in_place_that_spins_sees_the_callbacks_it_waits_for(ns: 
                 time.sleep(0.05)
         assert len(waited) == 5 and all(got for _, got, _ in waited), waited
         assert b.executor.ran_in_place > 0 and any(name != SPIN for name, _, _ in waited), waited
-        assert not overlaps
+        assert not overlaps, overlaps
